@@ -1,0 +1,38 @@
+//! Traits for what embedded-hal 1.0 does not cover.
+//!
+//! embedded-hal 1.0 has no timer, watchdog or serial traits. The control logic needs
+//! exactly four such things and no more; the board implements them in `src/board.rs`,
+//! the simulator in `hil-sim`.
+
+/// A monotonic clock that never goes backwards, in microseconds since boot.
+pub trait Monotonic {
+    /// Current time, µs since boot. Must be non-decreasing.
+    fn now_us(&mut self) -> u64;
+}
+
+/// The independent watchdog. Feed it only from a healthy control loop.
+pub trait Watchdog {
+    /// Reload the watchdog counter.
+    fn feed(&mut self);
+}
+
+/// Step-pulse generator of a step/dir driver (a timer on the board).
+///
+/// The direction and enable lines are ordinary `OutputPin`s owned by the driver in
+/// [`crate`]; this trait only produces pulses at a rate and counts them.
+pub trait StepPulses {
+    /// Emit step pulses at `rate_hz` (0 stops the pulse train).
+    fn set_rate_hz(&mut self, rate_hz: u32);
+    /// Number of pulses emitted since the previous call.
+    fn take_pulses(&mut self) -> u32;
+}
+
+/// A byte stream to a technician's serial terminal (a USART on the board).
+pub trait ConsoleIo {
+    /// Next received byte, `WouldBlock` when none is waiting. Receive errors
+    /// (framing, overrun, noise) are reported as `Err(Other(()))` and the byte dropped.
+    fn read_byte(&mut self) -> nb::Result<u8, ()>;
+    /// Queue bytes for transmission; returns how many were taken (never blocks: a
+    /// full transmit buffer drops the rest rather than stalling the control loop).
+    fn write(&mut self, bytes: &[u8]) -> usize;
+}

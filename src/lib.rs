@@ -1,0 +1,36 @@
+//! # docking-controller — control logic of the automatic connector docking controller
+//!
+//! This library is the whole control loop of the docking controller, written `no_std`
+//! and hardware-free so that the same code runs on the STM32F407 board (`src/main.rs`,
+//! `src/board.rs`) and on the host against the simulated HAL in `hil-sim`.
+//!
+//! It talks to hardware only through traits: embedded-hal 1.0 (`OutputPin`, `InputPin`,
+//! `DelayNs`), `embedded-storage`'s `NorFlash`, and the small traits in [`hal`] for what
+//! embedded-hal 1.0 does not cover (monotonic clock, watchdog, step-pulse generator,
+//! console byte stream).
+//!
+//! The physics (machine, four contact phases, the Eq. 7 force profile, the wear model)
+//! is restated from He et al., *Polymers* 2025, 17, 2091 in
+//! `../shared/reference/guide-cone-wear.md`; [`profile`] implements Eq. 7.
+//!
+//! Units are in names: `_um` micrometres, `_mn` millinewtons, `_us` microseconds,
+//! `_steps` motor steps. Fixed-point formats are stated where they are defined.
+#![no_std]
+#![forbid(unsafe_code)]
+// Firmware paths must not panic on input (tests may).
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::indexing_slicing,
+        clippy::panic,
+        clippy::unwrap_used,
+        clippy::expect_used
+    )
+)]
+
+#[macro_use]
+mod fmt;
+
+pub mod config;
+pub mod hal;
+pub mod profile;
