@@ -1,0 +1,248 @@
+//! Board layer for the STM32F407VGTx (thin: pins, clocks, peripherals, fault handlers).
+//!
+//! Pin map (documented in the README):
+//!
+//! | signal | pin | safe (disabled) level |
+//! |---|---|---|
+//! | propulsion STEP | PE9 | low |
+//! | propulsion DIR | PE10 | — |
+//! | propulsion EN (active low) | PE11 | **high** (driver off) |
+//! | lock motor IN1 (toward locked) | PD12 | **low** |
+//! | lock motor IN2 (toward released) | PD13 | **low** |
+//! | home / end switch (active low) | PC0 / PC1 | input, pull-up |
+//! | lock locked / released switch (active low) | PC2 / PC3 | input, pull-up |
+//! | HX711 DOUT / PD_SCK | PB0 / PB1 | input pull-up / low |
+//! | console USART2 TX / RX | PA2 / PA3 | 115200 8N1 |
+//!
+//! Step pulses come from a SysTick interrupt at 20 kHz (a phase accumulator, i.e. DDS):
+//! the step rates this machine needs are ≤ 4 kHz, SysTick needs no PAC-specific timer
+//! code, and the panic/fault path can stop it with one register write.
+
+use core::cell::RefCell;
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use cortex_m::interrupt::Mutex;
+use cortex_m::peripheral::syst::SystClkSource;
+use cortex_m_rt::{entry, exception, ExceptionFrame};
+use defmt_rtt as _;
+use docking_controller::hal::{Monotonic, StepPulses, Watchdog};
+use stm32f4xx_hal::{
+    gpio::{Output, PinState, PE9},
+    pac,
+    prelude::*,
+    rcc::Config,
+    watchdog::IndependentWatchdog,
+};
+
+/// Core clock, Hz (HSE 8 MHz → PLL → 168 MHz).
+const SYSCLK_HZ: u32 = 168_000_000;
+/// Step-pulse interrupt rate, Hz.
+const STEP_TICK_HZ: u32 = 20_000;
+/// Independent watchdog period, ms (the control loop runs at ≥ 10 Hz).
+const WATCHDOG_MS: u32 = 500;
+
+// --- Safe state, by raw register writes (RM0090 §7.4, §8.4) ------------------------
+// Used first thing at boot and from the panic and HardFault handlers, where the HAL's
+// pin objects are out of reach or the HAL's state cannot be trusted.
+const RCC_AHB1ENR: *mut u32 = 0x4002_3830 as *mut u32;
+const GPIOD_BASE: usize = 0x4002_0C00;
+const GPIOE_BASE: usize = 0x4002_1000;
+const MODER: usize = 0x00;
+const BSRR: usize = 0x18;
+const SYST_CSR: *mut u32 = 0xE000_E010 as *mut u32;
+
+/// Drive every motor output to its safe (disabled) state: stop step pulses, propulsion
+/// EN (PE11) high, STEP (PE9) low, lock IN1/IN2 (PD12/PD13) low. Idempotent, needs no
+/// HAL object, safe to call from any context.
+pub fn force_safe_outputs() {
+    // SAFETY: fixed, documented MMIO addresses of this chip; the writes only set the
+    // motor pins' output level and mode and stop SysTick, which is what every caller
+    // wants, whatever the HAL believes about them.
+    unsafe {
+        core::ptr::write_volatile(SYST_CSR, 0); // stop the step-pulse tick
+        let en = core::ptr::read_volatile(RCC_AHB1ENR);
+        core::ptr::write_volatile(RCC_AHB1ENR, en | (1 << 3) | (1 << 4)); // GPIOD, GPIOE clocks
+                                                                          // Levels first (BSRR), then mode, so the pin never drives the wrong level.
+        core::ptr::write_volatile((GPIOE_BASE + BSRR) as *mut u32, (1 << 11) | (1 << (9 + 16)));
+        core::ptr::write_volatile(
+            (GPIOD_BASE + BSRR) as *mut u32,
+            (1 << (12 + 16)) | (1 << (13 + 16)),
+        );
+        let moder_e = (GPIOE_BASE + MODER) as *mut u32;
+        let m = core::ptr::read_volatile(moder_e) & !((0b11 << 18) | (0b11 << 22));
+        core::ptr::write_volatile(moder_e, m | (0b01 << 18) | (0b01 << 22));
+        let moder_d = (GPIOD_BASE + MODER) as *mut u32;
+        let m = core::ptr::read_volatile(moder_d) & !((0b11 << 24) | (0b11 << 26));
+        core::ptr::write_volatile(moder_d, m | (0b01 << 24) | (0b01 << 26));
+    }
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    // panic-probe would report first and has no hook to run before it; motors must be
+    // safe before anything that can itself fail, so this handler is ours.
+    force_safe_outputs();
+    defmt::error!("panic: {}", defmt::Display2Format(info));
+    // Hand over to the debugger / HardFault like panic-probe does.
+    cortex_m::asm::udf()
+}
+
+#[exception]
+unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
+    force_safe_outputs();
+    defmt::error!("HardFault at pc={=u32:#x}", frame.pc());
+    loop {
+        // With a probe attached this stops the session; without one, the IWDG resets.
+        cortex_m::asm::bkpt();
+    }
+}
+
+defmt::timestamp!("{=u64:us}", {
+    // Timestamp from the DWT cycle counter (wraps every 25 s; good enough for logs).
+    (cortex_m::peripheral::DWT::cycle_count() / (SYSCLK_HZ / 1_000_000)) as u64
+});
+
+// --- Step pulses: SysTick DDS ----------------------------------------------------------
+
+struct StepGen {
+    pin: PE9<Output>,
+    phase: u32,
+    increment: u32,
+    pin_high: bool,
+}
+
+static STEP_GEN: Mutex<RefCell<Option<StepGen>>> = Mutex::new(RefCell::new(None));
+static STEP_COUNT: AtomicU32 = AtomicU32::new(0);
+
+#[exception]
+fn SysTick() {
+    cortex_m::interrupt::free(|cs| {
+        if let Some(g) = STEP_GEN.borrow(cs).borrow_mut().as_mut() {
+            if g.pin_high {
+                g.pin.set_low();
+                g.pin_high = false;
+            }
+            let (next, overflow) = g.phase.overflowing_add(g.increment);
+            g.phase = next;
+            if overflow {
+                g.pin.set_high();
+                g.pin_high = true;
+                STEP_COUNT.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    });
+}
+
+/// Handle to the SysTick step generator.
+pub struct BoardStepPulses;
+
+impl StepPulses for BoardStepPulses {
+    fn set_rate_hz(&mut self, rate_hz: u32) {
+        // increment = rate / tick · 2^32; rates are capped below the tick rate / 2.
+        let rate = rate_hz.min(STEP_TICK_HZ / 2) as u64;
+        let inc = ((rate << 32) / STEP_TICK_HZ as u64) as u32;
+        cortex_m::interrupt::free(|cs| {
+            if let Some(g) = STEP_GEN.borrow(cs).borrow_mut().as_mut() {
+                g.increment = inc;
+            }
+        });
+    }
+
+    fn take_pulses(&mut self) -> u32 {
+        STEP_COUNT.swap(0, Ordering::Relaxed)
+    }
+}
+
+/// Monotonic µs clock from the DWT cycle counter, extended to 64 bits (must be read at
+/// least every 25 s; the control loop reads it every iteration).
+pub struct BoardClock {
+    last: u32,
+    high: u64,
+}
+
+impl Monotonic for BoardClock {
+    fn now_us(&mut self) -> u64 {
+        let now = cortex_m::peripheral::DWT::cycle_count();
+        if now < self.last {
+            self.high += 1 << 32;
+        }
+        self.last = now;
+        (self.high | now as u64) / (SYSCLK_HZ / 1_000_000) as u64
+    }
+}
+
+/// The independent watchdog, fed only by a healthy control loop.
+pub struct BoardWatchdog(IndependentWatchdog);
+
+impl Watchdog for BoardWatchdog {
+    fn feed(&mut self) {
+        self.0.feed();
+    }
+}
+
+#[entry]
+fn main() -> ! {
+    // 1. Motors safe before anything else, before clocks.
+    force_safe_outputs();
+
+    let (Some(dp), Some(mut cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
+        // Unreachable at reset; stay safe and let the watchdog (if any) reset us.
+        loop {
+            cortex_m::asm::wfi();
+        }
+    };
+
+    // 2. Clocks.
+    let mut rcc = dp.RCC.freeze(Config::hse(8.MHz()).sysclk(SYSCLK_HZ.Hz()));
+    cp.DCB.enable_trace();
+    cp.DWT.enable_cycle_counter();
+
+    // 3. Pins, motor outputs created in their safe level (no glitch).
+    let gpiob = dp.GPIOB.split(&mut rcc);
+    let gpioc = dp.GPIOC.split(&mut rcc);
+    let gpiod = dp.GPIOD.split(&mut rcc);
+    let gpioe = dp.GPIOE.split(&mut rcc);
+    let step = gpioe.pe9.into_push_pull_output_in_state(PinState::Low);
+    let _dir = gpioe.pe10.into_push_pull_output_in_state(PinState::Low);
+    let _en_n = gpioe.pe11.into_push_pull_output_in_state(PinState::High);
+    let _lock_in1 = gpiod.pd12.into_push_pull_output_in_state(PinState::Low);
+    let _lock_in2 = gpiod.pd13.into_push_pull_output_in_state(PinState::Low);
+    let _home = gpioc.pc0.into_pull_up_input();
+    let _end = gpioc.pc1.into_pull_up_input();
+    let _locked = gpioc.pc2.into_pull_up_input();
+    let _released = gpioc.pc3.into_pull_up_input();
+    let _hx_dout = gpiob.pb0.into_pull_up_input();
+    let _hx_sck = gpiob.pb1.into_push_pull_output_in_state(PinState::Low);
+
+    cortex_m::interrupt::free(|cs| {
+        STEP_GEN.borrow(cs).replace(Some(StepGen {
+            pin: step,
+            phase: 0,
+            increment: 0,
+            pin_high: false,
+        }));
+    });
+    cp.SYST.set_clock_source(SystClkSource::Core);
+    cp.SYST.set_reload(SYSCLK_HZ / STEP_TICK_HZ - 1);
+    cp.SYST.clear_current();
+    cp.SYST.enable_interrupt();
+    cp.SYST.enable_counter();
+    let mut pulses = BoardStepPulses;
+    pulses.set_rate_hz(0);
+
+    let mut clock = BoardClock { last: 0, high: 0 };
+    let mut iwdg = IndependentWatchdog::new(dp.IWDG);
+    iwdg.start(WATCHDOG_MS.millis());
+    let mut watchdog = BoardWatchdog(iwdg);
+
+    defmt::info!(
+        "docking-controller {} booted; motors safe",
+        env!("CARGO_PKG_VERSION")
+    );
+
+    // 4. Control loop skeleton: the sequencer, guard and odometer plug in here.
+    loop {
+        let _now_us = clock.now_us();
+        watchdog.feed();
+    }
+}

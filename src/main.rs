@@ -1,0 +1,20 @@
+//! Firmware entry point for the STM32F407VGTx controller board.
+//!
+//! The control logic is the `docking_controller` library; this binary is the thin board
+//! layer (`board.rs`): safe outputs, clocks, pins, drivers, and the control loop. It is
+//! compiled only for `target_os = "none"`; on the host the binary is a stub that says so.
+#![cfg_attr(target_os = "none", no_std)]
+#![cfg_attr(target_os = "none", no_main)]
+#![deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing)]
+
+#[cfg(target_os = "none")]
+mod board;
+
+#[cfg(not(target_os = "none"))]
+fn main() {
+    eprintln!(
+        "docking-controller is firmware for thumbv7em-none-eabihf: flash it with `cargo board` \
+         (see README); on the host run `cargo run --release -p hil-sim -- scene nominal`"
+    );
+    std::process::exit(2);
+}
