@@ -1,0 +1,247 @@
+//! Simulated NOR flash with STM32F4 semantics, for the odometer's sectors.
+//!
+//! * Erased bytes read `0xFF`; programming can only clear bits (the stored value is
+//!   `old & new`); programming a byte twice with different bits is allowed (the F4
+//!   permits it, the result is the AND), like `MultiwriteNorFlash`.
+//! * Writes are `WRITE_SIZE` = 4 bytes, aligned (the F4 at 2.7–3.6 V programs 32-bit
+//!   words); reads are byte-granular. Erase is per sector (`ERASE_SIZE`).
+//! * Every sector counts its erases (endurance: 10 000 on the F4).
+//! * **Power-cut injection**: [`SimFlash::cut_after_bytes`] lets the next N programmed
+//!   bytes through, then "cuts the power": the byte in flight is left half-programmed
+//!   (some of its bits cleared), nothing after it is written, and every later operation
+//!   fails with [`SimFlashError::PowerLost`] until [`SimFlash::power_on`]. An erase that
+//!   is cut leaves its sector partly erased: the first half reads 0xFF, the rest keeps
+//!   old data. An erase costs one unit of the budget.
+
+use embedded_storage::nor_flash::{
+    ErrorType, MultiwriteNorFlash, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
+};
+
+/// Sector size of the STM32F407's sectors 5–11, bytes.
+pub const SECTOR_SIZE: usize = 128 * 1024;
+
+/// Errors of the simulated flash.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SimFlashError {
+    /// Offset or length not aligned to `WRITE_SIZE` / `ERASE_SIZE`.
+    NotAligned,
+    /// Range outside the flash.
+    OutOfBounds,
+    /// Power was cut; nothing works until `power_on`.
+    PowerLost,
+}
+
+impl NorFlashError for SimFlashError {
+    fn kind(&self) -> NorFlashErrorKind {
+        match self {
+            Self::NotAligned => NorFlashErrorKind::NotAligned,
+            Self::OutOfBounds => NorFlashErrorKind::OutOfBounds,
+            Self::PowerLost => NorFlashErrorKind::Other,
+        }
+    }
+}
+
+/// The simulated flash region.
+#[derive(Clone, Debug)]
+pub struct SimFlash {
+    mem: Vec<u8>,
+    sector_size: usize,
+    erase_counts: Vec<u32>,
+    /// Bytes (and erases) still allowed before the cut; `None` = no cut armed.
+    budget: Option<u64>,
+    powered: bool,
+    bytes_written: u64,
+}
+
+impl SimFlash {
+    /// `sectors` erased sectors of `sector_size` bytes.
+    pub fn new(sectors: usize, sector_size: usize) -> Self {
+        Self {
+            mem: vec![0xFF; sectors * sector_size],
+            sector_size,
+            erase_counts: vec![0; sectors],
+            budget: None,
+            powered: true,
+            bytes_written: 0,
+        }
+    }
+
+    /// The odometer's region on the STM32F407: sectors 10 and 11, 2 × 128 KiB.
+    pub fn stm32f407_odometer() -> Self {
+        Self::new(2, SECTOR_SIZE)
+    }
+
+    /// Erases of each sector so far.
+    pub fn erase_counts(&self) -> &[u32] {
+        &self.erase_counts
+    }
+
+    /// Bytes programmed so far.
+    pub fn bytes_written(&self) -> u64 {
+        self.bytes_written
+    }
+
+    /// Arm a power cut after `n` more programmed bytes (an erase counts as one).
+    pub fn cut_after_bytes(&mut self, n: u64) {
+        self.budget = Some(n);
+    }
+
+    /// Whether the power has been cut.
+    pub fn power_lost(&self) -> bool {
+        !self.powered
+    }
+
+    /// Restore power (a reboot); disarms any pending cut.
+    pub fn power_on(&mut self) {
+        self.powered = true;
+        self.budget = None;
+    }
+
+    /// Flip bits of stored bytes (radiation, retention loss): `mem[off] ^= mask`.
+    pub fn corrupt(&mut self, offset: usize, mask: u8) {
+        if let Some(b) = self.mem.get_mut(offset) {
+            *b ^= mask;
+        }
+    }
+
+    /// Raw contents (for tests).
+    pub fn contents(&self) -> &[u8] {
+        &self.mem
+    }
+
+    fn check(&self, offset: u32, len: usize, align: usize) -> Result<(), SimFlashError> {
+        if !self.powered {
+            return Err(SimFlashError::PowerLost);
+        }
+        if offset as usize % align != 0 || len % align != 0 {
+            return Err(SimFlashError::NotAligned);
+        }
+        if offset as usize + len > self.mem.len() {
+            return Err(SimFlashError::OutOfBounds);
+        }
+        Ok(())
+    }
+
+    /// Take one unit of the power budget; `false` = the power goes now.
+    fn spend(&mut self) -> bool {
+        match &mut self.budget {
+            None => true,
+            Some(0) => {
+                self.powered = false;
+                false
+            }
+            Some(n) => {
+                *n -= 1;
+                true
+            }
+        }
+    }
+}
+
+impl ErrorType for SimFlash {
+    type Error = SimFlashError;
+}
+
+impl ReadNorFlash for SimFlash {
+    const READ_SIZE: usize = 1;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        self.check(offset, bytes.len(), 1)?;
+        let o = offset as usize;
+        bytes.copy_from_slice(&self.mem[o..o + bytes.len()]);
+        Ok(())
+    }
+
+    fn capacity(&self) -> usize {
+        self.mem.len()
+    }
+}
+
+impl NorFlash for SimFlash {
+    const WRITE_SIZE: usize = 4;
+    const ERASE_SIZE: usize = SECTOR_SIZE;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        if to < from {
+            return Err(SimFlashError::OutOfBounds);
+        }
+        self.check(from, (to - from) as usize, self.sector_size)?;
+        for s in (from as usize / self.sector_size)..(to as usize / self.sector_size) {
+            let range = s * self.sector_size..(s + 1) * self.sector_size;
+            if !self.spend() {
+                let half = range.start + self.sector_size / 2;
+                self.mem[range.start..half].fill(0xFF);
+                return Err(SimFlashError::PowerLost);
+            }
+            self.mem[range].fill(0xFF);
+            self.erase_counts[s] += 1;
+        }
+        Ok(())
+    }
+
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        self.check(offset, bytes.len(), Self::WRITE_SIZE)?;
+        for (i, b) in bytes.iter().enumerate() {
+            let o = offset as usize + i;
+            if !self.spend() {
+                // The byte in flight is half-programmed: only its low nibble's zeros land.
+                self.mem[o] &= b | 0xF0;
+                return Err(SimFlashError::PowerLost);
+            }
+            self.mem[o] &= b;
+            self.bytes_written += 1;
+        }
+        Ok(())
+    }
+}
+
+impl MultiwriteNorFlash for SimFlash {}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nor_semantics() {
+        let mut f = SimFlash::new(2, 1024);
+        let mut b = [0u8; 4];
+        f.read(0, &mut b).unwrap();
+        assert_eq!(b, [0xFF; 4]);
+        f.write(0, &[0xF0, 0x0F, 0xAA, 0x55]).unwrap();
+        f.write(0, &[0x3C, 0xFF, 0xFF, 0x00]).unwrap();
+        f.read(0, &mut b).unwrap();
+        assert_eq!(b, [0x30, 0x0F, 0xAA, 0x00], "programming only clears bits");
+        assert_eq!(f.write(2, &[0; 4]), Err(SimFlashError::NotAligned));
+        assert_eq!(f.write(2048, &[0; 4]), Err(SimFlashError::OutOfBounds));
+        f.erase(0, 1024).unwrap();
+        f.read(0, &mut b).unwrap();
+        assert_eq!(b, [0xFF; 4]);
+        assert_eq!(f.erase_counts(), &[1, 0]);
+    }
+
+    #[test]
+    fn power_cut_mid_write_and_mid_erase() {
+        let mut f = SimFlash::new(2, 1024);
+        f.cut_after_bytes(5);
+        assert_eq!(f.write(0, &[0; 8]), Err(SimFlashError::PowerLost));
+        let mut b = [0u8; 8];
+        assert_eq!(f.read(0, &mut b), Err(SimFlashError::PowerLost));
+        f.power_on();
+        f.read(0, &mut b).unwrap();
+        assert_eq!(b, [0, 0, 0, 0, 0, 0xF0, 0xFF, 0xFF]);
+        f.write(1020, &[0x11; 4]).unwrap();
+        f.cut_after_bytes(0);
+        assert_eq!(f.erase(0, 1024), Err(SimFlashError::PowerLost));
+        f.power_on();
+        f.read(0, &mut b).unwrap();
+        assert_eq!(b, [0xFF; 8], "first half erased");
+        let mut tail = [0u8; 4];
+        f.read(1020, &mut tail).unwrap();
+        assert_eq!(tail, [0x11; 4], "second half keeps old data");
+        assert_eq!(
+            f.erase_counts(),
+            &[0, 0],
+            "a cut erase is not counted as done"
+        );
+    }
+}

@@ -1,0 +1,506 @@
+//! A simulated HX711 24-bit load-cell ADC, at pin level, in virtual time.
+//!
+//! Behaviour follows the Avia HX711 datasheet:
+//! * conversions run continuously at the selected rate (10 or 80 SPS on the real part;
+//!   320 SPS is offered as an "HX711-like" faster part); DOUT goes **low** when a
+//!   conversion is ready;
+//! * each PD_SCK rising edge shifts out one bit, MSB first, 24 bits in two's complement;
+//!   after the 24th bit, 1–3 more pulses select the next conversion's channel/gain
+//!   (25: A/128, 26: B/32, 27: A/64) and DOUT returns high;
+//! * PD_SCK held high for more than 60 µs powers the chip down; returning it low resets
+//!   it, and the first conversion after reset is ready only after the settling time
+//!   (4 conversion periods: 400 ms at 10 SPS, 50 ms at 80 SPS);
+//! * outputs saturate at 0x7FFFFF / 0x800000.
+//!
+//! The analogue side is `code = offset + gain · F + noise` with F from a
+//! [`ForceSource`] (the docking profile at the simulated axis position, plus whatever a
+//! scene adds). Faults: a disconnected part (DOUT floats high on its pull-up: never
+//! ready), a saturated bridge (rail code), a stuck converter (the same code forever).
+
+use std::cell::RefCell;
+use std::rc::Rc;
+
+use crate::clock::SimClock;
+use crate::rng::Rng;
+
+/// Largest 24-bit two's-complement code.
+pub const CODE_MAX: i32 = 0x7F_FFFF;
+/// Smallest 24-bit two's-complement code.
+pub const CODE_MIN: i32 = -0x80_0000;
+/// PD_SCK high longer than this powers the part down, ns (datasheet: 60 µs).
+pub const POWER_DOWN_NS: u64 = 60_000;
+
+/// What the load cell measures, N, as a function of virtual time.
+pub trait ForceSource {
+    /// Force on the load cell at `t_ns`, newtons.
+    fn force_n(&mut self, t_ns: u64) -> f64;
+}
+
+impl<F: FnMut(u64) -> f64> ForceSource for F {
+    fn force_n(&mut self, t_ns: u64) -> f64 {
+        self(t_ns)
+    }
+}
+
+/// Injected device faults.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Hx711Fault {
+    /// Working normally.
+    None,
+    /// Wire off: DOUT reads high (pull-up) for ever, so no sample is ever ready.
+    Disconnected,
+    /// Bridge fault: every conversion reads the positive rail.
+    Saturated,
+    /// Converter stuck: every conversion repeats the last code.
+    Stuck,
+}
+
+/// Analogue front end and rate.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hx711Config {
+    /// Output data rate, samples/s (10, 80 or 320).
+    pub rate_sps: u32,
+    /// Code at zero force (bridge offset), counts.
+    pub offset_counts: f64,
+    /// Sensitivity, counts per newton (gain 128).
+    pub counts_per_n: f64,
+    /// RMS noise, counts.
+    pub noise_counts: f64,
+}
+
+impl Hx711Config {
+    /// A 500 N, 2 mV/V cell at 5 V excitation on channel A/128: ≈ 8 590 counts/N,
+    /// rails at ±976 N; offset 31 000 counts (≈ 3.6 N); noise ≈ 0.3 N RMS.
+    pub fn default_for_rate(rate_sps: u32) -> Self {
+        Self {
+            rate_sps,
+            offset_counts: 31_000.0,
+            counts_per_n: 8_590.0,
+            noise_counts: 2_600.0,
+        }
+    }
+
+    /// Rates this part offers.
+    pub const RATES_SPS: [u32; 3] = [10, 80, 320];
+
+    fn period_ns(&self) -> u64 {
+        1_000_000_000 / self.rate_sps.max(1) as u64
+    }
+}
+
+/// Counters a test or scene can read.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Hx711Stats {
+    /// Conversions completed.
+    pub conversions: u64,
+    /// Samples read out completely (24 bits).
+    pub samples_read: u64,
+    /// Conversions overwritten before they were read.
+    pub samples_missed: u64,
+    /// Times the part powered down (PD_SCK high > 60 µs).
+    pub power_downs: u64,
+}
+
+/// The device model; shared by its two pins.
+pub struct Hx711Model {
+    cfg: Hx711Config,
+    source: Box<dyn ForceSource>,
+    rng: Rng,
+    fault: Hx711Fault,
+    /// Time of the next conversion completion, ns.
+    next_conv_ns: u64,
+    /// Latest completed conversion (code, completion time), not yet read.
+    ready: Option<(i32, u64)>,
+    /// Code being shifted out.
+    shift: i32,
+    /// PD_SCK pulses since the readout began (0 = idle).
+    pulses: u8,
+    /// Gain pulses of the last complete readout (25, 26 or 27).
+    gain_pulses: u8,
+    sck_high_since: Option<u64>,
+    last_code: i32,
+    stats: Hx711Stats,
+    /// Ready time of the conversion now being read (for latency measurements).
+    reading_ready_ns: u64,
+    last_read: Option<(i32, u64)>,
+}
+
+impl Hx711Model {
+    fn settle_ns(&self) -> u64 {
+        4 * self.cfg.period_ns()
+    }
+
+    fn catch_up(&mut self, now: u64) {
+        if self
+            .sck_high_since
+            .is_some_and(|t| now.saturating_sub(t) > POWER_DOWN_NS)
+        {
+            return; // powered down: no conversions
+        }
+        while self.next_conv_ns <= now {
+            let t = self.next_conv_ns;
+            self.next_conv_ns += self.cfg.period_ns();
+            if self.pulses != 0 && self.pulses < 25 {
+                continue; // readout in progress: the part holds its output register
+            }
+            let code = self.convert(t);
+            if self.ready.is_some() {
+                self.stats.samples_missed += 1;
+            }
+            self.stats.conversions += 1;
+            self.ready = Some((code, t));
+            self.pulses = 0;
+        }
+    }
+
+    fn convert(&mut self, t_ns: u64) -> i32 {
+        let code = match self.fault {
+            Hx711Fault::Saturated => CODE_MAX,
+            Hx711Fault::Stuck if self.stats.conversions > 0 => self.last_code,
+            _ => {
+                let f = self.source.force_n(t_ns);
+                let gain_scale = match self.gain_pulses {
+                    26 => 32.0 / 128.0,
+                    27 => 64.0 / 128.0,
+                    _ => 1.0,
+                };
+                let v = (self.cfg.offset_counts + self.cfg.counts_per_n * f) * gain_scale
+                    + self.cfg.noise_counts * self.rng.normal();
+                v.round().clamp(CODE_MIN as f64, CODE_MAX as f64) as i32
+            }
+        };
+        self.last_code = code;
+        code
+    }
+
+    fn dout_high(&mut self, now: u64) -> bool {
+        if self.fault == Hx711Fault::Disconnected {
+            return true;
+        }
+        self.catch_up(now);
+        if self
+            .sck_high_since
+            .is_some_and(|t| now.saturating_sub(t) > POWER_DOWN_NS)
+        {
+            return true;
+        }
+        match self.pulses {
+            0 => self.ready.is_none(),
+            1..=24 => (self.shift >> (24 - self.pulses)) & 1 == 1,
+            _ => true,
+        }
+    }
+
+    fn sck_rise(&mut self, now: u64) {
+        self.catch_up(now);
+        self.sck_high_since = Some(now);
+        if self.fault == Hx711Fault::Disconnected {
+            return;
+        }
+        if self.pulses == 0 {
+            if let Some((code, t)) = self.ready.take() {
+                self.shift = code & 0xFF_FFFF;
+                self.reading_ready_ns = t;
+                self.pulses = 1;
+            }
+        } else if self.pulses < 27 {
+            self.pulses += 1;
+            if self.pulses == 24 {
+                self.stats.samples_read += 1;
+                let code = (self.shift << 8) >> 8;
+                self.last_read = Some((code, self.reading_ready_ns));
+            }
+        }
+    }
+
+    fn sck_fall(&mut self, now: u64) {
+        let high_since = self.sck_high_since.take();
+        if high_since.is_some_and(|t| now.saturating_sub(t) > POWER_DOWN_NS) {
+            // Power-down, then reset on the falling edge: settle before the next sample.
+            self.stats.power_downs += 1;
+            self.ready = None;
+            self.pulses = 0;
+            self.gain_pulses = 25;
+            self.next_conv_ns = now + self.settle_ns();
+            return;
+        }
+        if self.pulses >= 25 {
+            self.gain_pulses = self.pulses;
+        }
+    }
+}
+
+/// Handle to a simulated HX711 for the scene (configuration, faults, statistics).
+#[derive(Clone)]
+pub struct SimHx711 {
+    model: Rc<RefCell<Hx711Model>>,
+    clock: SimClock,
+}
+
+impl SimHx711 {
+    /// A part powered up at the clock's current time (first sample after settling).
+    pub fn new(
+        cfg: Hx711Config,
+        clock: SimClock,
+        source: impl ForceSource + 'static,
+        seed: u64,
+    ) -> Self {
+        let now = clock.now_ns();
+        let mut m = Hx711Model {
+            cfg,
+            source: Box::new(source),
+            rng: Rng::new(seed),
+            fault: Hx711Fault::None,
+            next_conv_ns: 0,
+            ready: None,
+            shift: 0,
+            pulses: 0,
+            gain_pulses: 25,
+            sck_high_since: None,
+            last_code: 0,
+            stats: Hx711Stats::default(),
+            reading_ready_ns: 0,
+            last_read: None,
+        };
+        m.next_conv_ns = now + m.settle_ns();
+        Self {
+            model: Rc::new(RefCell::new(m)),
+            clock,
+        }
+    }
+
+    /// The data-output pin (an `InputPin` for the driver).
+    pub fn dout(&self) -> Hx711Dout {
+        Hx711Dout {
+            model: self.model.clone(),
+            clock: self.clock.clone(),
+        }
+    }
+
+    /// The clock/power-down pin (an `OutputPin` for the driver).
+    pub fn pd_sck(&self) -> Hx711Sck {
+        Hx711Sck {
+            model: self.model.clone(),
+            clock: self.clock.clone(),
+        }
+    }
+
+    /// Inject or clear a fault.
+    pub fn set_fault(&self, fault: Hx711Fault) {
+        self.model.borrow_mut().fault = fault;
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> Hx711Stats {
+        self.model.borrow().stats
+    }
+
+    /// Configuration.
+    pub fn config(&self) -> Hx711Config {
+        self.model.borrow().cfg
+    }
+
+    /// Time of the next conversion completion, ns (for an event-driven scene loop).
+    pub fn next_conversion_ns(&self) -> u64 {
+        let now = self.clock.now_ns();
+        let mut m = self.model.borrow_mut();
+        m.catch_up(now);
+        m.next_conv_ns
+    }
+
+    /// The last sample read out completely: (code, time its conversion completed, ns).
+    pub fn last_read(&self) -> Option<(i32, u64)> {
+        self.model.borrow().last_read
+    }
+
+    /// Word-level read: the whole 24-bit readout (with 25 gain pulses) in one call,
+    /// taking the same virtual time as bit-banging at 1 µs per clock phase. Same
+    /// data-ready and power-down semantics as the pins; for long runs where the
+    /// bit-level protocol has been proven by the driver tests.
+    pub fn read_word(&self) -> Option<i32> {
+        let mut m = self.model.borrow_mut();
+        let now = self.clock.now_ns();
+        if m.fault == Hx711Fault::Disconnected {
+            return None;
+        }
+        m.catch_up(now);
+        if m.pulses != 0 {
+            return None;
+        }
+        let (code, t) = m.ready.take()?;
+        m.stats.samples_read += 1;
+        m.gain_pulses = 25;
+        m.pulses = 25;
+        m.last_read = Some((code, t));
+        drop(m);
+        self.clock.advance_ns(50_000);
+        Some(code)
+    }
+}
+
+/// HX711 DOUT as an embedded-hal `InputPin`.
+pub struct Hx711Dout {
+    model: Rc<RefCell<Hx711Model>>,
+    clock: SimClock,
+}
+
+/// HX711 PD_SCK as an embedded-hal `OutputPin`.
+pub struct Hx711Sck {
+    model: Rc<RefCell<Hx711Model>>,
+    clock: SimClock,
+}
+
+impl embedded_hal::digital::ErrorType for Hx711Dout {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_hal::digital::InputPin for Hx711Dout {
+    fn is_high(&mut self) -> Result<bool, Self::Error> {
+        Ok(self.model.borrow_mut().dout_high(self.clock.now_ns()))
+    }
+
+    fn is_low(&mut self) -> Result<bool, Self::Error> {
+        self.is_high().map(|h| !h)
+    }
+}
+
+impl embedded_hal::digital::ErrorType for Hx711Sck {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_hal::digital::OutputPin for Hx711Sck {
+    fn set_high(&mut self) -> Result<(), Self::Error> {
+        let mut m = self.model.borrow_mut();
+        if m.sck_high_since.is_none() {
+            m.sck_rise(self.clock.now_ns());
+        }
+        Ok(())
+    }
+
+    fn set_low(&mut self) -> Result<(), Self::Error> {
+        let mut m = self.model.borrow_mut();
+        if m.sck_high_since.is_some() {
+            m.sck_fall(self.clock.now_ns());
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use embedded_hal::delay::DelayNs;
+    use embedded_hal::digital::{InputPin, OutputPin};
+
+    /// Bit-bang one readout exactly as the datasheet describes; `None` if not ready.
+    fn bitbang(
+        dout: &mut Hx711Dout,
+        sck: &mut Hx711Sck,
+        clk: &mut SimClock,
+        pulses: u8,
+    ) -> Option<i32> {
+        if dout.is_high().unwrap() {
+            return None;
+        }
+        let mut v: u32 = 0;
+        for i in 0..pulses {
+            sck.set_high().unwrap();
+            clk.delay_us(1);
+            if i < 24 {
+                v = (v << 1) | dout.is_high().unwrap() as u32;
+            }
+            sck.set_low().unwrap();
+            clk.delay_us(1);
+        }
+        Some(((v << 8) as i32) >> 8)
+    }
+
+    fn part(force: f64, rate: u32) -> (SimHx711, SimClock) {
+        let clk = SimClock::new();
+        let cfg = Hx711Config {
+            noise_counts: 0.0,
+            ..Hx711Config::default_for_rate(rate)
+        };
+        (SimHx711::new(cfg, clk.clone(), move |_| force, 1), clk)
+    }
+
+    #[test]
+    fn first_sample_after_settling_then_at_the_rate() {
+        let (hx, mut clk) = part(10.0, 80);
+        let (mut d, mut s) = (hx.dout(), hx.pd_sck());
+        clk.advance_to_ns(49_999_999);
+        assert_eq!(bitbang(&mut d, &mut s, &mut clk, 25), None);
+        clk.advance_to_ns(50_000_000);
+        let code = bitbang(&mut d, &mut s, &mut clk, 25).unwrap();
+        assert_eq!(code, (31_000.0f64 + 85_900.0) as i32);
+        assert!(d.is_high().unwrap(), "DOUT returns high after the readout");
+        clk.advance_to_ns(62_499_999);
+        assert!(d.is_high().unwrap());
+        clk.advance_to_ns(62_500_000);
+        assert!(d.is_low().unwrap());
+    }
+
+    #[test]
+    fn negative_codes_and_rails() {
+        let (hx, mut clk) = part(-2_000.0, 10);
+        clk.advance_to_ns(400_000_000);
+        let (mut d, mut s) = (hx.dout(), hx.pd_sck());
+        assert_eq!(bitbang(&mut d, &mut s, &mut clk, 25), Some(CODE_MIN));
+        let (hx, mut clk) = part(2_000.0, 10);
+        clk.advance_to_ns(400_000_000);
+        let (mut d, mut s) = (hx.dout(), hx.pd_sck());
+        assert_eq!(bitbang(&mut d, &mut s, &mut clk, 25), Some(CODE_MAX));
+    }
+
+    #[test]
+    fn clock_high_over_60us_powers_down_and_resets() {
+        let (hx, mut clk) = part(0.0, 80);
+        let (mut d, mut s) = (hx.dout(), hx.pd_sck());
+        clk.advance_to_ns(50_000_000);
+        s.set_high().unwrap();
+        clk.delay_us(61);
+        assert!(d.is_high().unwrap(), "powered down");
+        s.set_low().unwrap();
+        assert_eq!(hx.stats().power_downs, 1);
+        let t_reset = clk.now_ns();
+        clk.advance_to_ns(t_reset + 49_000_000);
+        assert!(d.is_high().unwrap(), "still settling");
+        clk.advance_to_ns(t_reset + 50_000_000);
+        assert!(d.is_low().unwrap());
+    }
+
+    #[test]
+    fn gain_pulses_select_the_next_gain() {
+        let (hx, mut clk) = part(10.0, 80);
+        let (mut d, mut s) = (hx.dout(), hx.pd_sck());
+        clk.advance_to_ns(50_000_000);
+        let a128 = bitbang(&mut d, &mut s, &mut clk, 27).unwrap();
+        clk.advance_to_ns(62_500_000);
+        let a64 = bitbang(&mut d, &mut s, &mut clk, 25).unwrap();
+        assert_eq!(a64, a128 / 2);
+    }
+
+    #[test]
+    fn faults_behave_like_the_hardware() {
+        let (hx, mut clk) = part(10.0, 80);
+        let (mut d, mut s) = (hx.dout(), hx.pd_sck());
+        hx.set_fault(Hx711Fault::Disconnected);
+        clk.advance_to_ns(1_000_000_000);
+        assert_eq!(bitbang(&mut d, &mut s, &mut clk, 25), None);
+        hx.set_fault(Hx711Fault::Saturated);
+        clk.advance_ns(12_500_000);
+        assert_eq!(bitbang(&mut d, &mut s, &mut clk, 25), Some(CODE_MAX));
+        hx.set_fault(Hx711Fault::Stuck);
+        clk.advance_ns(12_500_000);
+        assert_eq!(bitbang(&mut d, &mut s, &mut clk, 25), Some(CODE_MAX));
+    }
+
+    #[test]
+    fn word_read_matches_pin_read() {
+        let (hx, clk) = part(42.0, 320);
+        clk.advance_to_ns(20_000_000);
+        let w = hx.read_word().unwrap();
+        assert_eq!(w, (31_000.0f64 + 42.0 * 8_590.0).round() as i32);
+        assert_eq!(hx.read_word(), None);
+    }
+}

@@ -1,0 +1,27 @@
+//! # hil-sim — the simulated HAL of the docking controller
+//!
+//! Host-side devices that behave like their datasheets, faults included, in virtual
+//! time, so that `cargo test` exercises the real control code of `docking-controller`:
+//!
+//! * [`hx711`]: the HX711 24-bit load-cell ADC at pin level, whose force is the Eq. 7
+//!   contact profile at the simulated axis position;
+//! * [`axis`]: the step/dir propulsion axis with home and end switches;
+//! * [`lock`]: the adaptive-lock actuator with locked/released switches;
+//! * [`flash`]: NOR flash with STM32F4 semantics and power-cut injection;
+//! * [`clock`]: virtual time (nothing sleeps).
+//!
+//! [`cli`] is the `hil-sim` command line.
+//!
+//! On bare metal (`target_os = "none"`) the crate is empty, so that a thumb build of
+//! the whole workspace (`cargo build --target thumbv7em-none-eabihf` at the root) works.
+#![cfg_attr(target_os = "none", no_std)]
+#![cfg(not(target_os = "none"))]
+
+pub mod axis;
+pub mod cli;
+pub mod clock;
+pub mod flash;
+pub mod hx711;
+pub mod lock;
+pub mod profile_cmd;
+pub mod rng;
