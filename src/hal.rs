@@ -36,3 +36,10 @@ pub trait ConsoleIo {
     /// full transmit buffer drops the rest rather than stalling the control loop).
     fn write(&mut self, bytes: &[u8]) -> usize;
 }
+
+/// A load-cell ADC that delivers raw conversion codes (the HX711 driver on the board).
+pub trait LoadCellAdc {
+    /// The next conversion code, `WouldBlock` while none is ready; `Err(Other(()))` if
+    /// the device could not be read.
+    fn read_code(&mut self) -> nb::Result<i32, ()>;
+}

@@ -32,5 +32,12 @@
 mod fmt;
 
 pub mod config;
+pub mod controller;
+pub mod guard;
 pub mod hal;
+pub mod hx711;
+pub mod lock;
+pub mod material;
 pub mod profile;
+pub mod propulsion;
+pub mod sequencer;
