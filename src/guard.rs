@@ -1,0 +1,391 @@
+//! Overload protection and load-cell health.
+//!
+//! ## Overload
+//! Two limits, checked on every sample:
+//! * a **hard limit** (default 300 N: the nominal peak is 206.34 N, the cell is rated
+//!   500 N), always;
+//! * a **per-phase envelope** while the rod is in the cone: the nominal Eq. 7 force of
+//!   the current depth, maximised over ±`window_um` (so a position error of up to half a
+//!   millimetre at a phase boundary cannot trip it), times `1 + rel_pct/100`, plus
+//!   `abs_mn` (defaults 25 % and 30 N: with 0.3 N RMS sensor noise the nominal profile
+//!   stays ≥ 50 N below it, while a jam crosses it within a few newtons of extra load).
+//!
+//! **Spike rejection without delay.** A sample over a limit trips at once if it is
+//! *plausible*: the previous sample was over the limit too, or this one is within
+//! `slew_mn` of the previous one (a load that grows, as a jam does). An implausible jump
+//! over the limit is held for one sample: if the next sample is over as well, it trips
+//! then. So an isolated single-sample spike never trips, a ramping overload trips on its
+//! first over-limit sample, and a step overload is delayed by at most one sample period.
+//!
+//! **Warning with hysteresis**: above `warn_pct` % of the limit in force the guard warns;
+//! the warning clears below `warn_clear_pct` %.
+//!
+//! ## Sensor health ([`SensorMonitor`])
+//! No sample for 3 sample periods (disconnect: the HX711's DOUT stays high), 2 samples
+//! in a row at an ADC rail (saturation), 32 identical codes in a row (stuck converter:
+//! a live HX711 at gain 128 has tens of counts of noise), and an implausible tare are
+//! named faults.
+
+use crate::profile::{forces_at_depth_um, STROKE_UM};
+
+/// Overload-guard configuration.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GuardConfig {
+    /// Hard force limit, mN (any state).
+    pub hard_limit_mn: i32,
+    /// Envelope: relative margin over the nominal force, percent.
+    pub rel_pct: u32,
+    /// Envelope: absolute margin over the nominal force, mN.
+    pub abs_mn: i32,
+    /// Envelope: the nominal force is maximised over ±this depth, µm.
+    pub window_um: i32,
+    /// Largest sample-to-sample change taken as a real load change, mN.
+    pub slew_mn: i32,
+    /// Warn above this percentage of the limit in force.
+    pub warn_pct: u32,
+    /// Clear the warning below this percentage.
+    pub warn_clear_pct: u32,
+}
+
+impl GuardConfig {
+    /// Defaults (see the module doc for why).
+    pub const DEFAULT: Self = Self {
+        hard_limit_mn: 300_000,
+        rel_pct: 25,
+        abs_mn: 30_000,
+        window_um: 500,
+        slew_mn: 40_000,
+        warn_pct: 90,
+        warn_clear_pct: 80,
+    };
+}
+
+impl Default for GuardConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// Resolution of the envelope table, µm.
+const ENV_STEP_UM: i32 = 100;
+/// Entries of the envelope table (0..=30 mm).
+const ENV_LEN: usize = (STROKE_UM / ENV_STEP_UM) as usize + 1;
+
+/// What the guard says about one sample.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Verdict {
+    /// Within limits.
+    Ok,
+    /// Above the warning level (with hysteresis).
+    Warn,
+    /// Over a limit that is held for one sample as a possible spike.
+    Suspect,
+    /// Overload: stop now.
+    Trip {
+        /// The limit that was exceeded, mN.
+        limit_mn: i32,
+    },
+}
+
+/// The overload guard.
+pub struct OverloadGuard {
+    cfg: GuardConfig,
+    /// Upper envelope per 0.1 mm of depth, mN.
+    envelope_mn: [i32; ENV_LEN],
+    prev_mn: Option<i32>,
+    prev_over: bool,
+    warning: bool,
+    spikes_rejected: u32,
+}
+
+impl OverloadGuard {
+    /// A guard with its envelope table computed from Eq. 7.
+    pub fn new(cfg: GuardConfig) -> Self {
+        let mut envelope_mn = [0i32; ENV_LEN];
+        for (i, e) in envelope_mn.iter_mut().enumerate() {
+            let lo = i as i32 * ENV_STEP_UM - cfg.window_um;
+            let hi = (i as i32 + 1) * ENV_STEP_UM + cfg.window_um;
+            // Sample the window every 10 µm (the profile is monotone between boundaries,
+            // and the boundaries themselves are multiples of 10 µm except 14 934, which
+            // is sampled explicitly).
+            let mut max_n = 0.0f64;
+            let mut d = lo.max(0);
+            while d <= hi.min(STROKE_UM) {
+                max_n = max_n.max(forces_at_depth_um(d as f64).n3_n);
+                d += 10;
+            }
+            if lo <= 14_934 && 14_934 <= hi {
+                max_n = max_n.max(forces_at_depth_um(14_934.0).n3_n);
+            }
+            let limit_n = max_n * (100 + cfg.rel_pct) as f64 / 100.0;
+            *e = ((limit_n * 1000.0) as i32)
+                .saturating_add(cfg.abs_mn)
+                .min(cfg.hard_limit_mn);
+        }
+        Self {
+            cfg,
+            envelope_mn,
+            prev_mn: None,
+            prev_over: false,
+            warning: false,
+            spikes_rejected: 0,
+        }
+    }
+
+    /// The limit in force at `depth_um` (`None` = not in the cone: hard limit only), mN.
+    pub fn limit_mn(&self, depth_um: Option<i32>) -> i32 {
+        match depth_um {
+            Some(d) if (0..=STROKE_UM).contains(&d) => {
+                let i = (d / ENV_STEP_UM) as usize;
+                self.envelope_mn
+                    .get(i)
+                    .copied()
+                    .unwrap_or(self.cfg.hard_limit_mn)
+            }
+            _ => self.cfg.hard_limit_mn,
+        }
+    }
+
+    /// Judge one sample of `force_mn` at `depth_um`.
+    pub fn check(&mut self, force_mn: i32, depth_um: Option<i32>) -> Verdict {
+        let limit = self.limit_mn(depth_um);
+        let over = force_mn > limit;
+        let plausible = self.prev_over
+            || self
+                .prev_mn
+                .is_none_or(|p| force_mn.abs_diff(p) <= self.cfg.slew_mn as u32);
+        let verdict = if over && plausible {
+            Verdict::Trip { limit_mn: limit }
+        } else if over {
+            Verdict::Suspect
+        } else {
+            if self.prev_over && !self.warning {
+                // The previous sample was over the limit and this one is not: a spike.
+                self.spikes_rejected = self.spikes_rejected.saturating_add(1);
+            }
+            let pct = (force_mn.max(0) as i64 * 100) / limit.max(1) as i64;
+            if pct >= self.cfg.warn_pct as i64 {
+                self.warning = true;
+            } else if pct < self.cfg.warn_clear_pct as i64 {
+                self.warning = false;
+            }
+            if self.warning {
+                Verdict::Warn
+            } else {
+                Verdict::Ok
+            }
+        };
+        self.prev_over = over;
+        self.prev_mn = Some(force_mn);
+        verdict
+    }
+
+    /// Forget the sample history (after a gap in samples or a fault clear).
+    pub fn reset(&mut self) {
+        self.prev_mn = None;
+        self.prev_over = false;
+        self.warning = false;
+    }
+
+    /// Single-sample spikes rejected so far.
+    pub fn spikes_rejected(&self) -> u32 {
+        self.spikes_rejected
+    }
+
+    /// Configuration.
+    pub fn config(&self) -> &GuardConfig {
+        &self.cfg
+    }
+}
+
+/// Load-cell faults.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum SensorFault {
+    /// No sample for 3 sample periods.
+    Disconnected,
+    /// Two samples in a row at an ADC rail.
+    Saturated,
+    /// 32 identical codes in a row.
+    Stuck,
+}
+
+/// Samples at a rail in a row that mean saturation.
+pub const RAIL_SAMPLES: u8 = 2;
+/// Identical codes in a row that mean a stuck converter.
+pub const STUCK_SAMPLES: u16 = 32;
+/// Sample periods without a sample that mean a disconnect.
+pub const DISCONNECT_PERIODS: u64 = 3;
+
+/// Watches the raw sample stream.
+pub struct SensorMonitor {
+    period_us: u64,
+    last_sample_us: u64,
+    last_code: Option<i32>,
+    same_count: u16,
+    rail_count: u8,
+}
+
+impl SensorMonitor {
+    /// A monitor for `rate_sps`, started at `now_us`; the first sample is allowed the
+    /// HX711's settling time (4 periods) on top of the disconnect timeout.
+    pub fn new(rate_sps: u32, now_us: u64) -> Self {
+        let period_us = 1_000_000 / rate_sps.max(1) as u64;
+        Self {
+            period_us,
+            last_sample_us: now_us + 4 * period_us,
+            last_code: None,
+            same_count: 0,
+            rail_count: 0,
+        }
+    }
+
+    /// Sample period, µs.
+    pub fn period_us(&self) -> u64 {
+        self.period_us
+    }
+
+    /// A sample `code` arrived at `now_us`.
+    pub fn on_sample(
+        &mut self,
+        code: i32,
+        now_us: u64,
+        rail_min: i32,
+        rail_max: i32,
+    ) -> Option<SensorFault> {
+        self.last_sample_us = now_us;
+        if code <= rail_min || code >= rail_max {
+            self.rail_count = self.rail_count.saturating_add(1);
+        } else {
+            self.rail_count = 0;
+        }
+        if self.last_code == Some(code) {
+            self.same_count = self.same_count.saturating_add(1);
+        } else {
+            self.same_count = 1;
+        }
+        self.last_code = Some(code);
+        if self.rail_count >= RAIL_SAMPLES {
+            Some(SensorFault::Saturated)
+        } else if self.same_count >= STUCK_SAMPLES {
+            Some(SensorFault::Stuck)
+        } else {
+            None
+        }
+    }
+
+    /// Check for a disconnect at `now_us` (no sample for 3 periods).
+    pub fn check_timeout(&self, now_us: u64) -> Option<SensorFault> {
+        (now_us.saturating_sub(self.last_sample_us) > DISCONNECT_PERIODS * self.period_us)
+            .then_some(SensorFault::Disconnected)
+    }
+
+    /// Restart the timeout and counters (after a fault clear).
+    pub fn reset(&mut self, now_us: u64) {
+        self.last_sample_us = now_us;
+        self.last_code = None;
+        self.same_count = 0;
+        self.rail_count = 0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn nominal_mn(d: i32) -> i32 {
+        (forces_at_depth_um(d as f64).n3_n * 1000.0) as i32
+    }
+
+    #[test]
+    fn envelope_clears_the_nominal_profile_everywhere() {
+        let g = OverloadGuard::new(GuardConfig::DEFAULT);
+        for d in (0..=STROKE_UM).step_by(7) {
+            // Half a millimetre of position error either way is still inside.
+            for e in [-500, 0, 500] {
+                let n = nominal_mn((d + e).clamp(0, STROKE_UM));
+                assert!(
+                    g.limit_mn(Some(d)) - n >= 29_000,
+                    "depth {d}: limit {} nominal {n}",
+                    g.limit_mn(Some(d))
+                );
+            }
+        }
+        assert_eq!(g.limit_mn(None), 300_000);
+        // Two-point peak 206.34 N × 1.25 + 30 N.
+        assert!(
+            (287_400..=288_000).contains(&g.limit_mn(Some(15_000))),
+            "{}",
+            g.limit_mn(Some(15_000))
+        );
+    }
+
+    #[test]
+    fn spike_is_held_ramp_trips_at_once_step_within_one_sample() {
+        let mut g = OverloadGuard::new(GuardConfig::DEFAULT);
+        let d = Some(2_000);
+        let lim = g.limit_mn(d);
+        // isolated spike
+        assert_eq!(g.check(112_000, d), Verdict::Ok);
+        assert_eq!(g.check(450_000, d), Verdict::Suspect);
+        assert_eq!(g.check(112_500, d), Verdict::Ok);
+        assert_eq!(g.spikes_rejected(), 1);
+        // ramp: trips on the first over-limit sample
+        g.reset();
+        let mut f = 112_000;
+        loop {
+            f += 2_500;
+            match g.check(f, d) {
+                Verdict::Trip { limit_mn } => {
+                    assert_eq!(limit_mn, lim);
+                    assert!(f > lim && f - 2_500 <= lim);
+                    break;
+                }
+                Verdict::Suspect => panic!("a ramp is not a spike"),
+                _ => {}
+            }
+        }
+        // step: one sample late at most
+        g.reset();
+        assert_eq!(g.check(112_000, d), Verdict::Ok);
+        assert_eq!(g.check(400_000, d), Verdict::Suspect);
+        assert_eq!(g.check(400_000, d), Verdict::Trip { limit_mn: lim });
+    }
+
+    #[test]
+    fn warning_has_hysteresis() {
+        let mut g = OverloadGuard::new(GuardConfig::DEFAULT);
+        let lim = g.limit_mn(None);
+        assert_eq!(g.check(lim * 91 / 100, None), Verdict::Warn);
+        assert_eq!(g.check(lim * 85 / 100, None), Verdict::Warn);
+        assert_eq!(g.check(lim * 79 / 100, None), Verdict::Ok);
+    }
+
+    #[test]
+    fn sensor_faults() {
+        let mut m = SensorMonitor::new(80, 0);
+        assert_eq!(
+            m.check_timeout(4 * 12_500 + 3 * 12_500),
+            None,
+            "settling grace"
+        );
+        assert_eq!(m.on_sample(100, 62_500, -8_388_608, 8_388_607), None);
+        assert_eq!(m.check_timeout(62_500 + 37_500), None);
+        assert_eq!(
+            m.check_timeout(62_500 + 37_501),
+            Some(SensorFault::Disconnected)
+        );
+        assert_eq!(m.on_sample(8_388_607, 75_000, -8_388_608, 8_388_607), None);
+        assert_eq!(
+            m.on_sample(8_388_607, 87_500, -8_388_608, 8_388_607),
+            Some(SensorFault::Saturated)
+        );
+        let mut m = SensorMonitor::new(80, 0);
+        let mut r = None;
+        for i in 0..STUCK_SAMPLES {
+            r = m.on_sample(5, i as u64, -8_388_608, 8_388_607);
+        }
+        assert_eq!(r, Some(SensorFault::Stuck));
+    }
+}

@@ -1,0 +1,315 @@
+//! Propulsion driver: a step/dir stepper on the docking axis with a trapezoidal
+//! acceleration ramp, open-loop position in steps.
+//!
+//! The driver owns the EN (active low) and DIR (high = toward the male panel) lines and a
+//! [`StepPulses`] generator. It is updated once per control step with the elapsed time;
+//! between updates the generator emits pulses at a constant rate. Position is the count
+//! of pulses actually emitted, signed by the direction they were emitted in.
+//!
+//! [`Propulsion::disable`] is the emergency path: pulses stop and the driver's power stage
+//! is switched off in the same call (the overload guard uses it within the control step
+//! that sees the sample).
+
+use embedded_hal::digital::OutputPin;
+
+use crate::config::MachineConfig;
+use crate::hal::StepPulses;
+
+/// Errors of the propulsion driver.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum PropulsionError {
+    /// An EN or DIR line could not be driven.
+    Pin,
+}
+
+/// A stepper axis with a ramp.
+pub struct Propulsion<EN, DIR, P> {
+    en_n: EN,
+    dir: DIR,
+    pulses: P,
+    cfg: MachineConfig,
+    /// Counted position, steps from home.
+    pos_steps: i32,
+    /// Current commanded velocity, steps/s (signed).
+    vel_sps: i32,
+    /// Target position, steps (`None` = stop where the ramp ends).
+    target_steps: Option<i32>,
+    /// Speed limit of the current move, steps/s.
+    max_sps: u32,
+    /// Acceleration, steps/s².
+    accel_sps2: u32,
+    enabled: bool,
+    dir_positive: bool,
+}
+
+/// Arrival tolerance, steps (5 µm at 200 steps/mm).
+pub const ARRIVAL_TOLERANCE_STEPS: i32 = 1;
+
+/// Integer square root (floor) of a u64.
+const fn isqrt(v: u64) -> u64 {
+    v.isqrt()
+}
+
+impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
+    /// A driver at position 0, disabled (EN high), no pulses.
+    pub fn new(en_n: EN, dir: DIR, pulses: P, cfg: MachineConfig) -> Result<Self, PropulsionError> {
+        let accel_sps2 = cfg.speed_to_step_hz(cfg.accel_um_per_s2);
+        let mut p = Self {
+            en_n,
+            dir,
+            pulses,
+            cfg,
+            pos_steps: 0,
+            vel_sps: 0,
+            target_steps: None,
+            max_sps: 0,
+            accel_sps2,
+            enabled: false,
+            dir_positive: false,
+        };
+        p.disable()?;
+        Ok(p)
+    }
+
+    /// Emergency stop: pulses stop and the power stage is switched off, now.
+    pub fn disable(&mut self) -> Result<(), PropulsionError> {
+        self.pulses.set_rate_hz(0);
+        self.vel_sps = 0;
+        self.target_steps = None;
+        self.enabled = false;
+        self.en_n.set_high().map_err(|_| PropulsionError::Pin)
+    }
+
+    /// Switch the power stage on (holding torque, no motion).
+    pub fn enable(&mut self) -> Result<(), PropulsionError> {
+        self.enabled = true;
+        self.en_n.set_low().map_err(|_| PropulsionError::Pin)
+    }
+
+    /// Whether the power stage is on.
+    pub fn is_enabled(&self) -> bool {
+        self.enabled
+    }
+
+    /// Move to `target_um` at no more than `speed_um_per_s`, ramping.
+    pub fn move_to(&mut self, target_um: i32, speed_um_per_s: u32) {
+        self.target_steps = Some(self.cfg.um_to_steps(target_um));
+        self.max_sps = self.cfg.speed_to_step_hz(speed_um_per_s);
+    }
+
+    /// Ramp down to a stop wherever that ends.
+    pub fn stop(&mut self) {
+        self.target_steps = None;
+    }
+
+    /// Stop pulses at once, keeping the power stage as it is (at a switch).
+    pub fn halt(&mut self) {
+        self.pulses.set_rate_hz(0);
+        self.vel_sps = 0;
+        self.target_steps = None;
+    }
+
+    /// Declare the current position to be `pos_um` (homing).
+    pub fn set_position_um(&mut self, pos_um: i32) {
+        self.pos_steps = self.cfg.um_to_steps(pos_um);
+    }
+
+    /// Counted position, µm from home.
+    pub fn position_um(&self) -> i32 {
+        self.cfg.steps_to_um(self.pos_steps)
+    }
+
+    /// Counted position, steps.
+    pub fn position_steps(&self) -> i32 {
+        self.pos_steps
+    }
+
+    /// Current commanded velocity, µm/s (signed).
+    pub fn velocity_um_per_s(&self) -> i32 {
+        self.cfg.steps_to_um(self.vel_sps)
+    }
+
+    /// True when no move is in progress and the axis stands still.
+    pub fn is_idle(&self) -> bool {
+        self.vel_sps == 0
+            && self
+                .target_steps
+                .is_none_or(|t| (t - self.pos_steps).abs() <= ARRIVAL_TOLERANCE_STEPS)
+    }
+
+    /// Account for the pulses emitted since the last call (updates the position).
+    pub fn sync(&mut self) {
+        let n = self.pulses.take_pulses() as i32;
+        self.pos_steps = if self.dir_positive {
+            self.pos_steps.saturating_add(n)
+        } else {
+            self.pos_steps.saturating_sub(n)
+        };
+    }
+
+    /// [`sync`](Self::sync), then [`plan`](Self::plan).
+    pub fn update(&mut self, dt_us: u32) -> Result<(), PropulsionError> {
+        self.sync();
+        self.plan(dt_us)
+    }
+
+    /// Set the pulse rate for the next `dt_us` (the control period), following the ramp
+    /// toward the target.
+    pub fn plan(&mut self, dt_us: u32) -> Result<(), PropulsionError> {
+        if !self.enabled {
+            self.pulses.set_rate_hz(0);
+            self.vel_sps = 0;
+            return Ok(());
+        }
+        let dt_us = dt_us.clamp(1, 1_000_000) as u64;
+        // Speed change allowed this period (at least 1 step/s so a ramp always progresses).
+        let dv = ((self.accel_sps2 as u64 * dt_us) / 1_000_000).max(1) as i64;
+        let v = self.vel_sps as i64;
+        let mut final_approach = false;
+        let desired: i64 = match self.target_steps {
+            None => 0,
+            Some(t) => {
+                let dist = t as i64 - self.pos_steps as i64;
+                // Fastest speed from which the ramp can still stop in what is left of
+                // `dist` after this period's travel (discrete, so conservative).
+                let lead = (v.abs() * dt_us as i64) / 1_000_000;
+                let d_eff = (dist.abs() - lead).max(0) as u64;
+                let v_stop = isqrt(2 * self.accel_sps2 as u64 * d_eff) as i64;
+                let v_cap = if dist.abs() <= lead.max(1) + dv * dt_us as i64 / 1_000_000 + 1 {
+                    // Final approach: cover exactly the remaining steps in one period (a
+                    // stepper stops from these few hundred steps/s without a ramp).
+                    final_approach = true;
+                    (dist.abs() * 1_000_000) / dt_us as i64
+                } else {
+                    v_stop.min(self.max_sps as i64)
+                };
+                if dist.abs() <= ARRIVAL_TOLERANCE_STEPS as i64 && (final_approach || v.abs() <= dv)
+                {
+                    // Arrived: a rate generator cannot place the last pulse exactly (its
+                    // fractional carry may add one), so ±1 step counts as there.
+                    self.target_steps = None;
+                    0
+                } else {
+                    dist.signum() * v_cap.min(self.max_sps as i64).max(1)
+                }
+            }
+        };
+        let new_v = if final_approach && desired.abs() <= v.abs() && desired.signum() != -v.signum()
+        {
+            desired
+        } else if desired > v {
+            (v + dv).min(desired)
+        } else {
+            (v - dv).max(desired)
+        };
+        // Reverse only through zero: stop this period, change DIR next.
+        let new_v = if (new_v > 0 && v < 0) || (new_v < 0 && v > 0) {
+            0
+        } else {
+            new_v
+        };
+        self.vel_sps = new_v as i32;
+        if new_v != 0 {
+            let positive = new_v > 0;
+            if positive != self.dir_positive {
+                let r = if positive {
+                    self.dir.set_high()
+                } else {
+                    self.dir.set_low()
+                };
+                r.map_err(|_| PropulsionError::Pin)?;
+                self.dir_positive = positive;
+            }
+        }
+        self.pulses.set_rate_hz(new_v.unsigned_abs() as u32);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use core::cell::Cell;
+    use core::convert::Infallible;
+
+    #[derive(Default)]
+    struct Line(Cell<bool>);
+    impl embedded_hal::digital::ErrorType for &Line {
+        type Error = Infallible;
+    }
+    impl OutputPin for &Line {
+        fn set_high(&mut self) -> Result<(), Infallible> {
+            self.0.set(true);
+            Ok(())
+        }
+        fn set_low(&mut self) -> Result<(), Infallible> {
+            self.0.set(false);
+            Ok(())
+        }
+    }
+    /// Pulses emitted at the last rate for exactly one period of `PERIOD_US`.
+    struct Gen {
+        rate: u32,
+        frac: u64,
+    }
+    const PERIOD_US: u32 = 12_500;
+    impl StepPulses for Gen {
+        fn set_rate_hz(&mut self, r: u32) {
+            self.rate = r;
+        }
+        fn take_pulses(&mut self) -> u32 {
+            let acc = self.frac + self.rate as u64 * PERIOD_US as u64;
+            self.frac = acc % 1_000_000;
+            (acc / 1_000_000) as u32
+        }
+    }
+
+    #[test]
+    fn ramps_to_target_without_overshoot_and_reverses() {
+        let (en, dir) = (Line::default(), Line::default());
+        let cfg = MachineConfig::DEFAULT;
+        let mut p = Propulsion::new(&en, &dir, Gen { rate: 0, frac: 0 }, cfg).unwrap();
+        assert!(en.0.get(), "starts disabled");
+        p.enable().unwrap();
+        p.move_to(20_000, cfg.fast_speed_um_per_s);
+        let mut max_v = 0;
+        for _ in 0..2_000 {
+            p.update(PERIOD_US).unwrap();
+            max_v = max_v.max(p.velocity_um_per_s());
+            assert!(p.position_um() <= 20_005, "overshoot {}", p.position_um());
+            if p.is_idle() {
+                break;
+            }
+        }
+        assert!(p.is_idle());
+        assert!((p.position_um() - 20_000).abs() <= 5, "{}", p.position_um());
+        assert_eq!(max_v, 10_000);
+        p.move_to(0, 1_200);
+        for _ in 0..3_000 {
+            p.update(PERIOD_US).unwrap();
+            assert!(p.velocity_um_per_s() >= -1_200);
+        }
+        assert!(p.position_um().abs() <= 5, "{}", p.position_um());
+        assert!(p.is_idle());
+    }
+
+    #[test]
+    fn disable_stops_at_once() {
+        let (en, dir) = (Line::default(), Line::default());
+        let mut p =
+            Propulsion::new(&en, &dir, Gen { rate: 0, frac: 0 }, MachineConfig::DEFAULT).unwrap();
+        p.enable().unwrap();
+        p.move_to(50_000, 1_200);
+        for _ in 0..100 {
+            p.update(PERIOD_US).unwrap();
+        }
+        p.disable().unwrap();
+        assert!(en.0.get());
+        assert_eq!(p.velocity_um_per_s(), 0);
+        let before = p.position_steps();
+        p.update(PERIOD_US).unwrap();
+        assert_eq!(p.position_steps(), before, "no pulses after disable");
+    }
+}

@@ -1,0 +1,948 @@
+//! The docking sequencer: a pure step function.
+//!
+//! # Theory of operation
+//!
+//! [`Sequencer::step`] takes the time and everything the controller measured in this
+//! control step ([`Inputs`]) and returns what the motors must do ([`Outputs`]). It reads
+//! no clock and touches no I/O, so it is tested by feeding it timelines. Every state that
+//! moves something carries its own deadline; a motion that misses it, or a switch that
+//! disagrees with the motion, is a named [`FaultKind`]. Faults **latch**: the only ways
+//! out are the automatic, controlled back-off after an overload and an explicit
+//! [`Request::ClearFault`], which starts a recovery to home.
+//!
+//! One docking cycle is one insertion and one extraction:
+//!
+//! ```text
+//!  PowerUp ─▶ Homing ─(home sw)─▶ Locking ─(locked sw)─▶ Idle ◀──────────────────────────┐
+//!                                                        │ StartCycle (home, locked)     │
+//!                                                        ▼                               │
+//!   PreAlign (locked, fast, to engage) ─▶ Releasing (lock → released sw)                 │
+//!        ─▶ Inserting (compliant, ≤ v0, phases 1→2→3→4, to mated) ─▶ Holding (hold_ms)   │
+//!        ─▶ Extracting (≤ v0, to engage) ─▶ Locking (→ locked sw) ─▶ Returning (fast, ───┘
+//!                                                                    to the home sw)
+//!
+//!  any state ──fault──▶ Faulted (motors off, latched)
+//!  moving, overload ──▶ BackingOff (retreat `back_off_um` at ≤ v0, guard still active) ─▶ Faulted
+//!  Faulted ──ClearFault──▶ Recovering (to engage at ≤ v0) ─▶ Locking ─▶ Returning ─▶ Idle
+//! ```
+//!
+//! The sequencer is told about overloads and sensor faults (detected by the guard in the
+//! same control step, which has already switched the propulsion off); it detects motion
+//! faults itself: deadlines, a home switch that does not close where the counted position
+//! says home is, the end (overtravel) switch, contradictory switches.
+
+use crate::config::MachineConfig;
+use crate::lock::LockCmd;
+
+/// A latched fault.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum FaultKind {
+    /// Contact force over the hard limit or the phase envelope.
+    Overload,
+    /// No load-cell sample for 3 sample periods.
+    SensorDisconnected,
+    /// Load-cell samples at an ADC rail.
+    SensorSaturated,
+    /// Load-cell converter stuck on one code.
+    SensorStuck,
+    /// Zero-load reading far from the calibration (or beyond a quarter of full scale).
+    ImplausibleTare,
+    /// The axis did not reach its position or switch by its deadline (stall, jam, or a
+    /// dead home switch).
+    AxisStall,
+    /// The overtravel (end) switch closed.
+    Overtravel,
+    /// The lock did not reach its released switch by the deadline.
+    LockNotReleased,
+    /// The lock did not reach its locked switch by the deadline.
+    LockNotLocked,
+    /// Two switches that exclude each other are both closed.
+    SwitchConflict,
+    /// A pin or driver could not be read or driven.
+    Io,
+}
+
+impl FaultKind {
+    /// Stable snake-case name (logs, JSON, console).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Overload => "overload",
+            Self::SensorDisconnected => "sensor_disconnected",
+            Self::SensorSaturated => "sensor_saturated",
+            Self::SensorStuck => "sensor_stuck",
+            Self::ImplausibleTare => "implausible_tare",
+            Self::AxisStall => "axis_stall",
+            Self::Overtravel => "overtravel",
+            Self::LockNotReleased => "lock_not_released",
+            Self::LockNotLocked => "lock_not_locked",
+            Self::SwitchConflict => "switch_conflict",
+            Self::Io => "io",
+        }
+    }
+
+    /// Persisted code.
+    pub const fn code(self) -> u8 {
+        self as u8
+    }
+
+    /// From a persisted code.
+    pub const fn from_code(c: u8) -> Option<Self> {
+        Some(match c {
+            0 => Self::Overload,
+            1 => Self::SensorDisconnected,
+            2 => Self::SensorSaturated,
+            3 => Self::SensorStuck,
+            4 => Self::ImplausibleTare,
+            5 => Self::AxisStall,
+            6 => Self::Overtravel,
+            7 => Self::LockNotReleased,
+            8 => Self::LockNotLocked,
+            9 => Self::SwitchConflict,
+            10 => Self::Io,
+            _ => return None,
+        })
+    }
+}
+
+/// The switches, `true` = closed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Switches {
+    /// Axis at home.
+    pub home: bool,
+    /// Axis at the overtravel limit.
+    pub end: bool,
+    /// Lock fully locked.
+    pub locked: bool,
+    /// Lock fully released.
+    pub released: bool,
+}
+
+/// Requests from outside the control loop (console, scene, start button).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Request {
+    /// Run one docking cycle (accepted in `Idle` only).
+    StartCycle,
+    /// Clear a latched fault and recover to home (accepted in `Faulted` only).
+    ClearFault,
+}
+
+/// What the controller measured in this control step.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Inputs {
+    /// Time, ms since boot.
+    pub now_ms: u64,
+    /// Counted axis position, µm from home.
+    pub pos_um: i32,
+    /// The propulsion has reached its target and stands still.
+    pub axis_idle: bool,
+    /// Switch states.
+    pub switches: Switches,
+    /// A fault the guard or the drivers detected in this step.
+    pub fault: Option<FaultKind>,
+    /// A request to act on.
+    pub request: Option<Request>,
+}
+
+/// What the propulsion must do.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum AxisCmd {
+    /// Power stage off.
+    Disabled,
+    /// Enabled, standing still (stop at once if moving).
+    Hold,
+    /// Enabled, move to `target_um` at no more than `speed_um_per_s`.
+    Move {
+        /// Target, µm from home.
+        target_um: i32,
+        /// Speed limit, µm/s.
+        speed_um_per_s: u32,
+    },
+}
+
+/// Something worth logging and counting.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum SeqEvent {
+    /// The home switch closed: the counted position is now 0.
+    Homed,
+    /// A docking cycle started (its 1-based number).
+    CycleStarted(u32),
+    /// A docking cycle completed (its 1-based number).
+    CycleCompleted(u32),
+    /// A fault latched.
+    Fault(FaultKind),
+    /// The fault was cleared by request; recovery begins.
+    FaultCleared,
+    /// A request that the current state does not accept.
+    RequestRefused(Request),
+}
+
+/// Outputs of one step.
+#[must_use]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Outputs {
+    /// Propulsion command.
+    pub axis: AxisCmd,
+    /// Lock command.
+    pub lock: LockCmd,
+    /// The counted position must be set to 0 (home switch just closed).
+    pub zero_position: bool,
+    /// Event of this step.
+    pub event: Option<SeqEvent>,
+}
+
+/// Where a lock motion leads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum AfterLock {
+    /// Power-up: then idle.
+    Idle,
+    /// End of a cycle or a recovery: then return home.
+    Return,
+}
+
+/// Sequencer state. Every moving state carries its deadline (ms since boot).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum State {
+    /// Just booted: nothing known.
+    PowerUp,
+    /// Searching the home switch (toward −, at ≤ v0: the panel may be in the cone).
+    Homing {
+        /// Deadline, ms.
+        deadline_ms: u64,
+    },
+    /// Driving the lock to its locked switch.
+    Locking {
+        /// Deadline, ms.
+        deadline_ms: u64,
+        /// What follows.
+        then: AfterLock,
+    },
+    /// Homed and locked, motors off, waiting for a start.
+    Idle,
+    /// Locked panel advancing fast to the engagement point.
+    PreAlign {
+        /// Deadline, ms.
+        deadline_ms: u64,
+    },
+    /// Releasing the lock for the compliant phase.
+    Releasing {
+        /// Deadline, ms.
+        deadline_ms: u64,
+    },
+    /// Compliant insertion through the four contact phases.
+    Inserting {
+        /// Deadline, ms.
+        deadline_ms: u64,
+    },
+    /// Mated; holding until `until_ms`.
+    Holding {
+        /// End of the hold, ms.
+        until_ms: u64,
+    },
+    /// Compliant extraction back to the engagement point.
+    Extracting {
+        /// Deadline, ms.
+        deadline_ms: u64,
+    },
+    /// Locked panel returning fast to the home switch.
+    Returning {
+        /// Deadline, ms.
+        deadline_ms: u64,
+        /// Whether this return ends a docking cycle (else a recovery).
+        ends_cycle: bool,
+    },
+    /// Controlled retreat after an overload.
+    BackingOff {
+        /// Deadline, ms.
+        deadline_ms: u64,
+        /// Retreat target, µm.
+        target_um: i32,
+    },
+    /// Latched fault: motors off.
+    Faulted {
+        /// The fault.
+        fault: FaultKind,
+    },
+    /// After a clear: compliant retreat to the engagement point.
+    Recovering {
+        /// Deadline, ms.
+        deadline_ms: u64,
+    },
+}
+
+impl State {
+    /// Stable snake-case name.
+    pub const fn name(&self) -> &'static str {
+        match self {
+            Self::PowerUp => "power_up",
+            Self::Homing { .. } => "homing",
+            Self::Locking { .. } => "locking",
+            Self::Idle => "idle",
+            Self::PreAlign { .. } => "pre_align",
+            Self::Releasing { .. } => "releasing",
+            Self::Inserting { .. } => "inserting",
+            Self::Holding { .. } => "holding",
+            Self::Extracting { .. } => "extracting",
+            Self::Returning { .. } => "returning",
+            Self::BackingOff { .. } => "backing_off",
+            Self::Faulted { .. } => "faulted",
+            Self::Recovering { .. } => "recovering",
+        }
+    }
+
+    /// Whether the propulsion may be moving in this state.
+    pub const fn is_moving(&self) -> bool {
+        matches!(
+            self,
+            Self::Homing { .. }
+                | Self::PreAlign { .. }
+                | Self::Inserting { .. }
+                | Self::Extracting { .. }
+                | Self::Returning { .. }
+                | Self::BackingOff { .. }
+                | Self::Recovering { .. }
+        )
+    }
+
+    /// Whether the rod may be in the cone (compliant states).
+    pub const fn in_compliant_motion(&self) -> bool {
+        matches!(
+            self,
+            Self::Inserting { .. }
+                | Self::Holding { .. }
+                | Self::Extracting { .. }
+                | Self::BackingOff { .. }
+                | Self::Recovering { .. }
+        )
+    }
+}
+
+/// Retreat after an overload, µm.
+pub const BACK_OFF_UM: i32 = 2_000;
+/// How far past the counted home the search goes before it gives up, µm.
+pub const HOME_OVERSHOOT_UM: i32 = 3_000;
+
+/// The sequencer.
+#[derive(Clone, Debug)]
+pub struct Sequencer {
+    cfg: MachineConfig,
+    state: State,
+    cycles_completed: u32,
+    cycle_in_progress: u32,
+}
+
+impl Sequencer {
+    /// A sequencer at power-up.
+    pub const fn new(cfg: MachineConfig) -> Self {
+        Self {
+            cfg,
+            state: State::PowerUp,
+            cycles_completed: 0,
+            cycle_in_progress: 0,
+        }
+    }
+
+    /// Current state.
+    pub const fn state(&self) -> State {
+        self.state
+    }
+
+    /// Cycles completed since boot.
+    pub const fn cycles_completed(&self) -> u32 {
+        self.cycles_completed
+    }
+
+    /// The cycle in progress or last started (1-based; 0 = none yet).
+    pub const fn cycle_number(&self) -> u32 {
+        self.cycle_in_progress
+    }
+
+    /// Deadline for a move of `dist_um` at `speed`: travel time ×1.5 + ramps + slack.
+    fn move_deadline(&self, now_ms: u64, dist_um: i32, speed_um_per_s: u32) -> u64 {
+        let speed = speed_um_per_s.max(1) as u64;
+        let travel_ms = dist_um.unsigned_abs() as u64 * 1000 / speed;
+        let ramp_ms = speed * 1000 / self.cfg.accel_um_per_s2.max(1) as u64;
+        now_ms + travel_ms * 3 / 2 + 2 * ramp_ms + self.cfg.move_slack_ms as u64
+    }
+
+    fn lock_deadline(&self, now_ms: u64) -> u64 {
+        now_ms + self.cfg.lock_deadline_ms as u64
+    }
+
+    fn fault(&mut self, fault: FaultKind, inp: &Inputs) -> (State, Option<SeqEvent>) {
+        // An overload while the axis may be moving is answered with a controlled retreat.
+        if fault == FaultKind::Overload
+            && self.state.is_moving()
+            && !matches!(self.state, State::BackingOff { .. })
+        {
+            let target_um = inp.pos_um - BACK_OFF_UM;
+            let deadline_ms =
+                self.move_deadline(inp.now_ms, BACK_OFF_UM, self.cfg.dock_speed_um_per_s);
+            return (
+                State::BackingOff {
+                    deadline_ms,
+                    target_um,
+                },
+                Some(SeqEvent::Fault(fault)),
+            );
+        }
+        (State::Faulted { fault }, Some(SeqEvent::Fault(fault)))
+    }
+
+    fn start_return(&self, now_ms: u64, pos_um: i32, ends_cycle: bool) -> State {
+        let deadline_ms = self.move_deadline(
+            now_ms,
+            pos_um + HOME_OVERSHOOT_UM,
+            self.cfg.fast_speed_um_per_s,
+        );
+        State::Returning {
+            deadline_ms,
+            ends_cycle,
+        }
+    }
+
+    /// One control step.
+    pub fn step(&mut self, inp: &Inputs) -> Outputs {
+        let sw = inp.switches;
+        let cfg = self.cfg;
+
+        // Faults first: reported ones, then the switch checks that hold in every state.
+        let switch_fault = if (sw.home && sw.end) || (sw.locked && sw.released) {
+            Some(FaultKind::SwitchConflict)
+        } else if sw.end {
+            Some(FaultKind::Overtravel)
+        } else {
+            None
+        };
+        let detected = inp.fault.or(switch_fault);
+        let next = match (self.state, detected) {
+            (State::Faulted { .. }, _) => None, // latched: only a clear gets out
+            (State::BackingOff { .. }, Some(f)) => {
+                Some((State::Faulted { fault: f }, Some(SeqEvent::Fault(f))))
+            }
+            (_, Some(f)) => Some(self.fault(f, inp)),
+            _ => None,
+        };
+        let (state, mut event, zero_position) = match next {
+            Some((s, e)) => (s, e, false),
+            None => self.transition(inp),
+        };
+        self.state = state;
+
+        if let (Some(r), None) = (inp.request, event) {
+            let accepted = matches!(
+                (r, self.state),
+                (Request::StartCycle, State::PreAlign { .. })
+                    | (
+                        Request::ClearFault,
+                        State::Recovering { .. } | State::Locking { .. } | State::Returning { .. }
+                    )
+            );
+            if !accepted {
+                event = Some(SeqEvent::RequestRefused(r));
+            }
+        }
+
+        let (axis, lock) = match self.state {
+            State::PowerUp | State::Idle | State::Faulted { .. } => {
+                (AxisCmd::Disabled, LockCmd::Off)
+            }
+            State::Homing { .. } => (
+                AxisCmd::Move {
+                    target_um: inp
+                        .pos_um
+                        .saturating_sub(cfg.end_switch_um + HOME_OVERSHOOT_UM),
+                    speed_um_per_s: cfg.dock_speed_um_per_s,
+                },
+                LockCmd::Off,
+            ),
+            State::Locking { .. } => (AxisCmd::Hold, LockCmd::ToLocked),
+            State::PreAlign { .. } => (
+                AxisCmd::Move {
+                    target_um: cfg.engage_um,
+                    speed_um_per_s: cfg.fast_speed_um_per_s,
+                },
+                LockCmd::Off,
+            ),
+            State::Releasing { .. } => (AxisCmd::Hold, LockCmd::ToReleased),
+            State::Inserting { .. } => (
+                AxisCmd::Move {
+                    target_um: cfg.mated_um(),
+                    speed_um_per_s: cfg.dock_speed_um_per_s,
+                },
+                LockCmd::Off,
+            ),
+            State::Holding { .. } => (AxisCmd::Hold, LockCmd::Off),
+            State::Extracting { .. } | State::Recovering { .. } => (
+                AxisCmd::Move {
+                    target_um: cfg.engage_um,
+                    speed_um_per_s: cfg.dock_speed_um_per_s,
+                },
+                LockCmd::Off,
+            ),
+            State::Returning { .. } => (
+                AxisCmd::Move {
+                    target_um: -HOME_OVERSHOOT_UM,
+                    speed_um_per_s: cfg.fast_speed_um_per_s,
+                },
+                LockCmd::Off,
+            ),
+            State::BackingOff { target_um, .. } => (
+                AxisCmd::Move {
+                    target_um,
+                    speed_um_per_s: cfg.dock_speed_um_per_s,
+                },
+                LockCmd::Off,
+            ),
+        };
+        Outputs {
+            axis,
+            lock,
+            zero_position,
+            event,
+        }
+    }
+
+    /// The fault-free transition of the current state.
+    fn transition(&mut self, inp: &Inputs) -> (State, Option<SeqEvent>, bool) {
+        let now = inp.now_ms;
+        let sw = inp.switches;
+        let cfg = self.cfg;
+        let past = |deadline_ms: u64| now > deadline_ms;
+        let stay = |s: State| (s, None, false);
+        let fault = |f: FaultKind| (State::Faulted { fault: f }, Some(SeqEvent::Fault(f)), false);
+        match self.state {
+            State::PowerUp => {
+                let deadline_ms = self.move_deadline(
+                    now,
+                    cfg.end_switch_um + HOME_OVERSHOOT_UM,
+                    cfg.dock_speed_um_per_s,
+                );
+                (State::Homing { deadline_ms }, None, false)
+            }
+            State::Homing { deadline_ms } => {
+                if sw.home {
+                    (
+                        State::Locking {
+                            deadline_ms: self.lock_deadline(now),
+                            then: AfterLock::Idle,
+                        },
+                        Some(SeqEvent::Homed),
+                        true,
+                    )
+                } else if past(deadline_ms) || inp.axis_idle {
+                    fault(FaultKind::AxisStall)
+                } else {
+                    stay(self.state)
+                }
+            }
+            State::Locking { deadline_ms, then } => {
+                if sw.locked {
+                    match then {
+                        AfterLock::Idle => stay(State::Idle),
+                        AfterLock::Return => (
+                            self.start_return(
+                                now,
+                                inp.pos_um,
+                                self.cycle_in_progress > self.cycles_completed,
+                            ),
+                            None,
+                            false,
+                        ),
+                    }
+                } else if past(deadline_ms) {
+                    fault(FaultKind::LockNotLocked)
+                } else {
+                    stay(self.state)
+                }
+            }
+            State::Idle => match inp.request {
+                Some(Request::StartCycle) if sw.home && sw.locked => {
+                    self.cycle_in_progress = self.cycles_completed.saturating_add(1);
+                    let deadline_ms = self.move_deadline(
+                        now,
+                        cfg.engage_um - inp.pos_um,
+                        cfg.fast_speed_um_per_s,
+                    );
+                    (
+                        State::PreAlign { deadline_ms },
+                        Some(SeqEvent::CycleStarted(self.cycle_in_progress)),
+                        false,
+                    )
+                }
+                Some(Request::StartCycle) if !sw.home => fault(FaultKind::AxisStall),
+                Some(Request::StartCycle) => fault(FaultKind::LockNotLocked),
+                _ => stay(State::Idle),
+            },
+            State::PreAlign { deadline_ms } => {
+                if inp.axis_idle && (inp.pos_um - cfg.engage_um).abs() <= 10 {
+                    (
+                        State::Releasing {
+                            deadline_ms: self.lock_deadline(now),
+                        },
+                        None,
+                        false,
+                    )
+                } else if past(deadline_ms) {
+                    fault(FaultKind::AxisStall)
+                } else {
+                    stay(self.state)
+                }
+            }
+            State::Releasing { deadline_ms } => {
+                if sw.released {
+                    let deadline_ms = self.move_deadline(
+                        now,
+                        cfg.mated_um() - inp.pos_um,
+                        cfg.dock_speed_um_per_s,
+                    );
+                    (State::Inserting { deadline_ms }, None, false)
+                } else if past(deadline_ms) {
+                    fault(FaultKind::LockNotReleased)
+                } else {
+                    stay(self.state)
+                }
+            }
+            State::Inserting { deadline_ms } => {
+                if inp.axis_idle && (inp.pos_um - cfg.mated_um()).abs() <= 10 {
+                    (
+                        State::Holding {
+                            until_ms: now + cfg.hold_ms as u64,
+                        },
+                        None,
+                        false,
+                    )
+                } else if past(deadline_ms) {
+                    fault(FaultKind::AxisStall)
+                } else {
+                    stay(self.state)
+                }
+            }
+            State::Holding { until_ms } => {
+                if now >= until_ms {
+                    let deadline_ms = self.move_deadline(
+                        now,
+                        inp.pos_um - cfg.engage_um,
+                        cfg.dock_speed_um_per_s,
+                    );
+                    (State::Extracting { deadline_ms }, None, false)
+                } else {
+                    stay(self.state)
+                }
+            }
+            State::Extracting { deadline_ms } | State::Recovering { deadline_ms } => {
+                if inp.axis_idle && (inp.pos_um - cfg.engage_um).abs() <= 10 {
+                    (
+                        State::Locking {
+                            deadline_ms: self.lock_deadline(now),
+                            then: AfterLock::Return,
+                        },
+                        None,
+                        false,
+                    )
+                } else if past(deadline_ms) {
+                    fault(FaultKind::AxisStall)
+                } else {
+                    stay(self.state)
+                }
+            }
+            State::Returning {
+                deadline_ms,
+                ends_cycle,
+            } => {
+                if sw.home {
+                    let ev = if ends_cycle {
+                        self.cycles_completed = self.cycle_in_progress;
+                        Some(SeqEvent::CycleCompleted(self.cycles_completed))
+                    } else {
+                        Some(SeqEvent::Homed)
+                    };
+                    (State::Idle, ev, true)
+                } else if past(deadline_ms) || inp.axis_idle {
+                    // Counted position says home (or time is up) but the switch is open.
+                    fault(FaultKind::AxisStall)
+                } else {
+                    stay(self.state)
+                }
+            }
+            State::BackingOff { deadline_ms, .. } => {
+                if inp.axis_idle || past(deadline_ms) {
+                    stay(State::Faulted {
+                        fault: FaultKind::Overload,
+                    })
+                } else {
+                    stay(self.state)
+                }
+            }
+            State::Faulted { .. } => match inp.request {
+                Some(Request::ClearFault) => {
+                    if inp.pos_um > cfg.engage_um {
+                        let deadline_ms = self.move_deadline(
+                            now,
+                            inp.pos_um - cfg.engage_um,
+                            cfg.dock_speed_um_per_s,
+                        );
+                        (
+                            State::Recovering { deadline_ms },
+                            Some(SeqEvent::FaultCleared),
+                            false,
+                        )
+                    } else {
+                        (
+                            State::Locking {
+                                deadline_ms: self.lock_deadline(now),
+                                then: AfterLock::Return,
+                            },
+                            Some(SeqEvent::FaultCleared),
+                            false,
+                        )
+                    }
+                }
+                _ => stay(self.state),
+            },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    struct Rig {
+        seq: Sequencer,
+        inp: Inputs,
+    }
+
+    impl Rig {
+        fn new() -> Self {
+            let sw = Switches {
+                home: true,
+                locked: true,
+                ..Switches::default()
+            };
+            Self {
+                seq: Sequencer::new(MachineConfig::DEFAULT),
+                inp: Inputs {
+                    switches: sw,
+                    axis_idle: true,
+                    ..Inputs::default()
+                },
+            }
+        }
+        fn tick(&mut self, dt_ms: u64) {
+            let _ = self.step(dt_ms);
+        }
+        fn step(&mut self, dt_ms: u64) -> Outputs {
+            self.inp.now_ms += dt_ms;
+            let o = self.seq.step(&self.inp);
+            self.inp.request = None;
+            self.inp.fault = None;
+            o
+        }
+    }
+
+    #[test]
+    fn boots_homes_locks_and_idles() {
+        let mut r = Rig::new();
+        r.tick(10);
+        assert!(matches!(r.seq.state(), State::Homing { .. }));
+        let o = r.step(10);
+        assert!(o.zero_position);
+        assert_eq!(o.event, Some(SeqEvent::Homed));
+        assert_eq!(o.lock, LockCmd::ToLocked);
+        let o = r.step(10);
+        assert_eq!(r.seq.state(), State::Idle);
+        assert_eq!(o.axis, AxisCmd::Disabled);
+    }
+
+    #[test]
+    fn a_whole_cycle_as_a_timeline() {
+        let cfg = MachineConfig::DEFAULT;
+        let mut r = Rig::new();
+        for _ in 0..3 {
+            r.tick(10);
+        }
+        r.inp.request = Some(Request::StartCycle);
+        let o = r.step(10);
+        assert_eq!(o.event, Some(SeqEvent::CycleStarted(1)));
+        assert_eq!(
+            o.axis,
+            AxisCmd::Move {
+                target_um: cfg.engage_um,
+                speed_um_per_s: cfg.fast_speed_um_per_s
+            }
+        );
+        r.inp.switches.home = false;
+        r.inp.pos_um = cfg.engage_um;
+        let o = r.step(2_000);
+        assert_eq!(o.lock, LockCmd::ToReleased);
+        r.inp.switches = Switches {
+            released: true,
+            ..Switches::default()
+        };
+        let o = r.step(400);
+        assert_eq!(
+            o.axis,
+            AxisCmd::Move {
+                target_um: cfg.mated_um(),
+                speed_um_per_s: 1_200
+            }
+        );
+        r.inp.pos_um = cfg.mated_um();
+        r.tick(25_000);
+        assert!(matches!(r.seq.state(), State::Holding { .. }));
+        let o = r.step(1_000);
+        assert!(matches!(r.seq.state(), State::Extracting { .. }));
+        assert_eq!(
+            o.axis,
+            AxisCmd::Move {
+                target_um: cfg.engage_um,
+                speed_um_per_s: 1_200
+            }
+        );
+        r.inp.pos_um = cfg.engage_um;
+        let o = r.step(25_000);
+        assert_eq!(o.lock, LockCmd::ToLocked);
+        r.inp.switches = Switches {
+            locked: true,
+            ..Switches::default()
+        };
+        let o = r.step(400);
+        assert!(matches!(
+            o.axis,
+            AxisCmd::Move {
+                target_um: -3_000,
+                ..
+            }
+        ));
+        r.inp.switches.home = true;
+        r.inp.pos_um = 0;
+        let o = r.step(2_000);
+        assert_eq!(o.event, Some(SeqEvent::CycleCompleted(1)));
+        assert!(o.zero_position);
+        assert_eq!(r.seq.cycles_completed(), 1);
+    }
+
+    #[test]
+    fn lock_that_never_releases_is_a_named_latched_fault() {
+        let mut r = Rig::new();
+        for _ in 0..3 {
+            r.tick(10);
+        }
+        r.inp.request = Some(Request::StartCycle);
+        r.tick(10);
+        r.inp.switches.home = false;
+        r.inp.pos_um = 20_000;
+        r.tick(2_000);
+        assert!(matches!(r.seq.state(), State::Releasing { .. }));
+        // The lock stays locked: at the deadline, a named fault.
+        r.tick(1_999);
+        assert!(matches!(r.seq.state(), State::Releasing { .. }));
+        let o = r.step(2);
+        assert_eq!(o.event, Some(SeqEvent::Fault(FaultKind::LockNotReleased)));
+        assert_eq!((o.axis, o.lock), (AxisCmd::Disabled, LockCmd::Off));
+        // Latched: a start is refused, time does not clear it.
+        r.inp.request = Some(Request::StartCycle);
+        let o = r.step(60_000);
+        assert_eq!(o.event, Some(SeqEvent::RequestRefused(Request::StartCycle)));
+        assert_eq!(
+            r.seq.state(),
+            State::Faulted {
+                fault: FaultKind::LockNotReleased
+            }
+        );
+        // Clear: recovery re-locks and returns home.
+        r.inp.request = Some(Request::ClearFault);
+        let o = r.step(10);
+        assert_eq!(o.event, Some(SeqEvent::FaultCleared));
+        assert_eq!(o.lock, LockCmd::ToLocked);
+    }
+
+    #[test]
+    fn overload_while_inserting_backs_off_then_latches() {
+        let cfg = MachineConfig::DEFAULT;
+        let mut r = Rig::new();
+        for _ in 0..3 {
+            r.tick(10);
+        }
+        r.inp.request = Some(Request::StartCycle);
+        r.tick(10);
+        r.inp.switches = Switches {
+            released: true,
+            ..Switches::default()
+        };
+        r.inp.pos_um = cfg.engage_um;
+        r.tick(2_000);
+        r.tick(10);
+        assert!(matches!(r.seq.state(), State::Inserting { .. }));
+        r.inp.axis_idle = false;
+        r.inp.pos_um = cfg.engage_um + 10_000;
+        r.inp.fault = Some(FaultKind::Overload);
+        let o = r.step(10);
+        assert_eq!(o.event, Some(SeqEvent::Fault(FaultKind::Overload)));
+        assert_eq!(
+            o.axis,
+            AxisCmd::Move {
+                target_um: cfg.engage_um + 8_000,
+                speed_um_per_s: 1_200
+            }
+        );
+        r.inp.pos_um = cfg.engage_um + 8_000;
+        r.inp.axis_idle = true;
+        let o = r.step(2_000);
+        assert_eq!(o.axis, AxisCmd::Disabled);
+        assert_eq!(
+            r.seq.state(),
+            State::Faulted {
+                fault: FaultKind::Overload
+            }
+        );
+    }
+
+    #[test]
+    fn return_without_home_switch_is_a_stall() {
+        let mut r = Rig::new();
+        r.tick(10);
+        r.inp.switches.home = false;
+        r.inp.axis_idle = false;
+        let o = r.step(10);
+        assert!(matches!(o.axis, AxisCmd::Move { .. }));
+        r.inp.axis_idle = true; // reached the search limit, switch still open
+        let o = r.step(10);
+        assert_eq!(o.event, Some(SeqEvent::Fault(FaultKind::AxisStall)));
+    }
+
+    #[test]
+    fn overtravel_and_switch_conflicts() {
+        let mut r = Rig::new();
+        r.inp.switches.end = true;
+        let o = r.step(10);
+        assert_eq!(o.event, Some(SeqEvent::Fault(FaultKind::SwitchConflict)));
+        let mut r = Rig::new();
+        r.inp.switches = Switches {
+            end: true,
+            locked: true,
+            ..Switches::default()
+        };
+        let o = r.step(10);
+        assert_eq!(o.event, Some(SeqEvent::Fault(FaultKind::Overtravel)));
+    }
+
+    #[test]
+    fn fault_codes_round_trip() {
+        for c in 0..=20u8 {
+            if let Some(f) = FaultKind::from_code(c) {
+                assert_eq!(f.code(), c);
+            }
+        }
+        assert_eq!(FaultKind::from_code(0), Some(FaultKind::Overload));
+        assert_eq!(FaultKind::from_code(10), Some(FaultKind::Io));
+        assert_eq!(FaultKind::from_code(11), None);
+    }
+}
