@@ -25,12 +25,15 @@ use cortex_m::interrupt::Mutex;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::{entry, exception, ExceptionFrame};
 use defmt_rtt as _;
+use docking_controller::controller::{Bsp, Controller, ControllerConfig, Parts};
 use docking_controller::hal::{Monotonic, StepPulses, Watchdog};
+use docking_controller::hx711::{Calibration, Gain, Hx711};
 use stm32f4xx_hal::{
-    gpio::{Output, PinState, PE9},
+    gpio::{Input, Output, PinState, PB0, PB1, PC0, PC1, PC2, PC3, PD12, PD13, PE10, PE11, PE9},
     pac,
     prelude::*,
     rcc::Config,
+    timer::DelayUs,
     watchdog::IndependentWatchdog,
 };
 
@@ -40,6 +43,11 @@ const SYSCLK_HZ: u32 = 168_000_000;
 const STEP_TICK_HZ: u32 = 20_000;
 /// Independent watchdog period, ms (the control loop runs at ≥ 10 Hz).
 const WATCHDOG_MS: u32 = 500;
+/// HX711 output data rate (its RATE pin is tied high on this board: 80 SPS).
+const SAMPLE_RATE_SPS: u32 = 80;
+/// Load-cell calibration until a technician calibrates the machine (500 N, 2 mV/V
+/// cell on channel A/128 at 5 V excitation: ≈ 8 590 counts/N).
+const DEFAULT_CALIBRATION: Calibration = Calibration::SIM_DEFAULT;
 
 // --- Safe state, by raw register writes (RM0090 §7.4, §8.4) ------------------------
 // Used first thing at boot and from the panic and HardFault handlers, where the HAL's
@@ -180,6 +188,26 @@ impl Watchdog for BoardWatchdog {
     }
 }
 
+/// The board's parts for the controller.
+pub struct Board;
+
+impl Bsp for Board {
+    type EnN = PE11<Output>;
+    type Dir = PE10<Output>;
+    type Pulses = BoardStepPulses;
+    type LockIn1 = PD12<Output>;
+    type LockIn2 = PD13<Output>;
+    type Home = PC0<Input>;
+    type End = PC1<Input>;
+    type Locked = PC2<Input>;
+    type Released = PC3<Input>;
+    /// The HX711 on PB0/PB1, timed by TIM5 (a polled, busy-wait delay: the driver runs
+    /// each clock-high phase inside a critical section, so the delay must not need
+    /// interrupts).
+    type Adc = Hx711<PB0<Input>, PB1<Output>, DelayUs<pac::TIM5>>;
+    type Wdg = BoardWatchdog;
+}
+
 #[entry]
 fn main() -> ! {
     // 1. Motors safe before anything else, before clocks.
@@ -203,16 +231,16 @@ fn main() -> ! {
     let gpiod = dp.GPIOD.split(&mut rcc);
     let gpioe = dp.GPIOE.split(&mut rcc);
     let step = gpioe.pe9.into_push_pull_output_in_state(PinState::Low);
-    let _dir = gpioe.pe10.into_push_pull_output_in_state(PinState::Low);
-    let _en_n = gpioe.pe11.into_push_pull_output_in_state(PinState::High);
-    let _lock_in1 = gpiod.pd12.into_push_pull_output_in_state(PinState::Low);
-    let _lock_in2 = gpiod.pd13.into_push_pull_output_in_state(PinState::Low);
-    let _home = gpioc.pc0.into_pull_up_input();
-    let _end = gpioc.pc1.into_pull_up_input();
-    let _locked = gpioc.pc2.into_pull_up_input();
-    let _released = gpioc.pc3.into_pull_up_input();
-    let _hx_dout = gpiob.pb0.into_pull_up_input();
-    let _hx_sck = gpiob.pb1.into_push_pull_output_in_state(PinState::Low);
+    let dir = gpioe.pe10.into_push_pull_output_in_state(PinState::Low);
+    let en_n = gpioe.pe11.into_push_pull_output_in_state(PinState::High);
+    let lock_in1 = gpiod.pd12.into_push_pull_output_in_state(PinState::Low);
+    let lock_in2 = gpiod.pd13.into_push_pull_output_in_state(PinState::Low);
+    let home = gpioc.pc0.into_pull_up_input();
+    let end = gpioc.pc1.into_pull_up_input();
+    let locked = gpioc.pc2.into_pull_up_input();
+    let released = gpioc.pc3.into_pull_up_input();
+    let hx_dout = gpiob.pb0.into_pull_up_input();
+    let hx_sck = gpiob.pb1.into_push_pull_output_in_state(PinState::Low);
 
     cortex_m::interrupt::free(|cs| {
         STEP_GEN.borrow(cs).replace(Some(StepGen {
@@ -230,19 +258,59 @@ fn main() -> ! {
     let mut pulses = BoardStepPulses;
     pulses.set_rate_hz(0);
 
+    // The HX711 may have been mid-readout when the MCU reset: power-cycle it (settles in
+    // 4 conversions, which the controller's disconnect timeout allows for).
+    let delay = dp.TIM5.delay_us(&mut rcc);
+    let Ok(mut adc) = Hx711::new(hx_dout, hx_sck, delay, Gain::A128) else {
+        halt_safe()
+    };
+    if adc.power_down().and_then(|_| adc.power_up()).is_err() {
+        halt_safe();
+    }
+
     let mut clock = BoardClock { last: 0, high: 0 };
     let mut iwdg = IndependentWatchdog::new(dp.IWDG);
     iwdg.start(WATCHDOG_MS.millis());
-    let mut watchdog = BoardWatchdog(iwdg);
+    let wdg = BoardWatchdog(iwdg);
 
+    let parts = Parts::<Board> {
+        en_n,
+        dir,
+        pulses,
+        lock_in1,
+        lock_in2,
+        home,
+        end,
+        locked,
+        released,
+        adc,
+        wdg,
+    };
+    let cfg = ControllerConfig::new(SAMPLE_RATE_SPS, DEFAULT_CALIBRATION);
+    let Ok(mut ctrl) = Controller::new(parts, cfg, clock.now_us()) else {
+        halt_safe()
+    };
     defmt::info!(
         "docking-controller {} booted; motors safe",
         env!("CARGO_PKG_VERSION")
     );
 
-    // 4. Control loop skeleton: the sequencer, guard and odometer plug in here.
+    // 4. The control loop: poll as fast as possible; a step runs per load-cell sample.
     loop {
-        let _now_us = clock.now_us();
-        watchdog.feed();
+        let now_us = clock.now_us();
+        let _ = ctrl.poll(now_us);
+        while let Some(ev) = ctrl.next_event() {
+            defmt::info!("t={=u64} ms {}", ev.t_ms, ev.event);
+        }
+    }
+}
+
+/// Could not even build the controller: keep the motors safe and wait for the watchdog
+/// (or a debugger).
+fn halt_safe() -> ! {
+    force_safe_outputs();
+    defmt::error!("start-up failed; motors safe, halted");
+    loop {
+        cortex_m::asm::wfi();
     }
 }
