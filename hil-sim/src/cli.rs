@@ -16,7 +16,70 @@ impl std::fmt::Display for UsageError {
 }
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract]";
+pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate SPS] [--seed S] [--json] | bench [--cycles N] [--rate SPS]";
+
+/// Parse `--rate` as one of the HX711 rates.
+fn hx_rate(o: &Opts) -> Result<u32, UsageError> {
+    let r = o.num("rate", 80u32, 1, u32::MAX)?;
+    if !crate::hx711::Hx711Config::RATES_SPS.contains(&r) {
+        return err(format!("--rate must be 10, 80 or 320 samples/s, got '{r}'"));
+    }
+    Ok(r)
+}
+
+fn scene(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
+    let Some((name, rest)) = args.split_first() else {
+        return err(format!(
+            "scene needs a name ({})",
+            crate::scene::SCENES.join(", ")
+        ));
+    };
+    let o = Opts::parse(rest, &["cycles", "rate", "seed"], &["json"])?;
+    let opts = crate::scene::SceneOptions {
+        cycles: o.num("cycles", 1u32, 1, 100_000)?,
+        rate_sps: hx_rate(&o)?,
+        seed: o.num("seed", 1u64, 0, u64::MAX)?,
+        adc: crate::rig::AdcMode::Pins,
+    };
+    let report = crate::scene::run(name, opts).map_err(UsageError)?;
+    let text = if o.flag("json") {
+        report.to_json()
+    } else {
+        report.to_text()
+    };
+    let _ = writeln!(out, "{text}");
+    Ok(())
+}
+
+fn bench(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
+    let o = Opts::parse(args, &["cycles", "rate"], &[])?;
+    let cycles = o.num("cycles", 1_000u32, 1, 1_000_000)?;
+    let rate_sps = hx_rate(&o)?;
+    let r = crate::scene::run(
+        "nominal",
+        crate::scene::SceneOptions {
+            cycles,
+            rate_sps,
+            seed: 1,
+            adc: crate::rig::AdcMode::Word,
+        },
+    )
+    .map_err(UsageError)?;
+    let ns_per_step = r.wall_time_s * 1e9 / r.control_steps.max(1) as f64;
+    let _ = writeln!(
+        out,
+        "bench: {} nominal cycles at {} SPS: {} control steps, {:.1} s simulated in {:.3} s wall; {:.0} ns per control step (controller + simulated HAL); simulated/wall time ratio {:.0}x; faults {}",
+        r.cycles_completed,
+        rate_sps,
+        r.control_steps,
+        r.sim_time_s,
+        r.wall_time_s,
+        ns_per_step,
+        r.sim_time_s / r.wall_time_s.max(1e-9),
+        r.faults.len()
+    );
+    Ok(())
+}
 
 fn err<T>(msg: impl Into<String>) -> Result<T, UsageError> {
     Err(UsageError(msg.into()))
@@ -117,6 +180,8 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
     };
     match cmd.as_str() {
         "profile" => profile(rest, out),
+        "scene" => scene(rest, out),
+        "bench" => bench(rest, out),
         "help" | "--help" | "-h" => {
             let _ = writeln!(out, "{USAGE}");
             Ok(())

@@ -24,4 +24,6 @@ pub mod flash;
 pub mod hx711;
 pub mod lock;
 pub mod profile_cmd;
+pub mod rig;
 pub mod rng;
+pub mod scene;

@@ -1,0 +1,246 @@
+//! A complete simulated docking machine: the devices of this crate wired to the real
+//! `docking_controller::Controller`, in virtual time.
+
+use std::cell::{Cell, RefCell};
+use std::rc::Rc;
+
+use docking_controller::config::MachineConfig;
+use docking_controller::controller::{Bsp, Controller, ControllerConfig, Parts};
+use docking_controller::hal::{LoadCellAdc, Watchdog};
+use docking_controller::hx711::{Calibration, Gain, Hx711};
+use docking_controller::profile::forces_at_depth_um;
+
+use crate::axis::{AxisPin, AxisPulses, SimAxis};
+use crate::clock::SimClock;
+use crate::hx711::{Hx711Config, Hx711Dout, Hx711Sck, SimHx711};
+use crate::lock::{LockPin, SimLock};
+
+/// The simulated watchdog: records feeds; "bites" if not fed within its timeout.
+#[derive(Clone, Debug)]
+pub struct SimWatchdog {
+    clock: SimClock,
+    timeout_ns: u64,
+    last_feed_ns: Rc<Cell<u64>>,
+    feeds: Rc<Cell<u64>>,
+    bitten: Rc<Cell<bool>>,
+}
+
+impl SimWatchdog {
+    /// A watchdog with the board's 500 ms period.
+    pub fn new(clock: SimClock) -> Self {
+        let now = clock.now_ns();
+        Self {
+            clock,
+            timeout_ns: 500_000_000,
+            last_feed_ns: Rc::new(Cell::new(now)),
+            feeds: Rc::default(),
+            bitten: Rc::default(),
+        }
+    }
+
+    /// Whether it would have reset the MCU by now (not fed within the timeout).
+    pub fn check(&self) -> bool {
+        if self.clock.now_ns().saturating_sub(self.last_feed_ns.get()) > self.timeout_ns {
+            self.bitten.set(true);
+        }
+        self.bitten.get()
+    }
+
+    /// Feeds so far.
+    pub fn feeds(&self) -> u64 {
+        self.feeds.get()
+    }
+}
+
+impl Watchdog for SimWatchdog {
+    fn feed(&mut self) {
+        self.check();
+        self.last_feed_ns.set(self.clock.now_ns());
+        self.feeds.set(self.feeds.get() + 1);
+    }
+}
+
+/// The real HX711 driver on the simulated part's pins.
+pub type PinDriver = Hx711<Hx711Dout, Hx711Sck, SimClock>;
+
+/// How the controller reads the simulated HX711.
+pub enum SimAdc {
+    /// The firmware's HX711 driver bit-banging the simulated pins (scenes, tests).
+    Pins(PinDriver),
+    /// Word-level: the whole readout in one call, same data-ready semantics and virtual
+    /// readout time, ~20x cheaper (long runs: `bench`, `life`; the bit protocol is proven
+    /// by the driver tests and by every scene).
+    Word(SimHx711),
+}
+
+/// Which [`SimAdc`] a rig uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AdcMode {
+    /// The firmware's driver at pin level.
+    Pins,
+    /// Word-level reads.
+    Word,
+}
+
+impl LoadCellAdc for SimAdc {
+    fn read_code(&mut self) -> nb::Result<i32, ()> {
+        match self {
+            SimAdc::Pins(d) => d.read_code(),
+            SimAdc::Word(hx) => hx.read_word().ok_or(nb::Error::WouldBlock),
+        }
+    }
+}
+
+/// The simulated board.
+pub struct SimBsp;
+
+impl Bsp for SimBsp {
+    type EnN = AxisPin;
+    type Dir = AxisPin;
+    type Pulses = AxisPulses;
+    type LockIn1 = LockPin;
+    type LockIn2 = LockPin;
+    type Home = AxisPin;
+    type End = AxisPin;
+    type Locked = LockPin;
+    type Released = LockPin;
+    type Adc = SimAdc;
+    type Wdg = SimWatchdog;
+}
+
+/// Extra force a scene puts on the load cell (jam, spikes), N.
+#[derive(Clone, Debug, Default)]
+pub struct ForceScript {
+    /// A jam: from this insertion depth on, the force grows by `jam_n_per_mm` per mm.
+    pub jam_from_um: Option<f64>,
+    /// Jam stiffness, N/mm.
+    pub jam_n_per_mm: f64,
+    /// Add `spike_n` to these conversion numbers.
+    pub spikes_at: Vec<u64>,
+    /// Spike height, N.
+    pub spike_n: f64,
+    /// Offset added to every conversion (a shifted bridge: implausible tare), N.
+    pub offset_n: f64,
+}
+
+/// Rig options.
+#[derive(Clone, Copy, Debug)]
+pub struct RigOptions {
+    /// Load-cell rate, SPS.
+    pub rate_sps: u32,
+    /// Noise seed.
+    pub seed: u64,
+    /// How the load cell is read.
+    pub adc: AdcMode,
+}
+
+/// The whole machine.
+pub struct Rig {
+    /// Virtual time.
+    pub clock: SimClock,
+    /// Propulsion axis.
+    pub axis: SimAxis,
+    /// Lock actuator.
+    pub lock: SimLock,
+    /// Load cell.
+    pub hx: SimHx711,
+    /// Watchdog.
+    pub wdg: SimWatchdog,
+    /// Scene force additions.
+    pub script: Rc<RefCell<ForceScript>>,
+    /// The controller under test.
+    pub ctrl: Controller<SimBsp>,
+    /// Conversions so far (the force source's call count).
+    pub conversions: Rc<Cell<u64>>,
+}
+
+/// The calibration of the simulated cell's default front end (offset 31 000 counts,
+/// 8 590 counts/N): mN per count in Q32.32.
+pub fn sim_calibration(hx: &Hx711Config) -> Calibration {
+    let q32 = (1000.0 / hx.counts_per_n * 4_294_967_296.0).round() as i64;
+    Calibration {
+        offset_counts: hx.offset_counts.round() as i32,
+        mn_per_count_q32: q32,
+    }
+}
+
+impl Rig {
+    /// A machine parked at home, locked, powered up at t = 0.
+    pub fn new(opts: RigOptions) -> Self {
+        let machine = MachineConfig::DEFAULT;
+        let clock = SimClock::new();
+        let axis = SimAxis::new(machine, clock.clone(), 0);
+        let lock = SimLock::new_locked(clock.clone());
+        let script = Rc::new(RefCell::new(ForceScript::default()));
+        let conversions = Rc::new(Cell::new(0u64));
+        let (ax, sc, conv) = (axis.clone(), script.clone(), conversions.clone());
+        let engage = machine.engage_um as f64;
+        let source = move |_t_ns: u64| {
+            let n = conv.get();
+            conv.set(n + 1);
+            let depth = ax.pos_um() - engage;
+            let s = sc.borrow();
+            let mut f = forces_at_depth_um(depth).n3_n + s.offset_n;
+            if let Some(j) = s.jam_from_um {
+                if depth > j {
+                    f += (depth - j) / 1000.0 * s.jam_n_per_mm;
+                }
+            }
+            if !s.spikes_at.is_empty() && s.spikes_at.binary_search(&n).is_ok() {
+                f += s.spike_n;
+            }
+            f
+        };
+        let hx_cfg = Hx711Config::default_for_rate(opts.rate_sps);
+        let hx = SimHx711::new(hx_cfg, clock.clone(), source, opts.seed);
+        let wdg = SimWatchdog::new(clock.clone());
+        let parts = Parts::<SimBsp> {
+            en_n: axis.enable_n(),
+            dir: axis.dir(),
+            pulses: axis.pulses(),
+            lock_in1: lock.in1(),
+            lock_in2: lock.in2(),
+            home: axis.home_switch(),
+            end: axis.end_switch(),
+            locked: lock.locked_switch(),
+            released: lock.released_switch(),
+            adc: match opts.adc {
+                AdcMode::Word => SimAdc::Word(hx.clone()),
+                AdcMode::Pins => {
+                    match Hx711::new(hx.dout(), hx.pd_sck(), clock.clone(), Gain::A128) {
+                        Ok(d) => SimAdc::Pins(d),
+                        Err(e) => unreachable!("simulated pins are infallible: {e:?}"),
+                    }
+                }
+            },
+            wdg: wdg.clone(),
+        };
+        let cfg = ControllerConfig::new(opts.rate_sps, sim_calibration(&hx_cfg));
+        let ctrl = match Controller::new(parts, cfg, 0) {
+            Ok(c) => c,
+            Err(e) => unreachable!("simulated pins are infallible: {e:?}"),
+        };
+        Self {
+            clock,
+            axis,
+            lock,
+            hx,
+            wdg,
+            script,
+            ctrl,
+            conversions,
+        }
+    }
+
+    /// Advance virtual time to the next event (a conversion, or a sample period) and
+    /// poll the controller once there.
+    pub fn tick(&mut self) -> docking_controller::controller::PollResult {
+        let period_ns = 1_000_000_000 / self.hx.config().rate_sps as u64;
+        let next = self
+            .hx
+            .next_conversion_ns()
+            .min(self.clock.now_ns() + period_ns);
+        self.clock.advance_to_ns(next);
+        self.ctrl.poll(self.clock.now_ns() / 1_000)
+    }
+}

@@ -1,0 +1,373 @@
+//! Scenes: the real control code against the simulated machine, with a fault or
+//! disturbance injected, in virtual time.
+//!
+//! | scene | what happens | expected |
+//! |---|---|---|
+//! | `nominal` | N full cycles | all complete, no fault, phases 1→2→3→4 on every insertion |
+//! | `overload` | a jam in the last cycle's insertion: from 10 mm depth the force grows 60 N/mm | trip within one sample, back-off, `overload` latched |
+//! | `spike` | N cycles with isolated single-sample +350 N spikes | no trip |
+//! | `disconnect` | the HX711 goes silent at 5 mm depth | `sensor_disconnected` |
+//! | `saturation` | the bridge saturates at 5 mm depth | `sensor_saturated` |
+//! | `stuck` | the converter freezes at 5 mm depth | `sensor_stuck` |
+//! | `bad-tare` | the zero-load reading is 50 N off before the first cycle | `implausible_tare` |
+//! | `stall` | the carriage stalls when the first return starts | `axis_stall` |
+//! | `lock-stuck` | the lock seizes before the first release | `lock_not_released` |
+
+use std::time::Instant;
+
+use docking_controller::controller::Event;
+use docking_controller::profile::ContactPhase;
+use docking_controller::sequencer::{Request, SeqEvent, State, BACK_OFF_UM};
+
+use crate::axis::AxisFault;
+use crate::hx711::Hx711Fault;
+use crate::lock::LockFault;
+use crate::rig::{AdcMode, Rig, RigOptions};
+use crate::rng::Rng;
+
+/// Scene names.
+pub const SCENES: [&str; 9] = [
+    "nominal",
+    "overload",
+    "spike",
+    "disconnect",
+    "saturation",
+    "stuck",
+    "bad-tare",
+    "stall",
+    "lock-stuck",
+];
+
+/// Scene options.
+#[derive(Clone, Copy, Debug)]
+pub struct SceneOptions {
+    /// Cycles to run (the disturbance comes in the last one where it applies).
+    pub cycles: u32,
+    /// Load-cell rate, SPS.
+    pub rate_sps: u32,
+    /// Seed for noise and spike placement.
+    pub seed: u64,
+    /// How the controller reads the load cell.
+    pub adc: AdcMode,
+}
+
+/// A fault as the scene saw it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FaultSeen {
+    /// Fault name.
+    pub kind: &'static str,
+    /// Cycle (1-based).
+    pub cycle: u32,
+    /// Contact phase number, if in the cone.
+    pub phase: Option<u8>,
+    /// Virtual time, s.
+    pub t_s: f64,
+    /// Peak force recorded with it, N.
+    pub peak_force_n: f64,
+}
+
+/// What a scene run produced.
+#[derive(Clone, Debug)]
+pub struct SceneReport {
+    /// Scene name.
+    pub scene: String,
+    /// Options.
+    pub rate_sps: u32,
+    /// Seed.
+    pub seed: u64,
+    /// Cycles completed.
+    pub cycles_completed: u32,
+    /// Faults latched.
+    pub faults: Vec<FaultSeen>,
+    /// Highest measured force, N.
+    pub peak_force_n: f64,
+    /// First over-limit sample (its conversion time) to propulsion disabled, s.
+    pub stop_latency_s: Option<f64>,
+    /// Final sequencer state.
+    pub final_state: &'static str,
+    /// Contact phases entered on each insertion, in order.
+    pub insertion_phases: Vec<Vec<u8>>,
+    /// Every motor output off at the end.
+    pub motors_disabled: bool,
+    /// Carriage travel toward the male panel after the trip, µm.
+    pub forward_after_trip_um: Option<f64>,
+    /// Retreat after the trip, µm.
+    pub backed_off_um: Option<f64>,
+    /// Spikes the guard rejected.
+    pub spikes_rejected: u32,
+    /// Spikes injected.
+    pub spikes_injected: u32,
+    /// Control steps run.
+    pub control_steps: u64,
+    /// Virtual time simulated, s.
+    pub sim_time_s: f64,
+    /// Wall time, s.
+    pub wall_time_s: f64,
+    /// The watchdog would have reset the MCU.
+    pub watchdog_bit: bool,
+}
+
+/// Run scene `name`. `Err` for an unknown name.
+pub fn run(name: &str, opts: SceneOptions) -> Result<SceneReport, String> {
+    if !SCENES.contains(&name) {
+        return Err(format!(
+            "unknown scene '{name}' (scenes: {})",
+            SCENES.join(", ")
+        ));
+    }
+    let started = Instant::now();
+    let mut rig = Rig::new(RigOptions {
+        rate_sps: opts.rate_sps,
+        seed: opts.seed,
+        adc: opts.adc,
+    });
+    let cycles = opts.cycles.max(1);
+    let engage = rig.ctrl.config().machine.engage_um;
+    let period_s = 1.0 / opts.rate_sps as f64;
+    let mut spikes_injected = 0u32;
+
+    if name == "spike" {
+        // Isolated spikes: about every 40 samples, never two within 3 samples.
+        let mut rng = Rng::new(opts.seed ^ 0x5eed);
+        let total = (cycles as f64 * 75.0 * opts.rate_sps as f64) as u64;
+        let mut at = Vec::new();
+        let mut n = 20u64;
+        while n < total {
+            n += 4 + (rng.uniform() * 70.0) as u64;
+            at.push(n);
+        }
+        spikes_injected = at.len() as u32;
+        let mut s = rig.script.borrow_mut();
+        s.spikes_at = at;
+        s.spike_n = 350.0;
+    }
+    if name == "bad-tare" {
+        rig.script.borrow_mut().offset_n = 50.0;
+    }
+
+    let mut insertion_phases: Vec<Vec<u8>> = Vec::new();
+    let mut faults = Vec::new();
+    let mut injected = false;
+    let mut episode_start_ns: Option<u64> = None;
+    let mut stop_latency_s = None;
+    let mut trip_pos_um: Option<f64> = None;
+    let (mut max_after, mut min_after) = (f64::MIN, f64::MAX);
+    let mut steps = 0u64;
+    let mut settle_until_ns: Option<u64> = None;
+    let max_ns = (cycles as u64 * 150 + 60) * 1_000_000_000;
+
+    loop {
+        let r = rig.tick();
+        if r.stepped {
+            steps += 1;
+        }
+        let now = rig.clock.now_ns();
+        let st = rig.ctrl.status();
+
+        // First over-limit sample of an episode, by the controller's own limit.
+        if r.sampled {
+            if let Some((code, t_conv)) = rig.hx.last_read() {
+                let f = rig.ctrl.calibration().to_force_mn(code);
+                if f > st.limit_mn {
+                    episode_start_ns.get_or_insert(t_conv);
+                } else if !r.tripped {
+                    episode_start_ns = None;
+                }
+            }
+        }
+        if r.tripped && stop_latency_s.is_none() {
+            if let (Some(t0), Some(edge)) = (
+                episode_start_ns,
+                rig.axis.enable_edges().iter().rev().find(|e| !e.enabled),
+            ) {
+                stop_latency_s = Some((edge.t_ns.saturating_sub(t0)) as f64 * 1e-9);
+                trip_pos_um = Some(edge.pos_um);
+            }
+        }
+        if let Some(p0) = trip_pos_um {
+            let p = rig.axis.pos_um();
+            max_after = max_after.max(p - p0);
+            min_after = min_after.min(p - p0);
+        }
+
+        while let Some(ev) = rig.ctrl.next_event() {
+            match ev.event {
+                Event::Seq(SeqEvent::CycleStarted(_)) => insertion_phases.push(Vec::new()),
+                Event::Phase(p) if matches!(st.state, State::Inserting { .. }) => {
+                    if let Some(v) = insertion_phases.last_mut() {
+                        v.push(p.number());
+                    }
+                }
+                _ => {}
+            }
+        }
+
+        // Disturbances.
+        let depth = st.pos_um - engage;
+        let last_cycle = st.cycles_completed + 1 >= cycles;
+        if !injected {
+            let inserting = matches!(st.state, State::Inserting { .. });
+            match name {
+                "overload" if last_cycle && inserting => {
+                    let mut s = rig.script.borrow_mut();
+                    s.jam_from_um = Some(10_000.0);
+                    s.jam_n_per_mm = 60.0;
+                    injected = true;
+                }
+                "disconnect" | "saturation" | "stuck" if inserting && depth >= 5_000 => {
+                    rig.hx.set_fault(match name {
+                        "disconnect" => Hx711Fault::Disconnected,
+                        "saturation" => Hx711Fault::Saturated,
+                        _ => Hx711Fault::Stuck,
+                    });
+                    injected = true;
+                }
+                "stall" if matches!(st.state, State::Returning { .. }) => {
+                    rig.axis.set_fault(AxisFault::Stalled);
+                    injected = true;
+                }
+                "lock-stuck" if matches!(st.state, State::PreAlign { .. }) => {
+                    rig.lock.set_fault(LockFault::Stuck);
+                    injected = true;
+                }
+                _ => {}
+            }
+        }
+
+        // Drive the machine: start cycles while there are cycles to run.
+        if st.state == State::Idle && st.cycles_completed < cycles {
+            rig.ctrl.request(Request::StartCycle);
+        }
+        let done_nominal = st.state == State::Idle && st.cycles_completed >= cycles;
+        if matches!(st.state, State::Faulted { .. }) {
+            settle_until_ns.get_or_insert(now + 2_000_000_000);
+        }
+        if done_nominal || settle_until_ns.is_some_and(|t| now >= t) || now > max_ns {
+            break;
+        }
+    }
+
+    for f in rig.ctrl.faults() {
+        faults.push(FaultSeen {
+            kind: f.kind.name(),
+            cycle: f.cycle,
+            phase: f.phase.map(ContactPhase::number),
+            t_s: f.t_ms as f64 / 1000.0,
+            peak_force_n: f.peak_force_mn as f64 / 1000.0,
+        });
+    }
+    let st = rig.ctrl.status();
+    let tripped = trip_pos_um.is_some();
+    let _ = period_s;
+    Ok(SceneReport {
+        scene: name.to_string(),
+        rate_sps: opts.rate_sps,
+        seed: opts.seed,
+        cycles_completed: st.cycles_completed,
+        faults,
+        peak_force_n: st.peak_force_mn as f64 / 1000.0,
+        stop_latency_s,
+        final_state: st.state.name(),
+        insertion_phases,
+        motors_disabled: !rig.axis.enabled() && !rig.lock.driven(),
+        forward_after_trip_um: tripped.then_some(max_after.max(0.0)),
+        backed_off_um: tripped.then_some((-min_after).max(0.0).min(BACK_OFF_UM as f64 + 100.0)),
+        spikes_rejected: rig.ctrl.spikes_rejected(),
+        spikes_injected,
+        control_steps: steps,
+        sim_time_s: rig.clock.now_s(),
+        wall_time_s: started.elapsed().as_secs_f64(),
+        watchdog_bit: rig.wdg.check(),
+    })
+}
+
+fn num(x: f64) -> String {
+    if x.is_finite() {
+        let s = format!("{x:.6}");
+        let s = s.trim_end_matches('0').trim_end_matches('.');
+        if s.is_empty() || s == "-" {
+            "0".into()
+        } else {
+            s.to_string()
+        }
+    } else {
+        "null".into()
+    }
+}
+
+impl SceneReport {
+    /// One JSON object on one line.
+    pub fn to_json(&self) -> String {
+        let faults: Vec<String> = self
+            .faults
+            .iter()
+            .map(|f| {
+                format!(
+                    "{{\"kind\":\"{}\",\"cycle\":{},\"phase\":{},\"t_s\":{},\"peak_force_n\":{}}}",
+                    f.kind,
+                    f.cycle,
+                    f.phase.map_or("null".into(), |p| p.to_string()),
+                    num(f.t_s),
+                    num(f.peak_force_n)
+                )
+            })
+            .collect();
+        let phases: Vec<String> = self
+            .insertion_phases
+            .iter()
+            .map(|v| format!("{v:?}").replace(' ', ""))
+            .collect();
+        let opt = |x: Option<f64>| x.map_or("null".to_string(), num);
+        format!(
+            "{{\"scene\":\"{}\",\"rate_sps\":{},\"seed\":{},\"cycles_completed\":{},\"faults\":[{}],\"peak_force_n\":{},\"stop_latency_s\":{},\"final_state\":\"{}\",\"motors_disabled\":{},\"insertion_phases\":[{}],\"forward_after_trip_um\":{},\"backed_off_um\":{},\"spikes_injected\":{},\"spikes_rejected\":{},\"control_steps\":{},\"sim_time_s\":{},\"wall_time_s\":{},\"watchdog_bit\":{}}}",
+            self.scene,
+            self.rate_sps,
+            self.seed,
+            self.cycles_completed,
+            faults.join(","),
+            num(self.peak_force_n),
+            opt(self.stop_latency_s),
+            self.final_state,
+            self.motors_disabled,
+            phases.join(","),
+            opt(self.forward_after_trip_um),
+            opt(self.backed_off_um),
+            self.spikes_injected,
+            self.spikes_rejected,
+            self.control_steps,
+            num(self.sim_time_s),
+            num(self.wall_time_s),
+            self.watchdog_bit
+        )
+    }
+
+    /// A short human summary.
+    pub fn to_text(&self) -> String {
+        let mut s = format!(
+            "scene {}: {} cycle(s) completed at {} SPS, final state {}, peak force {:.2} N\n",
+            self.scene, self.cycles_completed, self.rate_sps, self.final_state, self.peak_force_n
+        );
+        for f in &self.faults {
+            s += &format!(
+                "  fault {} in cycle {} phase {} at t = {:.3} s (peak {:.2} N)\n",
+                f.kind,
+                f.cycle,
+                f.phase.map_or("-".into(), |p| p.to_string()),
+                f.t_s,
+                f.peak_force_n
+            );
+        }
+        if let Some(l) = self.stop_latency_s {
+            s += &format!(
+                "  stop latency {:.6} s (sample period {:.6} s)\n",
+                l,
+                1.0 / self.rate_sps as f64
+            );
+        }
+        s += &format!(
+            "  motors disabled: {}; {} control steps, {:.1} s simulated in {:.3} s",
+            self.motors_disabled, self.control_steps, self.sim_time_s, self.wall_time_s
+        );
+        s
+    }
+}

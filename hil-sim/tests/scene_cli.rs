@@ -1,0 +1,66 @@
+//! `hil-sim scene` and `hil-sim bench` on the command line.
+
+use std::process::Command;
+
+fn run(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_hil-sim"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8(out.stdout).unwrap(),
+        String::from_utf8(out.stderr).unwrap(),
+    )
+}
+
+#[test]
+fn json_has_the_documented_fields() {
+    let (code, out, _) = run(&["scene", "overload", "--rate", "80", "--seed", "4", "--json"]);
+    assert_eq!(code, 0);
+    assert_eq!(out.lines().count(), 1);
+    for key in [
+        "\"scene\":\"overload\"",
+        "\"cycles_completed\":0",
+        "\"faults\":[{\"kind\":\"overload\",\"cycle\":1,\"phase\":3,",
+        "\"peak_force_n\":",
+        "\"stop_latency_s\":0.0000",
+        "\"final_state\":\"faulted\"",
+    ] {
+        assert!(out.contains(key), "{key} missing in {out}");
+    }
+    let (_, out, _) = run(&["scene", "nominal", "--json"]);
+    assert!(
+        out.contains("\"stop_latency_s\":null") && out.contains("\"faults\":[]"),
+        "{out}"
+    );
+}
+
+#[test]
+fn bad_scene_arguments_exit_2_with_one_line() {
+    for args in [
+        &["scene"][..],
+        &["scene", "meltdown"],
+        &["scene", "nominal", "--rate", "81"],
+        &["scene", "nominal", "--cycles", "0"],
+        &["scene", "nominal", "--cycles", "-1"],
+        &["scene", "nominal", "--seed", "x"],
+        &["scene", "nominal", "--json", "yes"],
+        &["bench", "--rate", "0"],
+    ] {
+        let (code, out, err) = run(args);
+        assert_eq!(code, 2, "{args:?}");
+        assert!(out.is_empty(), "{args:?}");
+        assert_eq!(err.lines().count(), 1, "{args:?}: {err}");
+    }
+}
+
+#[test]
+fn bench_reports_figures() {
+    let (code, out, _) = run(&["bench", "--cycles", "5"]);
+    assert_eq!(code, 0);
+    assert!(
+        out.contains("ns per control step") && out.contains("faults 0"),
+        "{out}"
+    );
+}
