@@ -41,3 +41,4 @@ pub mod material;
 pub mod profile;
 pub mod propulsion;
 pub mod sequencer;
+pub mod storage;
