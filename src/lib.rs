@@ -32,6 +32,7 @@
 mod fmt;
 
 pub mod config;
+pub mod console;
 pub mod controller;
 pub mod guard;
 pub mod hal;

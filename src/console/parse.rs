@@ -1,0 +1,536 @@
+//! Console command parser.
+//!
+//! [`parse`] turns one line (from [`super::line::LineReader`]) into a [`Command`].
+//! Tokens are separated by any amount of spaces and tabs; command words are lowercase
+//! and case-sensitive (material names are matched case-insensitively). Grammar:
+//!
+//! ```text
+//! help [--json]
+//! version [--json]
+//! status [--json]
+//! wear [--json]
+//! history [N] [--json]                  N = 1..=100, default 10
+//! faults [--json]
+//! clear-fault
+//! cone replace <material> <serial>      material: zqsn5-2 | qsn6-6-3 | cf-peek
+//!                                       serial: 1..=20 chars of [A-Za-z0-9_-]
+//! measure <bore_diameter_mm>            20.000..=40.000, up to 3 decimals → bore_um
+//! calibrate tare
+//! calibrate span <force_n>              known load, 1.000..=900.000, up to 3 decimals
+//!                                       → force_mn
+//! maint <pin>                           enter maintenance mode (pin: 4..=12 digits)
+//! maint exit                            leave maintenance mode
+//! pin set <new_pin>                     new_pin: 4..=12 ASCII digits
+//! ```
+//!
+//! * `--json` may appear anywhere after the command words, at most once, and only on
+//!   the read commands (help, version, status, wear, history, faults); elsewhere it is
+//!   [`ParseError::JsonNotSupported`]. The token `--json` is always this option, never
+//!   a value. On read commands any other token starting with `--` is
+//!   [`ParseError::UnknownOption`].
+//! * Decimals are plain: digits, optionally `.` and 1..=3 digits (`26`, `26.05`,
+//!   `026.050`). Signs, exponents, a bare or trailing `.`, more than 3 decimals,
+//!   `nan`, `inf` are rejected; values are converted exactly to integer milli-units
+//!   (`26.05` mm → 26050 µm).
+//! * `N` is 1..=3 ASCII digits.
+//!
+//! Guarantees: O(line length) work, no allocation, no panic on any input; the
+//! [`ParseError`] `Display` is one line of printable ASCII (an unknown command word is
+//! echoed truncated, with anything but printable ASCII replaced by `?`). A `Command`'s
+//! `Debug` output never shows a PIN.
+
+use core::fmt;
+
+use crate::material::Material;
+
+/// Default `history` length.
+pub const HISTORY_DEFAULT: u16 = 10;
+/// Largest `history` length.
+pub const HISTORY_MAX: u16 = 100;
+/// Smallest accepted bore diameter, µm.
+pub const BORE_MIN_UM: u32 = 20_000;
+/// Largest accepted bore diameter, µm.
+pub const BORE_MAX_UM: u32 = 40_000;
+/// Smallest accepted span-calibration load, mN.
+pub const SPAN_MIN_MN: u32 = 1_000;
+/// Largest accepted span-calibration load, mN.
+pub const SPAN_MAX_MN: u32 = 900_000;
+/// Longest cone serial number, characters.
+pub const SERIAL_MAX_LEN: usize = 20;
+/// Shortest maintenance PIN, digits.
+pub const PIN_MIN_LEN: usize = 4;
+/// Longest maintenance PIN, digits.
+pub const PIN_MAX_LEN: usize = 12;
+
+/// A parsed console command; string fields borrow the line.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub enum Command<'a> {
+    /// `help [--json]`.
+    Help {
+        /// Reply in JSON.
+        json: bool,
+    },
+    /// `version [--json]`.
+    Version {
+        /// Reply in JSON.
+        json: bool,
+    },
+    /// `status [--json]`.
+    Status {
+        /// Reply in JSON.
+        json: bool,
+    },
+    /// `wear [--json]`.
+    Wear {
+        /// Reply in JSON.
+        json: bool,
+    },
+    /// `history [N] [--json]`.
+    History {
+        /// Number of entries, 1..=100.
+        n: u16,
+        /// Reply in JSON.
+        json: bool,
+    },
+    /// `faults [--json]`.
+    Faults {
+        /// Reply in JSON.
+        json: bool,
+    },
+    /// `clear-fault`.
+    ClearFault,
+    /// `cone replace <material> <serial>`.
+    ConeReplace {
+        /// The new cone's material.
+        material: Material,
+        /// The new cone's serial number (1..=20 chars of `[A-Za-z0-9_-]`).
+        serial: &'a str,
+    },
+    /// `measure <bore_diameter_mm>`.
+    Measure {
+        /// Measured bore diameter, µm (20_000..=40_000).
+        bore_um: u32,
+    },
+    /// `calibrate tare`.
+    CalibrateTare,
+    /// `calibrate span <force_n>`.
+    CalibrateSpan {
+        /// The known load, mN (1_000..=900_000).
+        force_mn: u32,
+    },
+    /// `maint <pin>`.
+    Maint {
+        /// The PIN typed (4..=12 ASCII digits; not yet checked against the record).
+        pin: &'a str,
+    },
+    /// `maint exit`.
+    MaintExit,
+    /// `pin set <new_pin>`.
+    PinSet {
+        /// The new PIN (4..=12 ASCII digits).
+        pin: &'a str,
+    },
+}
+
+impl Command<'_> {
+    /// The command words, e.g. `"cone replace"`.
+    pub const fn name(&self) -> &'static str {
+        match self {
+            Self::Help { .. } => "help",
+            Self::Version { .. } => "version",
+            Self::Status { .. } => "status",
+            Self::Wear { .. } => "wear",
+            Self::History { .. } => "history",
+            Self::Faults { .. } => "faults",
+            Self::ClearFault => "clear-fault",
+            Self::ConeReplace { .. } => "cone replace",
+            Self::Measure { .. } => "measure",
+            Self::CalibrateTare => "calibrate tare",
+            Self::CalibrateSpan { .. } => "calibrate span",
+            Self::Maint { .. } => "maint",
+            Self::MaintExit => "maint exit",
+            Self::PinSet { .. } => "pin set",
+        }
+    }
+
+    /// True for commands that change persistent machine state (need maintenance mode).
+    pub const fn is_state_changing(&self) -> bool {
+        matches!(
+            self,
+            Self::ClearFault
+                | Self::ConeReplace { .. }
+                | Self::CalibrateTare
+                | Self::CalibrateSpan { .. }
+                | Self::PinSet { .. }
+        )
+    }
+
+    /// True when the reply was asked for in JSON (`--json`).
+    pub const fn json(&self) -> bool {
+        match self {
+            Self::Help { json }
+            | Self::Version { json }
+            | Self::Status { json }
+            | Self::Wear { json }
+            | Self::History { json, .. }
+            | Self::Faults { json } => *json,
+            _ => false,
+        }
+    }
+}
+
+/// `Debug` that never shows a PIN.
+impl fmt::Debug for Command<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Help { json } => f.debug_struct("Help").field("json", json).finish(),
+            Self::Version { json } => f.debug_struct("Version").field("json", json).finish(),
+            Self::Status { json } => f.debug_struct("Status").field("json", json).finish(),
+            Self::Wear { json } => f.debug_struct("Wear").field("json", json).finish(),
+            Self::History { n, json } => f
+                .debug_struct("History")
+                .field("n", n)
+                .field("json", json)
+                .finish(),
+            Self::Faults { json } => f.debug_struct("Faults").field("json", json).finish(),
+            Self::ClearFault => f.write_str("ClearFault"),
+            Self::ConeReplace { material, serial } => f
+                .debug_struct("ConeReplace")
+                .field("material", material)
+                .field("serial", serial)
+                .finish(),
+            Self::Measure { bore_um } => {
+                f.debug_struct("Measure").field("bore_um", bore_um).finish()
+            }
+            Self::CalibrateTare => f.write_str("CalibrateTare"),
+            Self::CalibrateSpan { force_mn } => f
+                .debug_struct("CalibrateSpan")
+                .field("force_mn", force_mn)
+                .finish(),
+            Self::Maint { .. } => f.write_str("Maint { pin: <redacted> }"),
+            Self::MaintExit => f.write_str("MaintExit"),
+            Self::PinSet { .. } => f.write_str("PinSet { pin: <redacted> }"),
+        }
+    }
+}
+
+/// A short, sanitised copy of an unknown command word (printable ASCII, <= 15 chars).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Snippet(heapless::String<16>);
+
+impl Snippet {
+    /// Characters kept before truncating with `...`.
+    const KEEP: usize = 12;
+
+    /// Copy `word`: at most 12 characters, anything but printable ASCII as `?`,
+    /// `...` appended when truncated.
+    pub fn new(word: &str) -> Self {
+        let mut s = heapless::String::new();
+        for (i, c) in word.chars().enumerate() {
+            if i >= Self::KEEP {
+                let _ = s.push_str("...");
+                break;
+            }
+            let c = if c.is_ascii_graphic() { c } else { '?' };
+            let _ = s.push(c);
+        }
+        Self(s)
+    }
+
+    /// The sanitised text.
+    pub fn as_str(&self) -> &str {
+        self.0.as_str()
+    }
+}
+
+/// Why a line is not a valid command.
+#[non_exhaustive]
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ParseError {
+    /// The line holds no tokens.
+    Empty,
+    /// The first word is not a command (a sanitised copy of it).
+    UnknownCommand(Snippet),
+    /// A `--option` other than `--json` on a read command.
+    UnknownOption,
+    /// A required argument is missing (its name).
+    MissingArgument(&'static str),
+    /// An argument is malformed or out of range (its name).
+    BadArgument(&'static str),
+    /// More arguments than the command takes (or `--json` twice).
+    ExtraArgument,
+    /// `--json` on a command that does not print a report.
+    JsonNotSupported,
+}
+
+/// What an argument must look like, for error messages.
+fn hint(arg: &str) -> &'static str {
+    match arg {
+        "N" => "1..100",
+        "material" => "zqsn5-2 | qsn6-6-3 | cf-peek",
+        "serial" => "1-20 chars of A-Z a-z 0-9 _ -",
+        "bore_diameter_mm" => "20.000..40.000, up to 3 decimals",
+        "force_n" => "1.000..900.000, up to 3 decimals",
+        "pin" | "new_pin" => "4-12 digits",
+        "cone subcommand" => "replace",
+        "calibrate subcommand" => "tare | span",
+        "pin subcommand" => "set",
+        _ => "see 'help'",
+    }
+}
+
+impl fmt::Display for ParseError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Empty => f.write_str("empty line; type 'help'"),
+            Self::UnknownCommand(w) => {
+                write!(f, "unknown command '{}'; type 'help'", w.as_str())
+            }
+            Self::UnknownOption => f.write_str("unknown option; only --json is accepted"),
+            Self::MissingArgument(a) => write!(f, "missing <{}> ({})", a, hint(a)),
+            Self::BadArgument(a) => write!(f, "bad <{}>; expected {}", a, hint(a)),
+            Self::ExtraArgument => f.write_str("too many arguments; type 'help'"),
+            Self::JsonNotSupported => {
+                f.write_str("--json only applies to help, version, status, wear, history, faults")
+            }
+        }
+    }
+}
+
+/// Tokens after the command word: positional arguments and the `--json` flag.
+struct Args<'a> {
+    pos: heapless::Vec<&'a str, 3>,
+    json: bool,
+    unknown_option: bool,
+}
+
+impl<'a> Args<'a> {
+    fn collect(tokens: impl Iterator<Item = &'a str>) -> Result<Self, ParseError> {
+        let mut a = Args {
+            pos: heapless::Vec::new(),
+            json: false,
+            unknown_option: false,
+        };
+        for t in tokens {
+            if t == "--json" {
+                if a.json {
+                    return Err(ParseError::ExtraArgument);
+                }
+                a.json = true;
+            } else {
+                if t.starts_with("--") {
+                    a.unknown_option = true;
+                }
+                a.pos.push(t).map_err(|_| ParseError::ExtraArgument)?;
+            }
+        }
+        Ok(a)
+    }
+
+    /// Read command: `--json` allowed, no positional arguments.
+    fn report(&self) -> Result<bool, ParseError> {
+        if self.unknown_option {
+            return Err(ParseError::UnknownOption);
+        }
+        if !self.pos.is_empty() {
+            return Err(ParseError::ExtraArgument);
+        }
+        Ok(self.json)
+    }
+
+    /// Non-read command: no `--json`, at most `max` positional arguments.
+    fn action(&self, max: usize) -> Result<(), ParseError> {
+        if self.json {
+            return Err(ParseError::JsonNotSupported);
+        }
+        if self.pos.len() > max {
+            return Err(ParseError::ExtraArgument);
+        }
+        Ok(())
+    }
+
+    /// Positional argument `i`, or `MissingArgument(name)`.
+    fn get(&self, i: usize, name: &'static str) -> Result<&'a str, ParseError> {
+        self.pos
+            .get(i)
+            .copied()
+            .ok_or(ParseError::MissingArgument(name))
+    }
+}
+
+/// Parse one console line (see the module doc for the grammar).
+pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
+    let mut tokens = line.split([' ', '\t']).filter(|t| !t.is_empty());
+    let word = tokens.next().ok_or(ParseError::Empty)?;
+    let known = matches!(
+        word,
+        "help"
+            | "version"
+            | "status"
+            | "wear"
+            | "history"
+            | "faults"
+            | "clear-fault"
+            | "cone"
+            | "measure"
+            | "calibrate"
+            | "maint"
+            | "pin"
+    );
+    if !known {
+        return Err(ParseError::UnknownCommand(Snippet::new(word)));
+    }
+    let a = Args::collect(tokens)?;
+    match word {
+        "help" => Ok(Command::Help { json: a.report()? }),
+        "version" => Ok(Command::Version { json: a.report()? }),
+        "status" => Ok(Command::Status { json: a.report()? }),
+        "wear" => Ok(Command::Wear { json: a.report()? }),
+        "faults" => Ok(Command::Faults { json: a.report()? }),
+        "history" => {
+            if a.unknown_option {
+                return Err(ParseError::UnknownOption);
+            }
+            let n = match a.pos.as_slice() {
+                [] => HISTORY_DEFAULT,
+                [n] => parse_count(n).ok_or(ParseError::BadArgument("N"))?,
+                _ => return Err(ParseError::ExtraArgument),
+            };
+            Ok(Command::History { n, json: a.json })
+        }
+        "clear-fault" => {
+            a.action(0)?;
+            Ok(Command::ClearFault)
+        }
+        "cone" => {
+            a.action(3)?;
+            if a.get(0, "cone subcommand")? != "replace" {
+                return Err(ParseError::BadArgument("cone subcommand"));
+            }
+            let material = Material::from_name(a.get(1, "material")?)
+                .ok_or(ParseError::BadArgument("material"))?;
+            let serial = a.get(2, "serial")?;
+            if !is_serial(serial) {
+                return Err(ParseError::BadArgument("serial"));
+            }
+            Ok(Command::ConeReplace { material, serial })
+        }
+        "measure" => {
+            a.action(1)?;
+            let bore_um = parse_milli(a.get(0, "bore_diameter_mm")?)
+                .filter(|v| (BORE_MIN_UM..=BORE_MAX_UM).contains(v))
+                .ok_or(ParseError::BadArgument("bore_diameter_mm"))?;
+            Ok(Command::Measure { bore_um })
+        }
+        "calibrate" => {
+            a.action(2)?;
+            match a.get(0, "calibrate subcommand")? {
+                "tare" if a.pos.len() > 1 => Err(ParseError::ExtraArgument),
+                "tare" => Ok(Command::CalibrateTare),
+                "span" => {
+                    let force_mn = parse_milli(a.get(1, "force_n")?)
+                        .filter(|v| (SPAN_MIN_MN..=SPAN_MAX_MN).contains(v))
+                        .ok_or(ParseError::BadArgument("force_n"))?;
+                    Ok(Command::CalibrateSpan { force_mn })
+                }
+                _ => Err(ParseError::BadArgument("calibrate subcommand")),
+            }
+        }
+        "maint" => {
+            a.action(1)?;
+            match a.get(0, "pin")? {
+                "exit" => Ok(Command::MaintExit),
+                pin if is_pin(pin) => Ok(Command::Maint { pin }),
+                _ => Err(ParseError::BadArgument("pin")),
+            }
+        }
+        "pin" => {
+            a.action(2)?;
+            if a.get(0, "pin subcommand")? != "set" {
+                return Err(ParseError::BadArgument("pin subcommand"));
+            }
+            let pin = a.get(1, "new_pin")?;
+            if !is_pin(pin) {
+                return Err(ParseError::BadArgument("new_pin"));
+            }
+            Ok(Command::PinSet { pin })
+        }
+        _ => Err(ParseError::UnknownCommand(Snippet::new(word))),
+    }
+}
+
+/// A PIN as accepted on the console: 4..=12 ASCII digits.
+pub fn is_pin(s: &str) -> bool {
+    (PIN_MIN_LEN..=PIN_MAX_LEN).contains(&s.len()) && s.bytes().all(|b| b.is_ascii_digit())
+}
+
+/// A cone serial number: 1..=20 chars of `[A-Za-z0-9_-]`.
+pub fn is_serial(s: &str) -> bool {
+    (1..=SERIAL_MAX_LEN).contains(&s.len())
+        && s.bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+}
+
+/// `history` count: 1..=3 ASCII digits, value 1..=100.
+fn parse_count(s: &str) -> Option<u16> {
+    if !(1..=3).contains(&s.len()) || !s.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    let n = s.bytes().fold(0u16, |n, b| n * 10 + u16::from(b - b'0'));
+    (1..=HISTORY_MAX).contains(&n).then_some(n)
+}
+
+/// A plain decimal with up to 3 decimals, in thousandths (`"26.05"` → 26050).
+///
+/// Grammar: `digit+ ('.' digit{1,3})?`; `None` on anything else or on overflow.
+pub fn parse_milli(s: &str) -> Option<u32> {
+    let (int, frac) = match s.split_once('.') {
+        Some((i, f)) => (i, f),
+        None => (s, "000"),
+    };
+    if int.is_empty()
+        || !(1..=3).contains(&frac.len())
+        || !int.bytes().all(|b| b.is_ascii_digit())
+        || !frac.bytes().all(|b| b.is_ascii_digit())
+    {
+        return None;
+    }
+    let mut v: u32 = 0;
+    for b in int.bytes() {
+        v = v.checked_mul(10)?.checked_add(u32::from(b - b'0'))?;
+    }
+    let mut f: u32 = 0;
+    for b in frac.bytes() {
+        f = f * 10 + u32::from(b - b'0');
+    }
+    for _ in frac.len()..3 {
+        f *= 10;
+    }
+    v.checked_mul(1000)?.checked_add(f)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn milli() {
+        assert_eq!(parse_milli("26.05"), Some(26_050));
+        assert_eq!(parse_milli("26"), Some(26_000));
+        assert_eq!(parse_milli("0.001"), Some(1));
+        assert_eq!(parse_milli("4294967.295"), Some(u32::MAX));
+        assert_eq!(parse_milli("4294967.296"), None);
+        assert_eq!(parse_milli("99999999999999"), None);
+        for bad in [
+            "", ".", "1.", ".5", "1.0000", "+1", "-1", "1e3", "nan", "inf", "1.2.3",
+        ] {
+            assert_eq!(parse_milli(bad), None, "{bad}");
+        }
+    }
+
+    #[test]
+    fn snippet_is_sanitised() {
+        assert_eq!(Snippet::new("ab\u{1b}cdé").as_str(), "ab?cd?");
+        assert_eq!(Snippet::new("abcdefghijklmnop").as_str(), "abcdefghijkl...");
+    }
+}
