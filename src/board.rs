@@ -28,6 +28,10 @@ use defmt_rtt as _;
 use docking_controller::controller::{Bsp, Controller, ControllerConfig, Parts};
 use docking_controller::hal::{Monotonic, StepPulses, Watchdog};
 use docking_controller::hx711::{Calibration, Gain, Hx711};
+use embedded_storage::nor_flash::{
+    ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
+};
+use stm32f4xx_hal::flash::{FlashExt, LockedFlash};
 use stm32f4xx_hal::{
     gpio::{Input, Output, PinState, PB0, PB1, PC0, PC1, PC2, PC3, PD12, PD13, PE10, PE11, PE9},
     pac,
@@ -188,6 +192,78 @@ impl Watchdog for BoardWatchdog {
     }
 }
 
+// --- Odometer flash: sectors 10 and 11 only ----------------------------------------
+
+/// Offset of the odometer sectors from the flash base (`_odometer_start` in memory.x).
+const ODOMETER_OFFSET: u32 = 0x000C_0000;
+/// Size of the odometer region (2 × 128 KiB sectors).
+const ODOMETER_LEN: u32 = 0x0004_0000;
+
+/// Errors of the odometer flash region.
+#[derive(Clone, Copy, Debug)]
+pub enum RegionError {
+    /// Outside the two odometer sectors.
+    OutOfBounds,
+    /// The flash controller reported an error.
+    Hal(stm32f4xx_hal::flash::Error),
+}
+
+impl NorFlashError for RegionError {
+    fn kind(&self) -> NorFlashErrorKind {
+        match self {
+            Self::OutOfBounds => NorFlashErrorKind::OutOfBounds,
+            Self::Hal(e) => e.kind(),
+        }
+    }
+}
+
+/// The HAL's whole-chip `NorFlash`, confined to the odometer sectors so the log can never
+/// touch code (and bounds-checked, since the HAL's read indexes a slice).
+pub struct OdometerFlash(LockedFlash);
+
+impl OdometerFlash {
+    fn check(from: u32, len: usize) -> Result<u32, RegionError> {
+        let end = from
+            .checked_add(len as u32)
+            .ok_or(RegionError::OutOfBounds)?;
+        if end > ODOMETER_LEN {
+            return Err(RegionError::OutOfBounds);
+        }
+        Ok(ODOMETER_OFFSET + from)
+    }
+}
+
+impl ErrorType for OdometerFlash {
+    type Error = RegionError;
+}
+
+impl ReadNorFlash for OdometerFlash {
+    const READ_SIZE: usize = 1;
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        let at = Self::check(offset, bytes.len())?;
+        ReadNorFlash::read(&mut self.0, at, bytes).map_err(RegionError::Hal)
+    }
+    fn capacity(&self) -> usize {
+        ODOMETER_LEN as usize
+    }
+}
+
+impl NorFlash for OdometerFlash {
+    const WRITE_SIZE: usize = 1;
+    const ERASE_SIZE: usize = 128 * 1024;
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        let len = to.checked_sub(from).ok_or(RegionError::OutOfBounds)?;
+        let at = Self::check(from, len as usize)?;
+        let mut u = self.0.unlocked();
+        NorFlash::erase(&mut u, at, at + len).map_err(RegionError::Hal)
+    }
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        let at = Self::check(offset, bytes.len())?;
+        let mut u = self.0.unlocked();
+        NorFlash::write(&mut u, at, bytes).map_err(RegionError::Hal)
+    }
+}
+
 /// The board's parts for the controller.
 pub struct Board;
 
@@ -206,6 +282,7 @@ impl Bsp for Board {
     /// interrupts).
     type Adc = Hx711<PB0<Input>, PB1<Output>, DelayUs<pac::TIM5>>;
     type Wdg = BoardWatchdog;
+    type Flash = OdometerFlash;
 }
 
 #[entry]
@@ -273,7 +350,9 @@ fn main() -> ! {
     iwdg.start(WATCHDOG_MS.millis());
     let wdg = BoardWatchdog(iwdg);
 
+    let flash = OdometerFlash(LockedFlash::new(dp.FLASH));
     let parts = Parts::<Board> {
+        flash,
         en_n,
         dir,
         pulses,

@@ -16,6 +16,7 @@
 //! The board and the simulator provide the hardware through [`Bsp`].
 
 use embedded_hal::digital::{InputPin, OutputPin};
+use embedded_storage::nor_flash::NorFlash;
 use heapless::Deque;
 
 use crate::config::MachineConfig;
@@ -23,9 +24,12 @@ use crate::guard::{GuardConfig, OverloadGuard, SensorFault, SensorMonitor, Verdi
 use crate::hal::{LoadCellAdc, StepPulses, Watchdog};
 use crate::hx711::{Calibration, CODE_MAX, CODE_MIN};
 use crate::lock::{LockActuator, LockCmd};
+use crate::material::Material;
+use crate::odometer::{self, restore, CycleSummary, Odometer, StateRecord, WearConfig, WearLevel};
 use crate::profile::{ContactPhase, BOUNDARY_UM};
 use crate::propulsion::Propulsion;
 use crate::sequencer::{AxisCmd, FaultKind, Inputs, Request, SeqEvent, Sequencer, State, Switches};
+use crate::storage::{OpenReport, RecordLog};
 
 /// The hardware a controller runs on (board support package).
 pub trait Bsp {
@@ -51,6 +55,8 @@ pub trait Bsp {
     type Adc: LoadCellAdc;
     /// Independent watchdog.
     type Wdg: Watchdog;
+    /// The flash sectors reserved for the wear odometer.
+    type Flash: NorFlash;
 }
 
 /// The hardware parts, handed over at start.
@@ -77,6 +83,8 @@ pub struct Parts<B: Bsp> {
     pub adc: B::Adc,
     /// Watchdog.
     pub wdg: B::Wdg,
+    /// Odometer flash.
+    pub flash: B::Flash,
 }
 
 /// Controller configuration.
@@ -92,6 +100,10 @@ pub struct ControllerConfig {
     pub calibration: Calibration,
     /// Largest tare change from the calibrated offset that is plausible, mN equivalent.
     pub tare_tolerance_mn: i32,
+    /// Wear limit and warning level.
+    pub wear: WearConfig,
+    /// Cone material assumed when the flash holds no cone record (a new machine).
+    pub default_material: Material,
 }
 
 impl ControllerConfig {
@@ -103,6 +115,8 @@ impl ControllerConfig {
             sample_rate_sps,
             calibration,
             tare_tolerance_mn: 20_000,
+            wear: WearConfig::DEFAULT,
+            default_material: Material::ZQSn5_2,
         }
     }
 }
@@ -135,6 +149,10 @@ pub enum Event {
     ForceWarning(i32),
     /// The force contradicts the phase the position says (3→4 cross-check).
     PhaseMismatch(ContactPhase),
+    /// A cycle completed and was counted by the wear odometer.
+    CycleCounted(CycleSummary),
+    /// A start was refused: the cone has reached its wear limit.
+    WearLimitRefusal,
 }
 
 /// An event with its time.
@@ -179,6 +197,12 @@ pub struct Status {
     pub warning: bool,
     /// Highest force since boot, mN.
     pub peak_force_mn: i32,
+    /// Cone wear depth, nm.
+    pub wear_nm: u32,
+    /// Remaining cone life, nominal cycles.
+    pub remaining_cycles: u32,
+    /// Wear level.
+    pub wear_level: WearLevel,
 }
 
 /// Zero-load samples averaged for the tare.
@@ -223,6 +247,14 @@ pub struct Controller<B: Bsp> {
     events: Deque<Timed, EVENT_QUEUE>,
     events_dropped: u32,
     disabled_at_us: Option<u64>,
+    odo: Odometer,
+    log: Option<RecordLog<B::Flash>>,
+    open_report: OpenReport,
+    /// A counter snapshot waits for a moment with every motor off.
+    persist_pending: bool,
+    /// The pending snapshot ends a cycle (a history entry).
+    persist_cycle_end: bool,
+    storage_errors: u32,
 }
 
 /// Errors that stop the controller from starting.
@@ -244,7 +276,44 @@ impl<B: Bsp> Controller<B> {
             .map_err(|_| StartError::Pin)?;
         let lock =
             LockActuator::new(parts.lock_in1, parts.lock_in2).map_err(|_| StartError::Pin)?;
-        Ok(Self {
+        // The counters come back from flash; a log that cannot even be read leaves the
+        // odometer in RAM (reported; nothing is written over what may still be there).
+        let (mut log, open_report) = match RecordLog::open(parts.flash) {
+            Ok((log, report)) => (Some(log), report),
+            Err(_) => (None, OpenReport::default()),
+        };
+        let (cone, state) = match log.as_mut() {
+            Some(l) => (
+                l.latest(odometer::kind::CONE)
+                    .ok()
+                    .flatten()
+                    .and_then(|r| odometer::cone_from_bytes(r.data())),
+                l.latest(odometer::kind::STATE)
+                    .ok()
+                    .flatten()
+                    .and_then(|r| StateRecord::from_bytes(r.data())),
+            ),
+            None => (None, None),
+        };
+        if log.is_none() {
+            error!("odometer flash unreadable: wear is counted in RAM only");
+        } else if open_report.corrupt > 0 {
+            warn!(
+                "odometer log: {} corrupt or torn record(s) skipped",
+                open_report.corrupt
+            );
+        }
+        let fresh = cone.is_none();
+        let odo = restore(cfg.wear, cone, state, cfg.default_material);
+        info!(
+            "odometer: cone {} ({}), {} cycles, wear {} nm; lifetime {} cycles",
+            odo.cone().id,
+            odo.cone().material.name(),
+            odo.cone().cycles,
+            odo.wear_nm(),
+            odo.lifetime().cycles
+        );
+        let mut me = Self {
             cfg,
             prop,
             lock,
@@ -274,7 +343,51 @@ impl<B: Bsp> Controller<B> {
             events: Deque::new(),
             events_dropped: 0,
             disabled_at_us: None,
-        })
+            odo,
+            log,
+            open_report,
+            persist_pending: false,
+            persist_cycle_end: false,
+            storage_errors: 0,
+        };
+        if fresh {
+            // A new machine: record its first cone so its identity survives.
+            me.write_cone_record();
+        }
+        Ok(me)
+    }
+
+    fn write_cone_record(&mut self) {
+        let bytes = odometer::cone_to_bytes(self.odo.cone());
+        if let Some(l) = self.log.as_mut() {
+            if l.append(odometer::kind::CONE, &bytes).is_err() {
+                self.storage_errors = self.storage_errors.saturating_add(1);
+                error!("odometer: cone record not written");
+            }
+        }
+    }
+
+    /// Write the pending counter snapshot, and pre-erase the next sector if due. Only
+    /// called with every motor off: a flash erase stalls the CPU for up to ~2 s.
+    fn persist(&mut self) {
+        let Some(l) = self.log.as_mut() else { return };
+        if self.persist_pending {
+            let rec = StateRecord::of(&self.odo, self.persist_cycle_end).to_bytes();
+            match l.append(odometer::kind::STATE, &rec) {
+                Ok(_) => {
+                    self.persist_pending = false;
+                    self.persist_cycle_end = false;
+                }
+                Err(_) => {
+                    // Keep it pending: the next idle step retries (nothing is lost in RAM).
+                    self.storage_errors = self.storage_errors.saturating_add(1);
+                    error!("odometer: counter snapshot not written; will retry");
+                }
+            }
+        }
+        if !self.persist_pending && l.needs_maintenance() && l.maintain().is_err() {
+            self.storage_errors = self.storage_errors.saturating_add(1);
+        }
     }
 
     /// Ask for something; acted on in the next control step.
@@ -367,6 +480,8 @@ impl<B: Bsp> Controller<B> {
                     self.disabled_at_us = Some(now_us);
                     result.tripped = true;
                     self.overload_trips = self.overload_trips.saturating_add(1);
+                    self.odo.record_overload(self.force_mn);
+                    self.persist_pending = true;
                     fault = fault.or(Some(FaultKind::Overload));
                 }
                 Verdict::Warn => {
@@ -380,6 +495,13 @@ impl<B: Bsp> Controller<B> {
                     self.warning = true;
                 }
                 Verdict::Ok | Verdict::Suspect => self.warning = false,
+            }
+            // Wear: load × sliding distance while the rod may be in the cone.
+            self.odo.record_force(self.force_mn);
+            if state.in_compliant_motion() {
+                self.odo.on_contact_sample(pos_um, self.force_mn);
+            } else {
+                self.odo.end_contact();
             }
             if state == State::Idle && switches.home {
                 if self.tare.is_full() {
@@ -400,6 +522,19 @@ impl<B: Bsp> Controller<B> {
 
         // 4. Sequencer.
         let mut request = self.pending.take();
+        if request == Some(Request::StartCycle)
+            && state == State::Idle
+            && self.odo.level() == WearLevel::Limit
+        {
+            // Worn out: no new docking until the cone is replaced.
+            request = None;
+            error!(
+                "start refused: cone worn to {} nm (limit {} nm); replace it",
+                self.odo.wear_nm(),
+                self.cfg.wear.limit_nm
+            );
+            self.push_event(now_ms, Event::WearLimitRefusal);
+        }
         if request == Some(Request::StartCycle) && state == State::Idle {
             match self.take_tare() {
                 TareResult::Ready => {}
@@ -461,7 +596,15 @@ impl<B: Bsp> Controller<B> {
             self.pending = None;
         }
 
-        // 6. A loop that keeps its period feeds the watchdog; a stalled one does not.
+        // 6. Persist counters only while every motor is off (Idle, Faulted).
+        if matches!(self.seq.state(), State::Idle | State::Faulted { .. })
+            && !self.prop.is_enabled()
+            && self.lock.cmd() == LockCmd::Off
+        {
+            self.persist();
+        }
+
+        // 7. A loop that keeps its period feeds the watchdog; a stalled one does not.
         if dt_us <= 3 * period {
             self.wdg.feed();
         }
@@ -560,8 +703,29 @@ impl<B: Bsp> Controller<B> {
                 };
                 let _ = self.faults.push_back(rec);
                 self.fault_count = self.fault_count.saturating_add(1);
+                self.odo.record_fault();
+                self.persist_pending = true;
             }
-            SeqEvent::CycleCompleted(n) => info!("cycle {} completed", n),
+            SeqEvent::CycleCompleted(n) => {
+                let c = self.odo.complete_cycle();
+                info!(
+                    "cycle {} completed: cone cycle {}, wear {} nm, remaining {} cycles",
+                    n, c.cone_cycle, c.wear_nm, c.remaining_cycles
+                );
+                match c.level {
+                    WearLevel::Ok => {}
+                    WearLevel::Warning => {
+                        warn!("cone wear {} nm is past the warning level", c.wear_nm)
+                    }
+                    WearLevel::Limit => error!(
+                        "cone wear {} nm reached the limit: replace the cone",
+                        c.wear_nm
+                    ),
+                }
+                self.push_event(now_ms, Event::CycleCounted(c));
+                self.persist_pending = true;
+                self.persist_cycle_end = true;
+            }
             SeqEvent::CycleStarted(n) => info!("cycle {} started", n),
             SeqEvent::FaultCleared => info!("fault cleared; recovering"),
             SeqEvent::Homed => info!("homed"),
@@ -604,7 +768,45 @@ impl<B: Bsp> Controller<B> {
             },
             warning: self.warning,
             peak_force_mn: self.peak_force_mn,
+            wear_nm: self.odo.wear_nm(),
+            remaining_cycles: self.odo.remaining_cycles(),
+            wear_level: self.odo.level(),
         }
+    }
+
+    /// Sequencer state.
+    pub fn state(&self) -> State {
+        self.seq.state()
+    }
+
+    /// The wear odometer.
+    pub fn odometer(&self) -> &Odometer {
+        &self.odo
+    }
+
+    /// What the odometer log held at boot.
+    pub fn open_report(&self) -> OpenReport {
+        self.open_report
+    }
+
+    /// Odometer writes that failed since boot.
+    pub fn storage_errors(&self) -> u32 {
+        self.storage_errors
+    }
+
+    /// A counter snapshot is waiting to be written.
+    pub fn persist_pending(&self) -> bool {
+        self.persist_pending
+    }
+
+    /// The odometer log (history reads; `None` if the flash was unreadable at boot).
+    pub fn log_mut(&mut self) -> Option<&mut RecordLog<B::Flash>> {
+        self.log.as_mut()
+    }
+
+    /// The odometer flash (for tests and the simulator).
+    pub fn flash(&self) -> Option<&B::Flash> {
+        self.log.as_ref().map(|l| l.flash())
     }
 
     /// Fault records, oldest first (the last 16).

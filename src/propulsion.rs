@@ -84,8 +84,12 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
 
     /// Switch the power stage on (holding torque, no motion).
     pub fn enable(&mut self) -> Result<(), PropulsionError> {
+        if self.enabled {
+            return Ok(()); // already on: no pin traffic every control step
+        }
+        self.en_n.set_low().map_err(|_| PropulsionError::Pin)?;
         self.enabled = true;
-        self.en_n.set_low().map_err(|_| PropulsionError::Pin)
+        Ok(())
     }
 
     /// Whether the power stage is on.
@@ -176,7 +180,14 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
                 // `dist` after this period's travel (discrete, so conservative).
                 let lead = (v.abs() * dt_us as i64) / 1_000_000;
                 let d_eff = (dist.abs() - lead).max(0) as u64;
-                let v_stop = isqrt(2 * self.accel_sps2 as u64 * d_eff) as i64;
+                let two_a_d = 2 * self.accel_sps2 as u64 * d_eff;
+                let max = self.max_sps as u64;
+                // Far from the target the speed limit binds; only near it is the root needed.
+                let v_stop = if max * max <= two_a_d {
+                    max as i64
+                } else {
+                    isqrt(two_a_d) as i64
+                };
                 let v_cap = if dist.abs() <= lead.max(1) + dv * dt_us as i64 / 1_000_000 + 1 {
                     // Final approach: cover exactly the remaining steps in one period (a
                     // stepper stops from these few hundred steps/s without a ramp).

@@ -63,6 +63,10 @@ pub struct AxisModel {
     travel_steps: u64,
     /// Travel since the driver was last disabled, steps.
     travel_since_disable_steps: u64,
+    /// Hard stops and end switch, steps.
+    lo_steps: i64,
+    hi_steps: i64,
+    end_steps: i64,
 }
 
 impl AxisModel {
@@ -79,16 +83,14 @@ impl AxisModel {
         let n = acc / 1_000_000_000;
         self.frac = acc % 1_000_000_000;
         self.pending_pulses = self.pending_pulses.saturating_add(n as u32);
-        if self.enabled && self.fault != AxisFault::Stalled {
-            let lo = self.cfg.um_to_steps(-2_000) as i64;
-            let hi = self.cfg.um_to_steps(self.cfg.end_switch_um + 2_000) as i64;
+        if n > 0 && self.enabled && self.fault != AxisFault::Stalled {
             let before = self.pos_steps;
             let step = if self.dir_positive {
                 n as i64
             } else {
                 -(n as i64)
             };
-            self.pos_steps = (self.pos_steps + step).clamp(lo, hi);
+            self.pos_steps = (self.pos_steps + step).clamp(self.lo_steps, self.hi_steps);
             let moved = (self.pos_steps - before).unsigned_abs();
             self.travel_steps += moved;
             self.travel_since_disable_steps += moved;
@@ -123,6 +125,9 @@ impl SimAxis {
             edges: Vec::new(),
             travel_steps: 0,
             travel_since_disable_steps: 0,
+            lo_steps: cfg.um_to_steps(-2_000) as i64,
+            hi_steps: cfg.um_to_steps(cfg.end_switch_um + 2_000) as i64,
+            end_steps: cfg.um_to_steps(cfg.end_switch_um) as i64,
         };
         Self {
             model: Rc::new(RefCell::new(m)),
@@ -253,10 +258,7 @@ impl embedded_hal::digital::InputPin for AxisPin {
         let role = self.1;
         Ok(self.0.with(|m| match role {
             PinRole::Home => !(m.fault != AxisFault::HomeSwitchDead && m.pos_steps <= 0),
-            PinRole::End => {
-                let end = m.cfg.um_to_steps(m.cfg.end_switch_um) as i64;
-                !(m.fault != AxisFault::EndSwitchDead && m.pos_steps >= end)
-            }
+            PinRole::End => !(m.fault != AxisFault::EndSwitchDead && m.pos_steps >= m.end_steps),
             PinRole::EnableN => !m.enabled,
             PinRole::Dir => m.dir_positive,
         }))

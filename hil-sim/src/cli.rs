@@ -16,7 +16,7 @@ impl std::fmt::Display for UsageError {
 }
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate SPS] [--seed S] [--json] | bench [--cycles N] [--rate SPS]";
+pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate SPS] [--seed S] [--json] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--json]";
 
 /// Parse `--rate` as one of the HX711 rates.
 fn hx_rate(o: &Opts) -> Result<u32, UsageError> {
@@ -42,6 +42,54 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         adc: crate::rig::AdcMode::Pins,
     };
     let report = crate::scene::run(name, opts).map_err(UsageError)?;
+    let text = if o.flag("json") {
+        report.to_json()
+    } else {
+        report.to_text()
+    };
+    let _ = writeln!(out, "{text}");
+    Ok(())
+}
+
+fn life(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
+    use docking_controller::material::Material;
+    let o = Opts::parse(args, &["cycles", "material", "at", "rate"], &["json"])?;
+    if o.get("cycles").is_none() {
+        return err("life needs --cycles N (N >= 1)");
+    }
+    let cycles = o.num("cycles", 1u32, 1, 10_000_000)?;
+    let material = match o.get("material") {
+        None => Material::ZQSn5_2,
+        Some(m) => Material::from_name(m).ok_or_else(|| {
+            let names: Vec<_> = Material::ALL.iter().map(|m| m.name()).collect();
+            UsageError(format!(
+                "unknown material '{m}' (materials: {})",
+                names.join(", ")
+            ))
+        })?,
+    };
+    let at = match o.get("at") {
+        None => crate::life::default_checkpoints(cycles),
+        Some(list) => {
+            let mut v = Vec::new();
+            for part in list.split(',') {
+                match part.trim().parse::<u32>() {
+                    Ok(c) if (1..=cycles).contains(&c) => v.push(c),
+                    _ => return err(format!("--at must be a comma-separated list of cycle numbers from 1 to {cycles}, got '{list}'")),
+                }
+            }
+            v.sort_unstable();
+            v.dedup();
+            v
+        }
+    };
+    let opts = crate::life::LifeOptions {
+        cycles,
+        material,
+        at,
+        rate_sps: hx_rate(&o)?,
+    };
+    let report = crate::life::run(&opts);
     let text = if o.flag("json") {
         report.to_json()
     } else {
@@ -182,6 +230,7 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         "profile" => profile(rest, out),
         "scene" => scene(rest, out),
         "bench" => bench(rest, out),
+        "life" => life(rest, out),
         "help" | "--help" | "-h" => {
             let _ = writeln!(out, "{USAGE}");
             Ok(())

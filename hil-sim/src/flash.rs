@@ -245,3 +245,47 @@ mod tests {
         );
     }
 }
+
+/// A [`SimFlash`] shared between the controller and the test or scene that injects
+/// power cuts and "reboots" the controller on the same flash.
+#[derive(Clone, Debug)]
+pub struct SharedFlash(std::rc::Rc<std::cell::RefCell<SimFlash>>);
+
+impl SharedFlash {
+    /// Share `flash`.
+    pub fn new(flash: SimFlash) -> Self {
+        Self(std::rc::Rc::new(std::cell::RefCell::new(flash)))
+    }
+
+    /// Work on the flash (arm a cut, restore power, read counters).
+    pub fn with<R>(&self, f: impl FnOnce(&mut SimFlash) -> R) -> R {
+        f(&mut self.0.borrow_mut())
+    }
+}
+
+impl ErrorType for SharedFlash {
+    type Error = SimFlashError;
+}
+
+impl ReadNorFlash for SharedFlash {
+    const READ_SIZE: usize = SimFlash::READ_SIZE;
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        self.0.borrow_mut().read(offset, bytes)
+    }
+    fn capacity(&self) -> usize {
+        self.0.borrow().capacity()
+    }
+}
+
+impl NorFlash for SharedFlash {
+    const WRITE_SIZE: usize = SimFlash::WRITE_SIZE;
+    const ERASE_SIZE: usize = SimFlash::ERASE_SIZE;
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        self.0.borrow_mut().erase(from, to)
+    }
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        self.0.borrow_mut().write(offset, bytes)
+    }
+}
+
+impl MultiwriteNorFlash for SharedFlash {}

@@ -104,6 +104,8 @@ pub struct Hx711Stats {
 /// The device model; shared by its two pins.
 pub struct Hx711Model {
     cfg: Hx711Config,
+    /// Conversion period, ns (cached: the model is consulted several times a sample).
+    period_ns: u64,
     source: Box<dyn ForceSource>,
     rng: Rng,
     fault: Hx711Fault,
@@ -127,10 +129,13 @@ pub struct Hx711Model {
 
 impl Hx711Model {
     fn settle_ns(&self) -> u64 {
-        4 * self.cfg.period_ns()
+        4 * self.period_ns
     }
 
     fn catch_up(&mut self, now: u64) {
+        if now < self.next_conv_ns {
+            return; // nothing due (the common case: checked many times per conversion)
+        }
         if self
             .sck_high_since
             .is_some_and(|t| now.saturating_sub(t) > POWER_DOWN_NS)
@@ -139,7 +144,7 @@ impl Hx711Model {
         }
         while self.next_conv_ns <= now {
             let t = self.next_conv_ns;
-            self.next_conv_ns += self.cfg.period_ns();
+            self.next_conv_ns += self.period_ns;
             if self.pulses != 0 && self.pulses < 25 {
                 continue; // readout in progress: the part holds its output register
             }
@@ -166,7 +171,10 @@ impl Hx711Model {
                 };
                 let v = (self.cfg.offset_counts + self.cfg.counts_per_n * f) * gain_scale
                     + self.cfg.noise_counts * self.rng.normal();
-                v.round().clamp(CODE_MIN as f64, CODE_MAX as f64) as i32
+                // Round half away from zero with a cast (no libm call), then saturate at
+                // the rails like the part.
+                let r = (v + 0.5f64.copysign(v)) as i64;
+                r.clamp(CODE_MIN as i64, CODE_MAX as i64) as i32
             }
         };
         self.last_code = code;
@@ -247,6 +255,7 @@ impl SimHx711 {
     ) -> Self {
         let now = clock.now_ns();
         let mut m = Hx711Model {
+            period_ns: cfg.period_ns(),
             cfg,
             source: Box::new(source),
             rng: Rng::new(seed),

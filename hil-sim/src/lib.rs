@@ -22,6 +22,7 @@ pub mod cli;
 pub mod clock;
 pub mod flash;
 pub mod hx711;
+pub mod life;
 pub mod lock;
 pub mod profile_cmd;
 pub mod rig;

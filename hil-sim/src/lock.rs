@@ -36,11 +36,12 @@ struct LockModel {
 
 impl LockModel {
     fn update(&mut self, now: u64) {
-        let dt = now.saturating_sub(self.last_ns);
-        self.last_ns = self.last_ns.max(now);
         if self.fault == LockFault::Stuck || self.in1 == self.in2 {
+            self.last_ns = self.last_ns.max(now);
             return;
         }
+        let dt = now.saturating_sub(self.last_ns);
+        self.last_ns = self.last_ns.max(now);
         // dt ns · v µm/s · 1e-9 s/ns · 1e3 nm/µm = dt·v/1e6 nm
         let d_nm = dt * LOCK_SPEED_UM_PER_S / 1_000_000;
         let max = LOCK_TRAVEL_UM * 1_000;

@@ -12,6 +12,7 @@ use docking_controller::profile::forces_at_depth_um;
 
 use crate::axis::{AxisPin, AxisPulses, SimAxis};
 use crate::clock::SimClock;
+use crate::flash::{SharedFlash, SimFlash};
 use crate::hx711::{Hx711Config, Hx711Dout, Hx711Sck, SimHx711};
 use crate::lock::{LockPin, SimLock};
 
@@ -106,6 +107,7 @@ impl Bsp for SimBsp {
     type Released = LockPin;
     type Adc = SimAdc;
     type Wdg = SimWatchdog;
+    type Flash = SharedFlash;
 }
 
 /// Extra force a scene puts on the load cell (jam, spikes), N.
@@ -132,6 +134,20 @@ pub struct RigOptions {
     pub seed: u64,
     /// How the load cell is read.
     pub adc: AdcMode,
+    /// Cone material of a new machine (no cone record in flash).
+    pub material: docking_controller::material::Material,
+}
+
+impl RigOptions {
+    /// 80 SPS, seed 1, word-level reads, ZQSn5-2.
+    pub fn new(rate_sps: u32) -> Self {
+        Self {
+            rate_sps,
+            seed: 1,
+            adc: AdcMode::Word,
+            material: docking_controller::material::Material::ZQSn5_2,
+        }
+    }
 }
 
 /// The whole machine.
@@ -152,6 +168,8 @@ pub struct Rig {
     pub ctrl: Controller<SimBsp>,
     /// Conversions so far (the force source's call count).
     pub conversions: Rc<Cell<u64>>,
+    /// The odometer flash (shared: cut power on it, reboot on it).
+    pub flash: SharedFlash,
 }
 
 /// The calibration of the simulated cell's default front end (offset 31 000 counts,
@@ -165,8 +183,14 @@ pub fn sim_calibration(hx: &Hx711Config) -> Calibration {
 }
 
 impl Rig {
-    /// A machine parked at home, locked, powered up at t = 0.
+    /// A new machine (erased odometer flash, STM32F407 geometry) parked at home,
+    /// locked, powered up at t = 0.
     pub fn new(opts: RigOptions) -> Self {
+        Self::with_flash(opts, SharedFlash::new(SimFlash::stm32f407_odometer()))
+    }
+
+    /// The machine booting on an existing odometer flash (a reboot: parked at home).
+    pub fn with_flash(opts: RigOptions, flash: SharedFlash) -> Self {
         let machine = MachineConfig::DEFAULT;
         let clock = SimClock::new();
         let axis = SimAxis::new(machine, clock.clone(), 0);
@@ -214,8 +238,10 @@ impl Rig {
                 }
             },
             wdg: wdg.clone(),
+            flash: flash.clone(),
         };
-        let cfg = ControllerConfig::new(opts.rate_sps, sim_calibration(&hx_cfg));
+        let mut cfg = ControllerConfig::new(opts.rate_sps, sim_calibration(&hx_cfg));
+        cfg.default_material = opts.material;
         let ctrl = match Controller::new(parts, cfg, 0) {
             Ok(c) => c,
             Err(e) => unreachable!("simulated pins are infallible: {e:?}"),
@@ -229,6 +255,7 @@ impl Rig {
             script,
             ctrl,
             conversions,
+            flash,
         }
     }
 

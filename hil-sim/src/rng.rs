@@ -26,11 +26,15 @@ impl Rng {
         (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
     }
 
-    /// Approximately standard normal (Irwin–Hall of 4 uniforms, rescaled: mean 0,
-    /// variance 1, tails cut at ±3.46 σ — enough for sensor noise).
+    /// Approximately standard normal: Irwin–Hall of 4 uniforms (the four 16-bit fields of
+    /// one draw), rescaled to mean 0, variance 1; tails cut at ±3.46 σ — enough for
+    /// sensor noise, and one generator step per sample.
     pub fn normal(&mut self) -> f64 {
-        let s = self.uniform() + self.uniform() + self.uniform() + self.uniform();
-        (s - 2.0) * 3.0f64.sqrt()
+        let x = self.next_u64();
+        let s = (x & 0xFFFF) + ((x >> 16) & 0xFFFF) + ((x >> 32) & 0xFFFF) + (x >> 48);
+        // Each field is uniform on {0..65535}: mean 32767.5, variance (65536² − 1)/12.
+        // Sum variance 4 · 65536²/12 = 65536²/3, so σ = 65536/√3.
+        (s as f64 - 4.0 * 32_767.5) * (3.0f64.sqrt() / 65_536.0)
     }
 }
 

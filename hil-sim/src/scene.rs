@@ -117,9 +117,9 @@ pub fn run(name: &str, opts: SceneOptions) -> Result<SceneReport, String> {
     }
     let started = Instant::now();
     let mut rig = Rig::new(RigOptions {
-        rate_sps: opts.rate_sps,
         seed: opts.seed,
         adc: opts.adc,
+        ..RigOptions::new(opts.rate_sps)
     });
     let cycles = opts.cycles.max(1);
     let engage = rig.ctrl.config().machine.engage_um;

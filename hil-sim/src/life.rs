@@ -1,0 +1,177 @@
+//! `hil-sim life`: N full closed-loop docking cycles — sequencer, simulated HAL, wear
+//! odometer, simulated flash — with the cone's wear at checkpoints.
+
+use std::time::Instant;
+
+use docking_controller::material::Material;
+use docking_controller::odometer::WearLevel;
+use docking_controller::sequencer::{Request, State};
+
+use crate::rig::{Rig, RigOptions};
+
+/// Options.
+#[derive(Clone, Debug)]
+pub struct LifeOptions {
+    /// Cycles to run.
+    pub cycles: u32,
+    /// Cone material.
+    pub material: Material,
+    /// Checkpoints (cycle numbers, ascending, ≤ cycles).
+    pub at: Vec<u32>,
+    /// Load-cell rate, SPS.
+    pub rate_sps: u32,
+}
+
+/// Default checkpoints: 1, 10, 100, … below N, and N.
+pub fn default_checkpoints(n: u32) -> Vec<u32> {
+    let mut v: Vec<u32> = std::iter::successors(Some(1u32), |x| x.checked_mul(10))
+        .take_while(|&x| x < n)
+        .collect();
+    v.push(n);
+    v
+}
+
+/// One checkpoint.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LifePoint {
+    /// Cone cycle count.
+    pub cycle: u32,
+    /// Wear depth, nm.
+    pub wear_nm: u32,
+    /// Remaining life, nominal cycles.
+    pub remaining_cycles: u32,
+}
+
+/// The run's result.
+#[derive(Clone, Debug)]
+pub struct LifeReport {
+    /// Material.
+    pub material: Material,
+    /// Checkpoints reached.
+    pub points: Vec<LifePoint>,
+    /// Cycle at which the wear limit was reached (extrapolated by the model if later).
+    pub life_cycles: u32,
+    /// Whether the limit was reached within the run (the controller then refused to go on).
+    pub limit_reached: bool,
+    /// Cycles completed.
+    pub cycles_run: u32,
+    /// Most erases of any odometer flash sector.
+    pub erases_per_sector_max: u32,
+    /// Faults latched (a nominal life run has none).
+    pub faults: u32,
+    /// Virtual time, s.
+    pub sim_time_s: f64,
+    /// Wall time, s.
+    pub wall_time_s: f64,
+}
+
+/// Run it.
+pub fn run(opts: &LifeOptions) -> LifeReport {
+    let started = Instant::now();
+    let mut rig = Rig::new(RigOptions {
+        material: opts.material,
+        ..RigOptions::new(opts.rate_sps)
+    });
+    let mut points = Vec::with_capacity(opts.at.len());
+    let mut next_at = opts.at.iter().copied().peekable();
+    let mut seen_cycles = 0u32;
+    let mut limit_at: Option<u32> = None;
+    loop {
+        rig.tick();
+        let odo = rig.ctrl.odometer();
+        let cycles = odo.cone().cycles;
+        if cycles != seen_cycles {
+            seen_cycles = cycles;
+            if limit_at.is_none() && odo.level() == WearLevel::Limit {
+                limit_at = Some(cycles);
+            }
+            while next_at.peek().is_some_and(|&c| c <= cycles) {
+                next_at.next();
+                points.push(LifePoint {
+                    cycle: cycles,
+                    wear_nm: odo.wear_nm(),
+                    remaining_cycles: odo.remaining_cycles(),
+                });
+            }
+        }
+        match rig.ctrl.state() {
+            State::Idle if !rig.ctrl.persist_pending() => {
+                if cycles >= opts.cycles || limit_at.is_some() {
+                    break;
+                }
+                rig.ctrl.request(Request::StartCycle);
+            }
+            State::Faulted { .. } => break,
+            _ => {}
+        }
+    }
+    let odo = rig.ctrl.odometer();
+    let life_cycles = limit_at.unwrap_or(odo.cone().cycles.saturating_add(odo.remaining_cycles()));
+    LifeReport {
+        material: opts.material,
+        points,
+        life_cycles,
+        limit_reached: limit_at.is_some(),
+        cycles_run: odo.cone().cycles,
+        erases_per_sector_max: rig
+            .flash
+            .with(|f| f.erase_counts().iter().copied().max().unwrap_or(0)),
+        faults: rig.ctrl.fault_count(),
+        sim_time_s: rig.clock.now_s(),
+        wall_time_s: started.elapsed().as_secs_f64(),
+    }
+}
+
+fn mm(nm: u32) -> String {
+    format!("{}.{:06}", nm / 1_000_000, nm % 1_000_000)
+}
+
+impl LifeReport {
+    /// One JSON object on one line.
+    pub fn to_json(&self) -> String {
+        let pts: Vec<String> = self
+            .points
+            .iter()
+            .map(|p| {
+                format!(
+                    "{{\"cycle\":{},\"wear_mm\":{},\"remaining_cycles\":{}}}",
+                    p.cycle,
+                    mm(p.wear_nm),
+                    p.remaining_cycles
+                )
+            })
+            .collect();
+        format!(
+            "{{\"material\":\"{}\",\"points\":[{}],\"life_cycles\":{},\"limit_reached\":{},\"cycles_run\":{},\"erases_per_sector_max\":{},\"faults\":{},\"sim_time_s\":{:.1},\"wall_time_s\":{:.3}}}",
+            self.material.name(),
+            pts.join(","),
+            self.life_cycles,
+            self.limit_reached,
+            self.cycles_run,
+            self.erases_per_sector_max,
+            self.faults,
+            self.sim_time_s,
+            self.wall_time_s
+        )
+    }
+
+    /// A table and a summary line.
+    pub fn to_text(&self) -> String {
+        let mut s = String::from("cycle,wear_mm,remaining_cycles\n");
+        for p in &self.points {
+            s += &format!("{},{},{}\n", p.cycle, mm(p.wear_nm), p.remaining_cycles);
+        }
+        s += &format!(
+            "# {}: life {} cycles ({}), {} cycles run, {} fault(s), erases per sector max {}, {:.0} s simulated in {:.2} s",
+            self.material.name(),
+            self.life_cycles,
+            if self.limit_reached { "limit reached" } else { "extrapolated" },
+            self.cycles_run,
+            self.faults,
+            self.erases_per_sector_max,
+            self.sim_time_s,
+            self.wall_time_s
+        );
+        s
+    }
+}

@@ -1,0 +1,698 @@
+//! The wear odometer: cumulative guide-cone wear from the measured load, per cycle, in
+//! integer and fixed-point arithmetic only (reference §4–§5).
+//!
+//! ## Model
+//! Archard: wear is proportional to load × sliding distance. For every sample in the
+//! cone (both strokes) the odometer adds the trapezoid `(F_prev + F) · |Δx|`, with `F`
+//! the measured rod–cone load and `Δx` the axis travel **from the counted position**
+//! (not an assumed speed), so a cycle with more load or more travel wears more, in
+//! proportion. The sum is exact (integers, no rounding per sample), so loads far below
+//! any state resolution accumulate without loss.
+//!
+//! The cone's state is its total load–distance `W`. Converted to **equivalent nominal
+//! cycles** `E = k · W / W_nom` (`k` the material's calibrated wear factor, `W_nom` the
+//! exact load–distance of one nominal cycle of Eq. 7), the depth is the reduced-order
+//! solution of the paper's power law (Eq. 17), which integrates exactly:
+//!
+//! ```text
+//!   h(E) = a · (E + m0)^b − c        a = 0.01372 mm, b = 0.3813, c = 0.01774 mm,
+//!                                    m0 = (c/a)^(1/b) = 1.96192  (so h(0) = 0)
+//!   E_limit = ((h_limit + c)/a)^(1/b) − m0        (45 268.2 at 0.8 mm)
+//!   remaining (nominal cycles of this material) = (E_limit − E) / k
+//! ```
+//!
+//! At nominal load this is within 0.5 % of Eq. 17 from 200 cycles on and reaches 0.8 mm
+//! at 45 268 cycles (Eq. 17: 45 270). `h` is monotone in `E` and `E` in `W`, so wear
+//! never decreases, and an off-nominal cycle simply advances `E` more or less.
+//!
+//! ## Formats
+//! * load–distance: `u64`, **Q63.1 mN·µm** (units of 0.5 mN·µm: the trapezoid's halving
+//!   is kept exact); saturating;
+//! * `E`: `u64` Q32.32 nominal cycles; powers via [`crate::fixed`] (bit-identical on host
+//!   and target);
+//! * depth: `u32` nm; force: `i32` mN; positions: `i32` µm.
+
+use crate::fixed::{pow_q32, ONE_Q32};
+use crate::material::Material;
+
+/// Load–distance of one nominal cycle (both strokes of Eq. 7 at 1.2 mm/s), mN·µm:
+/// 2 · 1.2 mm/s · ∫N3 dt (3368.9414 N·s) = 8085.4594 N·mm.
+pub const W_NOM_MN_UM: u64 = 8_085_459_450;
+/// The same in Q63.1 (the odometer's unit).
+pub const W_NOM_Q1: u64 = 2 * W_NOM_MN_UM;
+/// Eq. 17 `a`, nm.
+pub const A_NM: u64 = 13_720;
+/// Eq. 17 `c`, nm.
+pub const C_NM: u64 = 17_740;
+/// Eq. 17 exponent `b` = 0.3813 in Q32.32.
+pub const B_Q32: i64 = 1_637_671_030;
+/// `1/b` in Q32.32.
+pub const INV_B_Q32: i64 = 11_264_010_742;
+/// `m0 = (c/a)^(1/b)` in Q32.32 (computed at build time).
+pub const M0_Q32: u64 = pow_q32((C_NM << 32) / A_NM, INV_B_Q32);
+
+/// The material's wear per unit load–distance relative to ZQSn5-2, Q32.32.
+///
+/// Archard's `Km / H` per material, calibrated, not from hardness alone:
+/// * ZQSn5-2: Km = 3.3e-5, HV 213.77 → 1 (the paper's baseline);
+/// * QSn6-6-3: measured 42.99 % lower wear rate → 0.5701 (hardness alone, 213.77/242.8,
+///   would give 0.88): Km ≈ 2.14e-5 at HV 242.8;
+/// * carbon-fibre PEEK: the paper's projection of 90 540 cycles to 0.8 mm →
+///   45 268.2 / 90 540 = 0.49998.
+pub const fn wear_factor_q32(m: Material) -> u64 {
+    match m {
+        Material::ZQSn5_2 => ONE_Q32,
+        Material::QSn6_6_3 => 2_448_560_855,
+        Material::CfPeek => 2_147_398_218,
+    }
+}
+
+/// Wear limit and warning level.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WearConfig {
+    /// Wear depth at which the cone is worn out, nm (0.8 mm by default: the pose
+    /// tolerance gives 0.91 mm).
+    pub limit_nm: u32,
+    /// Warn from this percentage of the limit on (80 % by default).
+    pub warn_pct: u8,
+}
+
+impl WearConfig {
+    /// 0.8 mm, warning at 80 %.
+    pub const DEFAULT: Self = Self {
+        limit_nm: 800_000,
+        warn_pct: 80,
+    };
+
+    /// Validate: limit 10 µm – 5 mm, warning 1–99 %.
+    pub const fn new(limit_nm: u32, warn_pct: u8) -> Option<Self> {
+        if limit_nm < 10_000 || limit_nm > 5_000_000 || warn_pct == 0 || warn_pct > 99 {
+            None
+        } else {
+            Some(Self { limit_nm, warn_pct })
+        }
+    }
+}
+
+impl Default for WearConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// Equivalent nominal cycles (Q32.32) at which the depth reaches `depth_nm`.
+pub const fn e_at_depth_q32(depth_nm: u32) -> u64 {
+    let x = ((depth_nm as u64 + C_NM) << 32) / A_NM;
+    pow_q32(x, INV_B_Q32).saturating_sub(M0_Q32)
+}
+
+/// Depth (nm) after `e_q32` equivalent nominal cycles.
+pub const fn depth_nm(e_q32: u64) -> u32 {
+    let p = pow_q32(e_q32.saturating_add(M0_Q32), B_Q32);
+    let h = ((A_NM as u128 * p as u128) >> 32) as u64;
+    let d = h.saturating_sub(C_NM);
+    if d > u32::MAX as u64 {
+        u32::MAX
+    } else {
+        d as u32
+    }
+}
+
+/// Equivalent nominal cycles (Q32.32) of a load–distance `w_q1` on `material`.
+pub const fn equivalent_cycles_q32(w_q1: u64, material: Material) -> u64 {
+    let e = (wear_factor_q32(material) as u128 * w_q1 as u128) / W_NOM_Q1 as u128;
+    if e > u64::MAX as u128 {
+        u64::MAX
+    } else {
+        e as u64
+    }
+}
+
+/// How worn the cone is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum WearLevel {
+    /// Below the warning level.
+    Ok,
+    /// At or above the warning level: warn on every cycle.
+    Warning,
+    /// At or above the limit: no new docking until the cone is replaced.
+    Limit,
+}
+
+impl WearLevel {
+    /// Stable name.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Ok => "ok",
+            Self::Warning => "warning",
+            Self::Limit => "limit",
+        }
+    }
+}
+
+/// Longest cone serial, bytes.
+pub const SERIAL_MAX: usize = 20;
+
+/// The installed cone and its own counters.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Cone {
+    /// Sequence number of the installation (1 = the first cone).
+    pub id: u16,
+    /// Material.
+    pub material: Material,
+    /// Serial number (ASCII, `serial_len` bytes used).
+    pub serial: [u8; SERIAL_MAX],
+    /// Bytes of `serial` used.
+    pub serial_len: u8,
+    /// Lifetime cycle count when it was installed.
+    pub installed_at_cycle: u32,
+    /// Docking cycles on this cone.
+    pub cycles: u32,
+    /// Load–distance on this cone, Q63.1 mN·µm.
+    pub w_q1: u64,
+}
+
+impl Cone {
+    /// A new cone with zero counters.
+    pub fn new(id: u16, material: Material, serial: &str, installed_at_cycle: u32) -> Self {
+        let mut s = [0u8; SERIAL_MAX];
+        let n = serial.len().min(SERIAL_MAX);
+        if let (Some(dst), Some(src)) = (s.get_mut(..n), serial.as_bytes().get(..n)) {
+            dst.copy_from_slice(src);
+        }
+        Self {
+            id,
+            material,
+            serial: s,
+            serial_len: n as u8,
+            installed_at_cycle,
+            cycles: 0,
+            w_q1: 0,
+        }
+    }
+
+    /// The serial as text (lossy for non-UTF-8 garbage: empty).
+    pub fn serial_str(&self) -> &str {
+        self.serial
+            .get(..self.serial_len as usize)
+            .and_then(|b| core::str::from_utf8(b).ok())
+            .unwrap_or("")
+    }
+}
+
+/// Totals over the machine's life, all cones; never reset.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Lifetime {
+    /// Docking cycles completed.
+    pub cycles: u32,
+    /// Load–distance, Q63.1 mN·µm.
+    pub w_q1: u64,
+    /// Overload trips.
+    pub overload_events: u32,
+    /// Faults latched (all kinds).
+    pub faults: u32,
+    /// Highest force ever measured, mN.
+    pub peak_force_mn: i32,
+    /// Cones installed (the first counts).
+    pub cones_installed: u16,
+}
+
+/// Integrates `(F_prev + F) · |Δx|` over consecutive samples in contact.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StrokeIntegrator {
+    last: Option<(i32, i32)>,
+}
+
+impl StrokeIntegrator {
+    /// Add the sample (`pos_um`, `force_mn`); returns the Q63.1 increment. Negative
+    /// forces (noise around zero) count as zero: wear never runs backwards.
+    pub fn add(&mut self, pos_um: i32, force_mn: i32) -> u64 {
+        let f = force_mn.max(0) as u64;
+        let inc = match self.last {
+            Some((p0, f0)) => (f0.max(0) as u64 + f) * pos_um.abs_diff(p0) as u64,
+            None => 0,
+        };
+        self.last = Some((pos_um, force_mn));
+        inc
+    }
+
+    /// Break the chain (the rod left the cone, or samples stopped).
+    pub fn break_chain(&mut self) {
+        self.last = None;
+    }
+}
+
+/// What a completed cycle did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct CycleSummary {
+    /// Lifetime cycle number.
+    pub lifetime_cycle: u32,
+    /// Cycle number on this cone.
+    pub cone_cycle: u32,
+    /// This cycle's load–distance, Q63.1 mN·µm.
+    pub w_q1: u64,
+    /// Cone wear depth after it, nm.
+    pub wear_nm: u32,
+    /// Remaining life after it, nominal cycles.
+    pub remaining_cycles: u32,
+    /// Wear level after it.
+    pub level: WearLevel,
+}
+
+/// The odometer.
+#[derive(Clone, Debug)]
+pub struct Odometer {
+    cfg: WearConfig,
+    cone: Cone,
+    life: Lifetime,
+    integ: StrokeIntegrator,
+    /// Load–distance since the last completed cycle, Q63.1.
+    pending_q1: u64,
+    last_cycle_q1: u64,
+    e_limit_q32: u64,
+    e_warn_q32: u64,
+    /// Derived values, refreshed whenever the cone's load–distance changes (the power
+    /// law costs ~64 wide multiplies: not something to redo on every status read).
+    derived: Derived,
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Derived {
+    e_q32: u64,
+    wear_nm: u32,
+    remaining_cycles: u32,
+}
+
+impl Odometer {
+    /// An odometer with restored (or fresh) counters.
+    pub fn new(cfg: WearConfig, cone: Cone, life: Lifetime) -> Self {
+        let warn_nm = (cfg.limit_nm as u64 * cfg.warn_pct as u64 / 100) as u32;
+        let mut o = Self {
+            cfg,
+            cone,
+            life,
+            integ: StrokeIntegrator::default(),
+            pending_q1: 0,
+            last_cycle_q1: 0,
+            e_limit_q32: e_at_depth_q32(cfg.limit_nm),
+            e_warn_q32: e_at_depth_q32(warn_nm),
+            derived: Derived::default(),
+        };
+        o.refresh();
+        o
+    }
+
+    fn refresh(&mut self) {
+        let e_q32 = equivalent_cycles_q32(self.cone.w_q1, self.cone.material);
+        let left = self.e_limit_q32.saturating_sub(e_q32) as u128;
+        let k = wear_factor_q32(self.cone.material).max(1) as u128;
+        self.derived = Derived {
+            e_q32,
+            wear_nm: depth_nm(e_q32),
+            remaining_cycles: (left / k).min(u32::MAX as u128) as u32,
+        };
+    }
+
+    /// A sample while the rod is in the cone.
+    pub fn on_contact_sample(&mut self, pos_um: i32, force_mn: i32) {
+        let inc = self.integ.add(pos_um, force_mn);
+        self.pending_q1 = self.pending_q1.saturating_add(inc);
+    }
+
+    /// The rod is out of the cone (or sampling stopped): the next sample starts a chain.
+    pub fn end_contact(&mut self) {
+        self.integ.break_chain();
+    }
+
+    /// Close a completed docking cycle: its load–distance goes to the cone and the
+    /// lifetime totals; both cycle counters advance.
+    pub fn complete_cycle(&mut self) -> CycleSummary {
+        self.integ.break_chain();
+        let w = core::mem::take(&mut self.pending_q1);
+        self.last_cycle_q1 = w;
+        self.cone.w_q1 = self.cone.w_q1.saturating_add(w);
+        self.cone.cycles = self.cone.cycles.saturating_add(1);
+        self.life.w_q1 = self.life.w_q1.saturating_add(w);
+        self.life.cycles = self.life.cycles.saturating_add(1);
+        self.refresh();
+        CycleSummary {
+            lifetime_cycle: self.life.cycles,
+            cone_cycle: self.cone.cycles,
+            w_q1: w,
+            wear_nm: self.wear_nm(),
+            remaining_cycles: self.remaining_cycles(),
+            level: self.level(),
+        }
+    }
+
+    /// Count an overload trip with its force.
+    pub fn record_overload(&mut self, force_mn: i32) {
+        self.life.overload_events = self.life.overload_events.saturating_add(1);
+        self.record_force(force_mn);
+    }
+
+    /// Count a latched fault.
+    pub fn record_fault(&mut self) {
+        self.life.faults = self.life.faults.saturating_add(1);
+    }
+
+    /// Track the lifetime peak force.
+    pub fn record_force(&mut self, force_mn: i32) {
+        self.life.peak_force_mn = self.life.peak_force_mn.max(force_mn);
+    }
+
+    /// Install a new cone: new per-cone counters; lifetime totals untouched. Any wear of
+    /// an unfinished cycle belongs to the old cone and is dropped with it.
+    pub fn replace_cone(&mut self, material: Material, serial: &str) -> &Cone {
+        self.life.cones_installed = self.life.cones_installed.saturating_add(1);
+        self.cone = Cone::new(
+            self.life.cones_installed,
+            material,
+            serial,
+            self.life.cycles,
+        );
+        self.pending_q1 = 0;
+        self.integ.break_chain();
+        self.refresh();
+        &self.cone
+    }
+
+    /// Equivalent nominal cycles of the cone, Q32.32.
+    pub fn equivalent_cycles_q32(&self) -> u64 {
+        self.derived.e_q32
+    }
+
+    /// Cone wear depth, nm.
+    pub fn wear_nm(&self) -> u32 {
+        self.derived.wear_nm
+    }
+
+    /// Remaining life in nominal cycles of this cone's material.
+    pub fn remaining_cycles(&self) -> u32 {
+        self.derived.remaining_cycles
+    }
+
+    /// Wear level.
+    pub fn level(&self) -> WearLevel {
+        let e = self.equivalent_cycles_q32();
+        if e >= self.e_limit_q32 {
+            WearLevel::Limit
+        } else if e >= self.e_warn_q32 {
+            WearLevel::Warning
+        } else {
+            WearLevel::Ok
+        }
+    }
+
+    /// The installed cone.
+    pub fn cone(&self) -> &Cone {
+        &self.cone
+    }
+
+    /// Lifetime totals.
+    pub fn lifetime(&self) -> &Lifetime {
+        &self.life
+    }
+
+    /// Load–distance of the last completed cycle, Q63.1.
+    pub fn last_cycle_q1(&self) -> u64 {
+        self.last_cycle_q1
+    }
+
+    /// Load–distance of the cycle in progress so far, Q63.1.
+    pub fn pending_q1(&self) -> u64 {
+        self.pending_q1
+    }
+
+    /// Configuration.
+    pub fn config(&self) -> &WearConfig {
+        &self.cfg
+    }
+}
+
+/// Record kinds in the flash log.
+pub mod kind {
+    /// Counter snapshot ([`super::StateRecord`]), after every cycle and every event.
+    pub const STATE: u8 = 1;
+    /// Cone installation ([`super::Cone`] identity).
+    pub const CONE: u8 = 2;
+}
+
+/// Snapshot of every counter, as persisted (48 bytes, little endian):
+///
+/// ```text
+///  0 u32 lifetime.cycles      4 u32 cone.cycles        8 u64 cone.w_q1
+/// 16 u64 lifetime.w_q1       24 u32 overload_events   28 i32 peak_force_mn
+/// 32 u32 lifetime.faults     36 u16 cone.id           38 u8  material   39 u8 flags
+/// 40 u64 last_cycle_q1   (flags bit 0: written at the end of a cycle)
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StateRecord {
+    /// Lifetime totals (cones_installed is restored from the cone record).
+    pub life: Lifetime,
+    /// Cone id the per-cone counters belong to.
+    pub cone_id: u16,
+    /// Cone material.
+    pub material: Material,
+    /// Cone cycles.
+    pub cone_cycles: u32,
+    /// Cone load–distance, Q63.1.
+    pub cone_w_q1: u64,
+    /// The last completed cycle's load–distance, Q63.1.
+    pub last_cycle_q1: u64,
+    /// Written at the end of a cycle (a history entry).
+    pub cycle_end: bool,
+}
+
+/// Bytes of a persisted [`StateRecord`].
+pub const STATE_LEN: usize = 48;
+/// Bytes of a persisted cone record.
+pub const CONE_LEN: usize = 32;
+
+fn get<const N: usize>(b: &[u8], at: usize) -> Option<[u8; N]> {
+    b.get(at..at + N).and_then(|s| s.try_into().ok())
+}
+
+impl StateRecord {
+    /// Snapshot of an odometer.
+    pub fn of(o: &Odometer, cycle_end: bool) -> Self {
+        Self {
+            life: o.life,
+            cone_id: o.cone.id,
+            material: o.cone.material,
+            cone_cycles: o.cone.cycles,
+            cone_w_q1: o.cone.w_q1,
+            last_cycle_q1: o.last_cycle_q1,
+            cycle_end,
+        }
+    }
+
+    /// Encode.
+    pub fn to_bytes(&self) -> [u8; STATE_LEN] {
+        let mut b = [0u8; STATE_LEN];
+        let mut put = |at: usize, v: &[u8]| {
+            if let Some(d) = b.get_mut(at..at + v.len()) {
+                d.copy_from_slice(v);
+            }
+        };
+        put(0, &self.life.cycles.to_le_bytes());
+        put(4, &self.cone_cycles.to_le_bytes());
+        put(8, &self.cone_w_q1.to_le_bytes());
+        put(16, &self.life.w_q1.to_le_bytes());
+        put(24, &self.life.overload_events.to_le_bytes());
+        put(28, &self.life.peak_force_mn.to_le_bytes());
+        put(32, &self.life.faults.to_le_bytes());
+        put(36, &self.cone_id.to_le_bytes());
+        put(38, &[self.material.code(), self.cycle_end as u8]);
+        put(40, &self.last_cycle_q1.to_le_bytes());
+        b
+    }
+
+    /// Decode; `None` if the bytes are not a state record.
+    pub fn from_bytes(b: &[u8]) -> Option<Self> {
+        if b.len() != STATE_LEN {
+            return None;
+        }
+        let [material, flags] = get::<2>(b, 38)?;
+        Some(Self {
+            life: Lifetime {
+                cycles: u32::from_le_bytes(get(b, 0)?),
+                w_q1: u64::from_le_bytes(get(b, 16)?),
+                overload_events: u32::from_le_bytes(get(b, 24)?),
+                peak_force_mn: i32::from_le_bytes(get(b, 28)?),
+                faults: u32::from_le_bytes(get(b, 32)?),
+                cones_installed: 0,
+            },
+            cone_id: u16::from_le_bytes(get(b, 36)?),
+            material: Material::from_code(material)?,
+            cone_cycles: u32::from_le_bytes(get(b, 4)?),
+            cone_w_q1: u64::from_le_bytes(get(b, 8)?),
+            last_cycle_q1: u64::from_le_bytes(get(b, 40)?),
+            cycle_end: flags & 1 == 1,
+        })
+    }
+}
+
+/// Encode a cone's identity: `u16 id | u8 material | u8 serial_len | 20 B serial |
+/// u32 installed_at_cycle | 4 B reserved`.
+pub fn cone_to_bytes(c: &Cone) -> [u8; CONE_LEN] {
+    let mut b = [0u8; CONE_LEN];
+    let mut put = |at: usize, v: &[u8]| {
+        if let Some(d) = b.get_mut(at..at + v.len()) {
+            d.copy_from_slice(v);
+        }
+    };
+    put(0, &c.id.to_le_bytes());
+    put(2, &[c.material.code(), c.serial_len]);
+    put(4, &c.serial);
+    put(24, &c.installed_at_cycle.to_le_bytes());
+    b
+}
+
+/// Decode a cone record (counters zero; they come from the state record).
+pub fn cone_from_bytes(b: &[u8]) -> Option<Cone> {
+    if b.len() != CONE_LEN {
+        return None;
+    }
+    let [material, serial_len] = get::<2>(b, 2)?;
+    if serial_len as usize > SERIAL_MAX {
+        return None;
+    }
+    Some(Cone {
+        id: u16::from_le_bytes(get(b, 0)?),
+        material: Material::from_code(material)?,
+        serial: get::<SERIAL_MAX>(b, 4)?,
+        serial_len,
+        installed_at_cycle: u32::from_le_bytes(get(b, 24)?),
+        cycles: 0,
+        w_q1: 0,
+    })
+}
+
+/// Rebuild an odometer from the latest cone and state records (either may be absent:
+/// a fresh machine starts with cone 1 of `default_material`). State records of another
+/// cone than the latest cone record (a cut between the two writes of a replacement)
+/// keep the lifetime totals and start the new cone at zero.
+pub fn restore(
+    cfg: WearConfig,
+    cone: Option<Cone>,
+    state: Option<StateRecord>,
+    default_material: Material,
+) -> Odometer {
+    let mut life = state.map(|s| s.life).unwrap_or_default();
+    let mut cone = cone.unwrap_or_else(|| Cone::new(1, default_material, "", 0));
+    life.cones_installed = cone.id.max(1);
+    if let Some(s) = state {
+        if s.cone_id == cone.id && s.material == cone.material {
+            cone.cycles = s.cone_cycles;
+            cone.w_q1 = s.cone_w_q1;
+        }
+    }
+    let mut o = Odometer::new(cfg, cone, life);
+    if let Some(s) = state {
+        o.last_cycle_q1 = s.last_cycle_q1;
+    }
+    o
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn eq17_nm(m: f64) -> f64 {
+        (0.01372 * m.powf(0.3813) - 0.01774) * 1e6
+    }
+
+    fn nominal(n: u32) -> Odometer {
+        let mut c = Cone::new(1, Material::ZQSn5_2, "A1", 0);
+        c.w_q1 = W_NOM_Q1 * n as u64;
+        c.cycles = n;
+        Odometer::new(WearConfig::DEFAULT, c, Lifetime::default())
+    }
+
+    #[test]
+    fn constants() {
+        assert!((M0_Q32 as f64 / 4294967296.0 - 1.961_921_5).abs() < 1e-6);
+        assert!((e_at_depth_q32(800_000) as f64 / 4294967296.0 - 45_268.199).abs() < 0.01);
+        assert_eq!(depth_nm(0), 0);
+    }
+
+    #[test]
+    fn within_one_percent_of_eq17_from_200_cycles_to_the_limit() {
+        let mut m = 200;
+        while m <= 45_270 {
+            let h = nominal(m).wear_nm() as f64;
+            let rel = (h - eq17_nm(m as f64)).abs() / eq17_nm(m as f64);
+            assert!(
+                rel < 0.01,
+                "m = {m}: {h} nm vs Eq.17 {} nm ({rel})",
+                eq17_nm(m as f64)
+            );
+            m += 97;
+        }
+        assert_eq!(nominal(45_268).level(), WearLevel::Warning);
+        assert_eq!(nominal(45_269).level(), WearLevel::Limit);
+        assert_eq!(nominal(1).remaining_cycles(), 45_267);
+    }
+
+    #[test]
+    fn materials_have_their_own_lives() {
+        let life = |m: Material| {
+            let o = Odometer::new(
+                WearConfig::DEFAULT,
+                Cone::new(1, m, "", 0),
+                Lifetime::default(),
+            );
+            o.remaining_cycles()
+        };
+        assert_eq!(life(Material::ZQSn5_2), 45_268);
+        let q = life(Material::QSn6_6_3) as f64;
+        assert!((q - 45_268.2 / 0.5701).abs() < 2.0, "{q}");
+        let p = life(Material::CfPeek) as f64;
+        assert!((p - 90_540.0).abs() / 90_540.0 < 0.005, "{p}");
+    }
+
+    #[test]
+    fn warning_at_80_percent_and_configurable() {
+        let e_warn = e_at_depth_q32(640_000) >> 32;
+        assert_eq!(nominal(e_warn as u32).level(), WearLevel::Ok);
+        assert_eq!(nominal(e_warn as u32 + 1).level(), WearLevel::Warning);
+        assert!(WearConfig::new(800_000, 0).is_none());
+        assert!(WearConfig::new(5_000, 80).is_none());
+        let cfg = WearConfig::new(400_000, 50).unwrap();
+        let o = Odometer::new(
+            cfg,
+            Cone::new(1, Material::ZQSn5_2, "", 0),
+            Lifetime::default(),
+        );
+        assert!(o.remaining_cycles() < 10_000);
+    }
+
+    #[test]
+    fn records_round_trip() {
+        let mut o = nominal(1234);
+        o.record_overload(250_000);
+        o.record_fault();
+        let r = StateRecord::of(&o, true);
+        assert_eq!(StateRecord::from_bytes(&r.to_bytes()), Some(r));
+        let c = Cone::new(3, Material::CfPeek, "SN-0042_x", 777);
+        assert_eq!(cone_from_bytes(&cone_to_bytes(&c)), Some(c));
+        assert_eq!(cone_from_bytes(&[0xFF; CONE_LEN]), None);
+        assert_eq!(StateRecord::from_bytes(&[0; 7]), None);
+        let back = restore(
+            WearConfig::DEFAULT,
+            Some(c),
+            Some(StateRecord {
+                cone_id: 3,
+                material: Material::CfPeek,
+                ..r
+            }),
+            Material::ZQSn5_2,
+        );
+        assert_eq!(back.cone().cycles, 1234);
+        assert_eq!(back.lifetime().overload_events, 1);
+        assert_eq!(back.lifetime().cones_installed, 3);
+    }
+}
