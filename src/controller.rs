@@ -257,6 +257,44 @@ pub struct Controller<B: Bsp> {
     storage_errors: u32,
 }
 
+/// Why a maintenance action was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum MaintError {
+    /// A docking is moving (only `idle` and `faulted` accept maintenance).
+    Moving,
+    /// The serial number is empty, too long, or not `[A-Za-z0-9_-]`.
+    BadSerial,
+    /// The record could not be written to flash (nothing was changed).
+    Storage,
+}
+
+impl core::fmt::Display for MaintError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::Moving => "refused while a docking is moving",
+            Self::BadSerial => "serial must be 1-20 characters of A-Z a-z 0-9 _ -",
+            Self::Storage => "could not write to the odometer flash; nothing changed",
+        })
+    }
+}
+
+/// One completed cycle as recorded in flash (newest first from [`Controller::history`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HistoryEntry {
+    /// Lifetime cycle number.
+    pub lifetime_cycle: u32,
+    /// Cycle number on its cone.
+    pub cone_cycle: u32,
+    /// Cone id.
+    pub cone_id: u16,
+    /// This cycle's load–distance, Q63.1 mN·µm.
+    pub w_q1: u64,
+    /// Cone wear after it, nm.
+    pub wear_nm: u32,
+}
+
 /// Errors that stop the controller from starting.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -772,6 +810,68 @@ impl<B: Bsp> Controller<B> {
             remaining_cycles: self.odo.remaining_cycles(),
             wear_level: self.odo.level(),
         }
+    }
+
+    /// Whether maintenance actions are allowed now (nothing moving).
+    pub fn is_quiet(&self) -> bool {
+        matches!(self.seq.state(), State::Idle | State::Faulted { .. } | State::PowerUp)
+    }
+
+    /// Install a new cone (technician action): new per-cone counters, lifetime totals and
+    /// history untouched. Refused while anything moves. The cone record and a counter
+    /// snapshot are written before it returns; if the cone record cannot be written,
+    /// nothing changes.
+    pub fn replace_cone(&mut self, material: Material, serial: &str) -> Result<(), MaintError> {
+        if !self.is_quiet() {
+            return Err(MaintError::Moving);
+        }
+        let ok = !serial.is_empty()
+            && serial.len() <= odometer::SERIAL_MAX
+            && serial.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-');
+        if !ok {
+            return Err(MaintError::BadSerial);
+        }
+        let mut next = self.odo.clone();
+        next.replace_cone(material, serial);
+        if let Some(l) = self.log.as_mut() {
+            let cone = odometer::cone_to_bytes(next.cone());
+            let state = StateRecord::of(&next, false).to_bytes();
+            if l.append(odometer::kind::CONE, &cone).is_err() {
+                self.storage_errors = self.storage_errors.saturating_add(1);
+                return Err(MaintError::Storage);
+            }
+            // The cone record is the commitment; a lost snapshot is rebuilt from it
+            // (restore() starts a cone whose id has no snapshot at zero).
+            if l.append(odometer::kind::STATE, &state).is_err() {
+                self.storage_errors = self.storage_errors.saturating_add(1);
+                self.persist_pending = true;
+            }
+        }
+        self.odo = next;
+        info!("cone {} installed: {} serial {}", self.odo.cone().id, material.name(), serial);
+        Ok(())
+    }
+
+    /// Up to `max` completed cycles from the flash log, newest first, into `out`.
+    pub fn history(&mut self, max: usize, mut out: impl FnMut(HistoryEntry)) -> usize {
+        let Some(l) = self.log.as_mut() else { return 0 };
+        let mut n = 0;
+        let _ = l.for_each_newest_first(odometer::kind::STATE, usize::MAX, |r| {
+            if n >= max {
+                return;
+            }
+            if let Some(s) = StateRecord::from_bytes(r.data()).filter(|s| s.cycle_end) {
+                n += 1;
+                out(HistoryEntry {
+                    lifetime_cycle: s.life.cycles,
+                    cone_cycle: s.cone_cycles,
+                    cone_id: s.cone_id,
+                    w_q1: s.last_cycle_q1,
+                    wear_nm: odometer::depth_nm(odometer::equivalent_cycles_q32(s.cone_w_q1, s.material)),
+                });
+            }
+        });
+        n
     }
 
     /// Sequencer state.

@@ -164,10 +164,11 @@ impl OverloadGuard {
                 // The previous sample was over the limit and this one is not: a spike.
                 self.spikes_rejected = self.spikes_rejected.saturating_add(1);
             }
-            let pct = (force_mn.max(0) as i64 * 100) / limit.max(1) as i64;
-            if pct >= self.cfg.warn_pct as i64 {
+            // Percent of the limit, compared by multiplication (no division per sample).
+            let f100 = force_mn.max(0) as i64 * 100;
+            if f100 >= self.cfg.warn_pct as i64 * limit as i64 {
                 self.warning = true;
-            } else if pct < self.cfg.warn_clear_pct as i64 {
+            } else if f100 < self.cfg.warn_clear_pct as i64 * limit as i64 {
                 self.warning = false;
             }
             if self.warning {

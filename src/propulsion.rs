@@ -32,6 +32,8 @@ pub struct Propulsion<EN, DIR, P> {
     cfg: MachineConfig,
     /// Counted position, steps from home.
     pos_steps: i32,
+    /// The same in µm (cached: converting divides by steps/mm).
+    pos_um: i32,
     /// Current commanded velocity, steps/s (signed).
     vel_sps: i32,
     /// Target position, steps (`None` = stop where the ramp ends).
@@ -42,6 +44,8 @@ pub struct Propulsion<EN, DIR, P> {
     accel_sps2: u32,
     enabled: bool,
     dir_positive: bool,
+    /// The last `move_to` command (target µm, speed µm/s).
+    last_move: Option<(i32, u32)>,
 }
 
 /// Arrival tolerance, steps (5 µm at 200 steps/mm).
@@ -62,12 +66,14 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
             pulses,
             cfg,
             pos_steps: 0,
+            pos_um: 0,
             vel_sps: 0,
             target_steps: None,
             max_sps: 0,
             accel_sps2,
             enabled: false,
             dir_positive: false,
+            last_move: None,
         };
         p.disable()?;
         Ok(p)
@@ -99,6 +105,10 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
 
     /// Move to `target_um` at no more than `speed_um_per_s`, ramping.
     pub fn move_to(&mut self, target_um: i32, speed_um_per_s: u32) {
+        if self.last_move == Some((target_um, speed_um_per_s)) && self.target_steps.is_some() {
+            return; // the same command as last step: nothing to convert
+        }
+        self.last_move = Some((target_um, speed_um_per_s));
         self.target_steps = Some(self.cfg.um_to_steps(target_um));
         self.max_sps = self.cfg.speed_to_step_hz(speed_um_per_s);
     }
@@ -118,11 +128,12 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
     /// Declare the current position to be `pos_um` (homing).
     pub fn set_position_um(&mut self, pos_um: i32) {
         self.pos_steps = self.cfg.um_to_steps(pos_um);
+        self.pos_um = self.cfg.steps_to_um(self.pos_steps);
     }
 
     /// Counted position, µm from home.
     pub fn position_um(&self) -> i32 {
-        self.cfg.steps_to_um(self.pos_steps)
+        self.pos_um
     }
 
     /// Counted position, steps.
@@ -146,11 +157,14 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
     /// Account for the pulses emitted since the last call (updates the position).
     pub fn sync(&mut self) {
         let n = self.pulses.take_pulses() as i32;
-        self.pos_steps = if self.dir_positive {
-            self.pos_steps.saturating_add(n)
-        } else {
-            self.pos_steps.saturating_sub(n)
-        };
+        if n != 0 {
+            self.pos_steps = if self.dir_positive {
+                self.pos_steps.saturating_add(n)
+            } else {
+                self.pos_steps.saturating_sub(n)
+            };
+            self.pos_um = self.cfg.steps_to_um(self.pos_steps);
+        }
     }
 
     /// [`sync`](Self::sync), then [`plan`](Self::plan).

@@ -63,6 +63,8 @@ pub struct AxisModel {
     travel_steps: u64,
     /// Travel since the driver was last disabled, steps.
     travel_since_disable_steps: u64,
+    /// µm per step (cached).
+    um_per_step: f64,
     /// Hard stops and end switch, steps.
     lo_steps: i64,
     hi_steps: i64,
@@ -98,7 +100,7 @@ impl AxisModel {
     }
 
     fn pos_um(&self) -> f64 {
-        self.pos_steps as f64 * 1000.0 / self.cfg.steps_per_mm as f64
+        self.pos_steps as f64 * self.um_per_step
     }
 }
 
@@ -125,6 +127,7 @@ impl SimAxis {
             edges: Vec::new(),
             travel_steps: 0,
             travel_since_disable_steps: 0,
+            um_per_step: 1000.0 / cfg.steps_per_mm as f64,
             lo_steps: cfg.um_to_steps(-2_000) as i64,
             hi_steps: cfg.um_to_steps(cfg.end_switch_um + 2_000) as i64,
             end_steps: cfg.um_to_steps(cfg.end_switch_um) as i64,
@@ -144,6 +147,11 @@ impl SimAxis {
     /// Carriage position now, µm.
     pub fn pos_um(&self) -> f64 {
         self.with(|m| m.pos_um())
+    }
+
+    /// Carriage position now, steps.
+    pub fn pos_steps(&self) -> i64 {
+        self.with(|m| m.pos_steps)
     }
 
     /// Whether the driver is enabled now.

@@ -8,7 +8,7 @@ use docking_controller::config::MachineConfig;
 use docking_controller::controller::{Bsp, Controller, ControllerConfig, Parts};
 use docking_controller::hal::{LoadCellAdc, Watchdog};
 use docking_controller::hx711::{Calibration, Gain, Hx711};
-use docking_controller::profile::forces_at_depth_um;
+use docking_controller::profile::{forces_at_depth_um, STROKE_UM};
 
 use crate::axis::{AxisPin, AxisPulses, SimAxis};
 use crate::clock::SimClock;
@@ -136,6 +136,8 @@ pub struct RigOptions {
     pub adc: AdcMode,
     /// Cone material of a new machine (no cone record in flash).
     pub material: docking_controller::material::Material,
+    /// Load-cell RMS noise in counts (`None` = the part's default, ≈ 0.3 N).
+    pub noise_counts: Option<f64>,
 }
 
 impl RigOptions {
@@ -146,6 +148,7 @@ impl RigOptions {
             seed: 1,
             adc: AdcMode::Word,
             material: docking_controller::material::Material::ZQSn5_2,
+            noise_counts: None,
         }
     }
 }
@@ -170,6 +173,8 @@ pub struct Rig {
     pub conversions: Rc<Cell<u64>>,
     /// The odometer flash (shared: cut power on it, reboot on it).
     pub flash: SharedFlash,
+    /// Sample period, ns.
+    period_ns: u64,
 }
 
 /// The calibration of the simulated cell's default front end (offset 31 000 counts,
@@ -198,14 +203,25 @@ impl Rig {
         let script = Rc::new(RefCell::new(ForceScript::default()));
         let conversions = Rc::new(Cell::new(0u64));
         let (ax, sc, conv) = (axis.clone(), script.clone(), conversions.clone());
-        let engage = machine.engage_um as f64;
+        // The carriage moves in whole steps, so N3 of Eq. 7 is tabulated once per step
+        // position over the stroke (the same values, without per-sample divisions).
+        let um_per_step = 1000.0 / machine.steps_per_mm as f64;
+        let engage_steps = machine.um_to_steps(machine.engage_um) as i64;
+        let table: Vec<f64> = (0..=machine.um_to_steps(STROKE_UM))
+            .map(|k| forces_at_depth_um(k as f64 * um_per_step).n3_n)
+            .collect();
+        let n3_end = table.last().copied().unwrap_or(0.0);
         let source = move |_t_ns: u64| {
             let n = conv.get();
             conv.set(n + 1);
-            let depth = ax.pos_um() - engage;
+            let depth_steps = ax.pos_steps() - engage_steps;
             let s = sc.borrow();
-            let mut f = forces_at_depth_um(depth).n3_n + s.offset_n;
+            let mut f = match usize::try_from(depth_steps) {
+                Err(_) => 0.0, // before contact
+                Ok(k) => table.get(k).copied().unwrap_or(n3_end),
+            } + s.offset_n;
             if let Some(j) = s.jam_from_um {
+                let depth = depth_steps as f64 * um_per_step;
                 if depth > j {
                     f += (depth - j) / 1000.0 * s.jam_n_per_mm;
                 }
@@ -215,7 +231,10 @@ impl Rig {
             }
             f
         };
-        let hx_cfg = Hx711Config::default_for_rate(opts.rate_sps);
+        let mut hx_cfg = Hx711Config::default_for_rate(opts.rate_sps);
+        if let Some(n) = opts.noise_counts {
+            hx_cfg.noise_counts = n;
+        }
         let hx = SimHx711::new(hx_cfg, clock.clone(), source, opts.seed);
         let wdg = SimWatchdog::new(clock.clone());
         let parts = Parts::<SimBsp> {
@@ -256,17 +275,14 @@ impl Rig {
             ctrl,
             conversions,
             flash,
+            period_ns: 1_000_000_000 / opts.rate_sps.max(1) as u64,
         }
     }
 
     /// Advance virtual time to the next event (a conversion, or a sample period) and
     /// poll the controller once there.
     pub fn tick(&mut self) -> docking_controller::controller::PollResult {
-        let period_ns = 1_000_000_000 / self.hx.config().rate_sps as u64;
-        let next = self
-            .hx
-            .next_conversion_ns()
-            .min(self.clock.now_ns() + period_ns);
+        let next = self.hx.next_conversion_ns().min(self.clock.now_ns() + self.period_ns);
         self.clock.advance_to_ns(next);
         self.ctrl.poll(self.clock.now_ns() / 1_000)
     }
