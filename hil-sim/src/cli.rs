@@ -16,7 +16,7 @@ impl std::fmt::Display for UsageError {
 }
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate SPS] [--seed S] [--json] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--json]";
+pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate SPS] [--seed S] [--json] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--json] | endurance --cycles N [--material NAME] [--rate SPS]";
 
 /// Parse `--rate` as one of the HX711 rates.
 fn hx_rate(o: &Opts) -> Result<u32, UsageError> {
@@ -96,6 +96,29 @@ fn life(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         report.to_text()
     };
     let _ = writeln!(out, "{text}");
+    Ok(())
+}
+
+fn endurance(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
+    use docking_controller::material::Material;
+    let o = Opts::parse(args, &["cycles", "material", "rate"], &[])?;
+    let cycles = o.num("cycles", 100_000u32, 1, 10_000_000)?;
+    let material = match o.get("material") {
+        None => Material::ZQSn5_2,
+        Some(m) => {
+            Material::from_name(m).ok_or_else(|| UsageError(format!("unknown material '{m}'")))?
+        }
+    };
+    let r = crate::life::endurance(cycles, hx_rate(&o)?, material).map_err(UsageError)?;
+    let _ = writeln!(
+        out,
+        "endurance: {} cycles, {} cone(s), erases per sector {:?} (max {}; STM32F4 endurance 10000), {:.1} s",
+        r.cycles_run,
+        r.cones_used,
+        r.erase_counts,
+        r.erase_counts.iter().max().copied().unwrap_or(0),
+        r.wall_time_s
+    );
     Ok(())
 }
 
@@ -231,6 +254,7 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         "scene" => scene(rest, out),
         "bench" => bench(rest, out),
         "life" => life(rest, out),
+        "endurance" => endurance(rest, out),
         "help" | "--help" | "-h" => {
             let _ = writeln!(out, "{USAGE}");
             Ok(())

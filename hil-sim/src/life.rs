@@ -175,3 +175,56 @@ impl LifeReport {
         s
     }
 }
+
+/// What an endurance run found.
+#[derive(Clone, Debug)]
+pub struct EnduranceReport {
+    /// Lifetime cycles run.
+    pub cycles_run: u32,
+    /// Cones used (each replaced when it reached its wear limit).
+    pub cones_used: u16,
+    /// Erases of each odometer flash sector.
+    pub erase_counts: Vec<u32>,
+    /// Wall time, s.
+    pub wall_time_s: f64,
+}
+
+/// `cycles` closed-loop cycles on one machine; a technician replaces the cone (same
+/// material) each time the controller refuses to dock because the cone is worn out.
+pub fn endurance(
+    cycles: u32,
+    rate_sps: u32,
+    material: Material,
+) -> Result<EnduranceReport, String> {
+    let started = Instant::now();
+    let mut rig = Rig::new(RigOptions {
+        material,
+        ..RigOptions::new(rate_sps)
+    });
+    loop {
+        rig.tick();
+        match rig.ctrl.state() {
+            State::Idle if !rig.ctrl.persist_pending() => {
+                if rig.ctrl.odometer().lifetime().cycles >= cycles {
+                    break;
+                }
+                if rig.ctrl.odometer().level() == WearLevel::Limit {
+                    let serial =
+                        format!("E-{}", rig.ctrl.odometer().lifetime().cones_installed + 1);
+                    rig.ctrl
+                        .replace_cone(material, &serial)
+                        .map_err(|e| e.to_string())?;
+                }
+                rig.ctrl.request(Request::StartCycle);
+            }
+            State::Faulted { fault } => return Err(format!("fault {}", fault.name())),
+            _ => {}
+        }
+    }
+    Ok(EnduranceReport {
+        cycles_run: rig.ctrl.odometer().lifetime().cycles,
+        cones_used: rig.ctrl.odometer().lifetime().cones_installed,
+        erase_counts: rig.flash.with(|f| f.erase_counts().to_vec()),
+        wall_time_s: started.elapsed().as_secs_f64(),
+    })
+}
