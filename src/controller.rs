@@ -232,6 +232,10 @@ pub struct Controller<B: Bsp> {
     sensor: SensorMonitor,
     cal: Calibration,
     tare: Deque<i32, TARE_SAMPLES>,
+    /// Raw codes of the last samples taken while nothing moved (calibration).
+    recent_raw: Deque<i32, TARE_SAMPLES>,
+    /// The calibration as set by a technician (the tare moves `cal.offset` per cycle).
+    base_cal: Calibration,
     phase: Option<ContactPhase>,
     mismatch_reported: bool,
     mismatch_run: u8,
@@ -278,6 +282,54 @@ impl core::fmt::Display for MaintError {
             Self::Storage => "could not write to the odometer flash; nothing changed",
         })
     }
+}
+
+/// Why a calibration was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum CalibrateError {
+    /// A docking is moving.
+    Moving,
+    /// Fewer than 8 samples taken at rest yet.
+    NotEnoughSamples,
+    /// The reading is implausible (tare beyond a quarter of full scale, span too small
+    /// or of the wrong sign).
+    Implausible,
+    /// The calibration could not be stored.
+    Storage,
+}
+
+impl core::fmt::Display for CalibrateError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::Moving => "refused while a docking is moving",
+            Self::NotEnoughSamples => "not enough samples at rest yet; try again in a second",
+            Self::Implausible => "implausible reading; check the load cell and the applied load",
+            Self::Storage => "could not write to the odometer flash; nothing changed",
+        })
+    }
+}
+
+/// Calibration record: `i32 offset_counts | i64 mn_per_count_q32` (12 bytes, LE).
+pub fn calibration_to_bytes(c: &Calibration) -> [u8; 12] {
+    let mut b = [0u8; 12];
+    let (o, q) = b.split_at_mut(4);
+    o.copy_from_slice(&c.offset_counts.to_le_bytes());
+    q.copy_from_slice(&c.mn_per_count_q32.to_le_bytes());
+    b
+}
+
+/// Decode a calibration record; `None` if malformed or implausible.
+pub fn calibration_from_bytes(b: &[u8]) -> Option<Calibration> {
+    let o: [u8; 4] = b.get(0..4)?.try_into().ok()?;
+    let q: [u8; 8] = b.get(4..12)?.try_into().ok()?;
+    let c = Calibration {
+        offset_counts: i32::from_le_bytes(o),
+        mn_per_count_q32: i64::from_le_bytes(q),
+    };
+    (b.len() == 12 && c.mn_per_count_q32 > 0 && Calibration::tare_plausible(c.offset_counts))
+        .then_some(c)
 }
 
 /// One completed cycle as recorded in flash (newest first from [`Controller::history`]).
@@ -342,6 +394,12 @@ impl<B: Bsp> Controller<B> {
             );
         }
         let fresh = cone.is_none();
+        // A technician's calibration from flash overrides the built-in default.
+        let cal0 = log
+            .as_mut()
+            .and_then(|l| l.latest(odometer::kind::CALIBRATION).ok().flatten())
+            .and_then(|r| calibration_from_bytes(r.data()))
+            .unwrap_or(cfg.calibration);
         let odo = restore(cfg.wear, cone, state, cfg.default_material);
         info!(
             "odometer: cone {} ({}), {} cycles, wear {} nm; lifetime {} cycles",
@@ -364,8 +422,10 @@ impl<B: Bsp> Controller<B> {
             seq: Sequencer::new(cfg.machine),
             guard: OverloadGuard::new(cfg.guard),
             sensor: SensorMonitor::new(cfg.sample_rate_sps, now_us),
-            cal: cfg.calibration,
+            cal: cal0,
             tare: Deque::new(),
+            recent_raw: Deque::new(),
+            base_cal: cal0,
             phase: None,
             mismatch_reported: false,
             mismatch_run: 0,
@@ -541,6 +601,14 @@ impl<B: Bsp> Controller<B> {
             } else {
                 self.odo.end_contact();
             }
+            if matches!(state, State::Idle | State::Faulted { .. }) {
+                if self.recent_raw.is_full() {
+                    self.recent_raw.pop_front();
+                }
+                let _ = self.recent_raw.push_back(code);
+            } else {
+                self.recent_raw.clear();
+            }
             if state == State::Idle && switches.home {
                 if self.tare.is_full() {
                     self.tare.pop_front();
@@ -656,7 +724,7 @@ impl<B: Bsp> Controller<B> {
         let n = self.tare.len() as i64;
         let mean = (self.tare.iter().map(|&c| c as i64).sum::<i64>() / n) as i32;
         let drift_mn = Calibration {
-            offset_counts: self.cfg.calibration.offset_counts,
+            offset_counts: self.base_cal.offset_counts,
             ..self.cal
         }
         .to_force_mn(mean);
@@ -814,7 +882,10 @@ impl<B: Bsp> Controller<B> {
 
     /// Whether maintenance actions are allowed now (nothing moving).
     pub fn is_quiet(&self) -> bool {
-        matches!(self.seq.state(), State::Idle | State::Faulted { .. } | State::PowerUp)
+        matches!(
+            self.seq.state(),
+            State::Idle | State::Faulted { .. } | State::PowerUp
+        )
     }
 
     /// Install a new cone (technician action): new per-cone counters, lifetime totals and
@@ -827,7 +898,9 @@ impl<B: Bsp> Controller<B> {
         }
         let ok = !serial.is_empty()
             && serial.len() <= odometer::SERIAL_MAX
-            && serial.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-');
+            && serial
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-');
         if !ok {
             return Err(MaintError::BadSerial);
         }
@@ -848,8 +921,92 @@ impl<B: Bsp> Controller<B> {
             }
         }
         self.odo = next;
-        info!("cone {} installed: {} serial {}", self.odo.cone().id, material.name(), serial);
+        info!(
+            "cone {} installed: {} serial {}",
+            self.odo.cone().id,
+            material.name(),
+            serial
+        );
         Ok(())
+    }
+
+    /// Append a record of `kind` to the odometer log (maintenance records: PIN, audit,
+    /// measurements). Refused while anything moves (an erase may stall the CPU).
+    pub fn store_record(&mut self, kind: u8, data: &[u8]) -> Result<(), MaintError> {
+        if !self.is_quiet() {
+            return Err(MaintError::Moving);
+        }
+        match self.log.as_mut().map(|l| l.append(kind, data)) {
+            Some(Ok(_)) => Ok(()),
+            _ => {
+                self.storage_errors = self.storage_errors.saturating_add(1);
+                Err(MaintError::Storage)
+            }
+        }
+    }
+
+    /// The newest record of `kind`, if any (payload bytes copied into `buf`; returns
+    /// the length).
+    pub fn load_record(&mut self, kind: u8, buf: &mut [u8]) -> Option<usize> {
+        let r = self.log.as_mut()?.latest(kind).ok().flatten()?;
+        let d = r.data();
+        let dst = buf.get_mut(..d.len())?;
+        dst.copy_from_slice(d);
+        Some(d.len())
+    }
+
+    /// Up to `max` records of `kind`, newest first.
+    pub fn records(
+        &mut self,
+        kind: u8,
+        max: usize,
+        out: impl FnMut(&crate::storage::Record),
+    ) -> usize {
+        match self.log.as_mut() {
+            Some(l) => l.for_each_newest_first(kind, max, out).unwrap_or(0),
+            None => 0,
+        }
+    }
+
+    /// Mean of the raw codes of the last samples taken with nothing moving.
+    fn quiet_mean_code(&self) -> Result<i32, CalibrateError> {
+        if !self.is_quiet() {
+            return Err(CalibrateError::Moving);
+        }
+        if self.recent_raw.len() < TARE_MIN_SAMPLES {
+            return Err(CalibrateError::NotEnoughSamples);
+        }
+        let n = self.recent_raw.len() as i64;
+        Ok((self.recent_raw.iter().map(|&c| c as i64).sum::<i64>() / n) as i32)
+    }
+
+    fn store_calibration(&mut self, cal: Calibration) -> Result<Calibration, CalibrateError> {
+        self.store_record(odometer::kind::CALIBRATION, &calibration_to_bytes(&cal))
+            .map_err(|_| CalibrateError::Storage)?;
+        self.base_cal = cal;
+        self.cal = cal;
+        info!(
+            "load cell calibrated: offset {} counts, {} mN/count (Q32.32)",
+            cal.offset_counts, cal.mn_per_count_q32
+        );
+        Ok(cal)
+    }
+
+    /// Technician tare: the load cell is unloaded; its mean reading becomes the zero.
+    pub fn calibrate_tare(&mut self) -> Result<Calibration, CalibrateError> {
+        let code = self.quiet_mean_code()?;
+        if !Calibration::tare_plausible(code) {
+            return Err(CalibrateError::Implausible);
+        }
+        self.store_calibration(self.base_cal.with_tare(code))
+    }
+
+    /// Technician span: a known `force_mn` hangs on the (tared) load cell.
+    pub fn calibrate_span(&mut self, force_mn: i32) -> Result<Calibration, CalibrateError> {
+        let code = self.quiet_mean_code()?;
+        let cal = Calibration::from_two_points(self.base_cal.offset_counts, 0, code, force_mn)
+            .map_err(|_| CalibrateError::Implausible)?;
+        self.store_calibration(cal)
     }
 
     /// Up to `max` completed cycles from the flash log, newest first, into `out`.
@@ -867,7 +1024,10 @@ impl<B: Bsp> Controller<B> {
                     cone_cycle: s.cone_cycles,
                     cone_id: s.cone_id,
                     w_q1: s.last_cycle_q1,
-                    wear_nm: odometer::depth_nm(odometer::equivalent_cycles_q32(s.cone_w_q1, s.material)),
+                    wear_nm: odometer::depth_nm(odometer::equivalent_cycles_q32(
+                        s.cone_w_q1,
+                        s.material,
+                    )),
                 });
             }
         });

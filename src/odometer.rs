@@ -432,12 +432,20 @@ impl Odometer {
     }
 }
 
-/// Record kinds in the flash log.
+/// Record kinds in the flash log (every user of the log, in one place).
 pub mod kind {
     /// Counter snapshot ([`super::StateRecord`]), after every cycle and every event.
     pub const STATE: u8 = 1;
     /// Cone installation ([`super::Cone`] identity).
     pub const CONE: u8 = 2;
+    /// A technician's bore measurement (console `measure`).
+    pub const MEASURE: u8 = 3;
+    /// Load-cell calibration (offset, Q32.32 mN per count).
+    pub const CALIBRATION: u8 = 4;
+    /// Maintenance PIN, salted and hashed.
+    pub const PIN: u8 = 5;
+    /// Audit record of a maintenance action.
+    pub const AUDIT: u8 = 6;
 }
 
 /// Snapshot of every counter, as persisted (48 bytes, little endian):

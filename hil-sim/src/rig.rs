@@ -12,9 +12,11 @@ use docking_controller::profile::{forces_at_depth_um, STROKE_UM};
 
 use crate::axis::{AxisPin, AxisPulses, SimAxis};
 use crate::clock::SimClock;
+use crate::console::SimConsole;
 use crate::flash::{SharedFlash, SimFlash};
 use crate::hx711::{Hx711Config, Hx711Dout, Hx711Sck, SimHx711};
 use crate::lock::{LockPin, SimLock};
+use docking_controller::console::service::{Console, ConsolePoll};
 
 /// The simulated watchdog: records feeds; "bites" if not fed within its timeout.
 #[derive(Clone, Debug)]
@@ -175,7 +177,24 @@ pub struct Rig {
     pub flash: SharedFlash,
     /// Sample period, ns.
     period_ns: u64,
+    /// The technician console and its serial link (polled after the controller when
+    /// `console_enabled`).
+    pub console: Console,
+    /// The terminal end of the serial link.
+    pub term: SimConsole,
+    /// Poll the console in [`Rig::tick`].
+    pub console_enabled: bool,
+    /// What the last console poll did.
+    pub last_console: ConsolePoll,
 }
+
+/// Virtual CPU time charged for console work (pessimistic Cortex-M4 figures): per byte
+/// read, per command run, per PIN hash (257 SHA-256 compressions).
+pub const CONSOLE_NS_PER_BYTE: u64 = 2_000;
+/// See [`CONSOLE_NS_PER_BYTE`].
+pub const CONSOLE_NS_PER_COMMAND: u64 = 50_000;
+/// See [`CONSOLE_NS_PER_BYTE`].
+pub const CONSOLE_NS_PER_PIN_HASH: u64 = 3_000_000;
 
 /// The calibration of the simulated cell's default front end (offset 31 000 counts,
 /// 8 590 counts/N): mN per count in Q32.32.
@@ -276,14 +295,57 @@ impl Rig {
             conversions,
             flash,
             period_ns: 1_000_000_000 / opts.rate_sps.max(1) as u64,
+            console: Console::new([0x5A; 32]),
+            term: SimConsole::new(),
+            console_enabled: false,
+            last_console: ConsolePoll::default(),
         }
     }
 
     /// Advance virtual time to the next event (a conversion, or a sample period) and
     /// poll the controller once there.
     pub fn tick(&mut self) -> docking_controller::controller::PollResult {
-        let next = self.hx.next_conversion_ns().min(self.clock.now_ns() + self.period_ns);
+        let next = self
+            .hx
+            .next_conversion_ns()
+            .min(self.clock.now_ns() + self.period_ns);
         self.clock.advance_to_ns(next);
-        self.ctrl.poll(self.clock.now_ns() / 1_000)
+        let r = self.ctrl.poll(self.clock.now_ns() / 1_000);
+        if self.console_enabled {
+            // The main loop polls the console after the controller, and its work takes
+            // CPU time: charge it to virtual time.
+            let c = self.console.poll(
+                &mut self.ctrl,
+                &mut self.term,
+                self.clock.now_ns() / 1_000_000,
+            );
+            self.clock.advance_ns(
+                c.bytes_in as u64 * CONSOLE_NS_PER_BYTE
+                    + c.commands as u64 * CONSOLE_NS_PER_COMMAND
+                    + c.pin_hashes as u64 * CONSOLE_NS_PER_PIN_HASH,
+            );
+            self.last_console = c;
+        }
+        r
+    }
+
+    /// Type `line` on the terminal, run the machine until the reply is complete (or
+    /// `max_ticks` pass), and return the reply text.
+    pub fn command(&mut self, line: &str, max_ticks: usize) -> String {
+        self.console_enabled = true;
+        self.term.send(line.as_bytes());
+        self.term.send(b"\r\n");
+        let mut out = Vec::new();
+        for _ in 0..max_ticks {
+            self.tick();
+            out.extend(self.term.take_output());
+            if self.term.rx_pending() == 0
+                && out.ends_with(b"\r\n")
+                && self.last_console.commands == 0
+            {
+                break;
+            }
+        }
+        String::from_utf8_lossy(&out).into_owned()
     }
 }

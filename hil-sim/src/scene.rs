@@ -107,8 +107,59 @@ pub struct SceneReport {
     pub watchdog_bit: bool,
 }
 
+/// A scene run while the console is flooded.
+#[derive(Clone, Debug)]
+pub struct FloodReport {
+    /// The scene's report.
+    pub report: SceneReport,
+    /// Bytes sent to the console during the run.
+    pub console_bytes: u64,
+    /// Bytes lost to the UART's full receive ring.
+    pub rx_overruns: u64,
+}
+
+/// Run scene `name` while a terminal floods the console at the line rate (115 200 baud:
+/// 11.52 bytes/ms) with garbage, overlong lines, control characters and valid commands
+/// that produce long replies (`history 100 --json`).
+pub fn run_with_console_flood(name: &str, opts: SceneOptions) -> Result<FloodReport, String> {
+    let mut sent = 0u64;
+    let mut overruns = 0u64;
+    let report = run_inner(name, opts, &mut |rig: &mut Rig, rng: &mut Rng| {
+        rig.console_enabled = true;
+        let due = (rig.clock.now_ns() as f64 * 11.52e-6) as u64;
+        const PIECES: [&[u8]; 6] = [
+            b"status --json\r\n",
+            b"history 100 --json\r\n",
+            b"\xff\xfe\x00\x1b[A garbage \x07\r\n",
+            b"cone replace zqsn5-2 X\r\n",
+            b"wear\rfaults --json\n",
+            b"AAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAA",
+        ];
+        while sent < due {
+            let piece = PIECES[(rng.next_u64() % PIECES.len() as u64) as usize];
+            rig.term.send(piece);
+            sent += piece.len() as u64;
+        }
+        let _ = rig.term.take_output();
+        overruns = rig.term.rx_overruns;
+    })?;
+    Ok(FloodReport {
+        report,
+        console_bytes: sent,
+        rx_overruns: overruns,
+    })
+}
+
 /// Run scene `name`. `Err` for an unknown name.
 pub fn run(name: &str, opts: SceneOptions) -> Result<SceneReport, String> {
+    run_inner(name, opts, &mut |_, _| {})
+}
+
+fn run_inner(
+    name: &str,
+    opts: SceneOptions,
+    each_tick: &mut dyn FnMut(&mut Rig, &mut Rng),
+) -> Result<SceneReport, String> {
     if !SCENES.contains(&name) {
         return Err(format!(
             "unknown scene '{name}' (scenes: {})",
@@ -156,7 +207,9 @@ pub fn run(name: &str, opts: SceneOptions) -> Result<SceneReport, String> {
     let mut settle_until_ns: Option<u64> = None;
     let max_ns = (cycles as u64 * 150 + 60) * 1_000_000_000;
 
+    let mut tick_rng = Rng::new(opts.seed ^ 0xf100d);
     loop {
+        each_tick(&mut rig, &mut tick_rng);
         let r = rig.tick();
         if r.stepped {
             steps += 1;

@@ -24,3 +24,4 @@ pub mod auth;
 pub mod json;
 pub mod line;
 pub mod parse;
+pub mod service;

@@ -1,0 +1,302 @@
+//! The technician console end to end: commands typed on the simulated serial link,
+//! executed by the real console service against the real controller.
+
+use hil_sim::rig::{Rig, RigOptions};
+use hil_sim::scene::{run, SceneOptions};
+use serde_json::Value;
+
+fn rig() -> Rig {
+    let mut r = Rig::new(RigOptions::new(80));
+    r.console_enabled = true;
+    // Boot to idle.
+    for _ in 0..100 {
+        r.tick();
+    }
+    r
+}
+
+fn json(reply: &str) -> Value {
+    assert_eq!(reply.matches("\r\n").count(), 1, "one line: {reply:?}");
+    serde_json::from_str(reply.trim_end()).unwrap_or_else(|e| panic!("not JSON ({e}): {reply:?}"))
+}
+
+fn run_cycles(r: &mut Rig, n: u32) {
+    use docking_controller::sequencer::{Request, State};
+    let target = r.ctrl.odometer().lifetime().cycles + n;
+    for _ in 0..(n as usize * 6_000) {
+        r.tick();
+        if r.ctrl.state() == State::Idle && !r.ctrl.persist_pending() {
+            if r.ctrl.odometer().lifetime().cycles >= target {
+                return;
+            }
+            r.ctrl.request(Request::StartCycle);
+        }
+    }
+    panic!("cycles did not complete");
+}
+
+#[test]
+fn read_commands_in_text_and_json() {
+    let mut r = rig();
+    run_cycles(&mut r, 3);
+    let v = r.command("version", 10);
+    assert!(v.starts_with("docking-controller "), "{v}");
+    assert_eq!(
+        json(&r.command("version --json", 10))["name"],
+        "docking-controller"
+    );
+
+    let s = r.command("status", 10);
+    assert!(
+        s.starts_with("state=idle phase=none force_n=") && s.contains(" cycles=3 fault=none"),
+        "{s}"
+    );
+    let s = json(&r.command("status --json", 10));
+    assert_eq!(s["state"], "idle");
+    assert_eq!(s["cycles_completed"], 3);
+    assert!(s["fault"].is_null());
+
+    let w = r.command("wear", 10);
+    assert!(
+        w.starts_with("cone=1 material=zqsn5-2 ") && w.contains(" cycles=3 wear_mm=0.00"),
+        "{w}"
+    );
+    let w = json(&r.command("wear --json", 10));
+    assert_eq!(w["cycles"], 3);
+    assert_eq!(w["level"], "ok");
+    assert_eq!(w["lifetime_cycles"], 3);
+    let wear_mm = w["wear_mm"].as_f64().unwrap();
+    assert!(wear_mm > 0.005 && wear_mm < 0.01, "{wear_mm}");
+    assert!(w["remaining_cycles"].as_u64().unwrap() > 45_000);
+
+    let h = r.command("history 2", 10);
+    assert_eq!(h.lines().count(), 2, "{h}");
+    assert!(
+        h.starts_with("cycle=3 cone=1 cone_cycle=3 load_distance_nmm=80"),
+        "{h}"
+    );
+    let h = json(&r.command("history --json", 10));
+    let arr = h["history"].as_array().unwrap();
+    assert_eq!(arr.len(), 3);
+    assert_eq!(arr[0]["cycle"], 3);
+    let w_nmm = arr[0]["load_distance_nmm"].as_f64().unwrap();
+    assert!((w_nmm - 8085.46).abs() / 8085.46 < 0.01, "{w_nmm}");
+
+    let f = json(&r.command("faults --json", 10));
+    assert!(f["active"].is_null());
+    assert_eq!(f["faults"].as_array().unwrap().len(), 0);
+    assert!(r
+        .command("help", 10)
+        .contains("cone replace <material> <serial>"));
+}
+
+#[test]
+fn bad_input_gets_one_line_errors_and_changes_nothing() {
+    let mut r = rig();
+    // Everything but the lifetime peak force (which rises with sensor noise while idle).
+    let counters = |r: &mut Rig| {
+        let mut v = json(&r.command("wear --json", 10));
+        v.as_object_mut().unwrap().remove("peak_force_n");
+        v
+    };
+    let before = counters(&mut r);
+    for bad in [
+        "frobnicate",
+        "history 0",
+        "history 101",
+        "wear --xml",
+        "status extra",
+        "cone replace unobtainium SN1",
+        "measure 26.0001",
+    ] {
+        let e = r.command(bad, 10);
+        assert!(
+            e.starts_with("error: ") && e.matches("\r\n").count() == 1,
+            "{bad:?} -> {e:?}"
+        );
+    }
+    // Binary junk, control characters, an overlong line.
+    r.term
+        .send(&[0xFF, 0xFE, b'\r', b'\n', 0x01, b'x', b'\r', b'\n']);
+    // 300 bytes at line rate (a burst of 300 would overrun the 256-byte UART ring).
+    r.term.send(&[b'a'; 200]);
+    for _ in 0..10 {
+        r.tick();
+    }
+    r.term.send(&[b'a'; 100]);
+    let e = r.command("", 50);
+    assert!(e.contains("error: "), "{e:?}");
+    assert_eq!(counters(&mut r), before, "no state change");
+}
+
+#[test]
+fn state_changing_commands_need_maintenance_and_a_machine_at_rest() {
+    let mut r = rig();
+    run_cycles(&mut r, 1);
+    // Commissioning: no PIN yet, so `pin set` is allowed once without maintenance.
+    assert!(r
+        .command("cone replace qsn6-6-3 SN-2", 10)
+        .contains("maintenance mode required"));
+    assert!(r.command("pin set 2468", 10).starts_with("ok: PIN set"));
+    assert!(
+        r.command("pin set 1111", 10)
+            .contains("maintenance mode required"),
+        "a PIN exists now"
+    );
+    // Wrong PIN ×5 → locked out, even the right one.
+    for _ in 0..4 {
+        assert!(r.command("maint 0000", 10).starts_with("error: "));
+    }
+    let e = r.command("maint 0000", 10);
+    assert!(e.contains("locked"), "{e}");
+    assert!(r.command("maint 2468", 10).contains("locked"));
+
+    // A fresh machine on the same flash (reboot clears the RAM lockout; the PIN stays).
+    let flash = r.flash.clone();
+    let mut r = Rig::with_flash(RigOptions::new(80), flash);
+    r.console_enabled = true;
+    for _ in 0..100 {
+        r.tick();
+    }
+    assert!(r
+        .command("maint 2468", 10)
+        .starts_with("ok: maintenance mode"));
+    let w0 = json(&r.command("wear --json", 10));
+    assert_eq!(w0["lifetime_cycles"], 1);
+    let ok = r.command("cone replace qsn6-6-3 SN-2", 10);
+    assert!(
+        ok.starts_with("ok: cone 2 installed (qsn6-6-3, serial SN-2)"),
+        "{ok}"
+    );
+    let w = json(&r.command("wear --json", 10));
+    assert_eq!(
+        (
+            w["cone"].as_u64(),
+            w["cycles"].as_u64(),
+            w["material"].as_str()
+        ),
+        (Some(2), Some(0), Some("qsn6-6-3"))
+    );
+    assert_eq!(
+        w["lifetime_cycles"], 1,
+        "lifetime totals survive a cone replacement"
+    );
+    let m = r.command("measure 26.050", 10);
+    assert!(
+        m.starts_with(
+            "ok: bore_mm=26.050 cone_cycle=0 measured_wear_mm=0.025000 model_wear_mm=0.000000"
+        ),
+        "{m}"
+    );
+    assert!(r.command("clear-fault", 10).contains("no fault to clear"));
+    // Refused while moving.
+    use docking_controller::sequencer::{Request, State};
+    r.ctrl.request(Request::StartCycle);
+    for _ in 0..400 {
+        r.tick();
+        if matches!(r.ctrl.state(), State::Inserting { .. }) {
+            break;
+        }
+    }
+    assert!(matches!(r.ctrl.state(), State::Inserting { .. }));
+    assert!(r
+        .command("cone replace zqsn5-2 SN-3", 1)
+        .contains("refused while a docking is moving"));
+    assert!(r
+        .command("calibrate tare", 1)
+        .contains("refused while a docking is moving"));
+    // History survived the replacement: the old cone's cycle is still there.
+    let h = json(&r.command("history --json", 1));
+    assert_eq!(h["history"][0]["cone"], 1);
+}
+
+#[test]
+fn clear_fault_recovers_and_is_audited() {
+    let mut r = rig();
+    assert!(r.command("pin set 1357", 10).starts_with("ok"));
+    assert!(r.command("maint 1357", 10).starts_with("ok"));
+    r.hx.set_fault(hil_sim::hx711::Hx711Fault::Disconnected);
+    for _ in 0..20 {
+        r.tick();
+    }
+    let f = json(&r.command("faults --json", 10));
+    assert_eq!(f["active"], "sensor_disconnected");
+    r.hx.set_fault(hil_sim::hx711::Hx711Fault::None);
+    assert!(r
+        .command("clear-fault", 10)
+        .starts_with("ok: fault cleared"));
+    for _ in 0..400 {
+        r.tick();
+    }
+    assert_eq!(json(&r.command("status --json", 10))["state"], "idle");
+    let mut audits = 0;
+    r.ctrl
+        .records(docking_controller::odometer::kind::AUDIT, 10, |_| {
+            audits += 1
+        });
+    assert_eq!(audits, 2, "pin set and clear-fault are audited");
+}
+
+#[test]
+fn calibration_tare_and_span_persist() {
+    let mut r = rig();
+    assert!(r.command("pin set 9999", 10).starts_with("ok"));
+    assert!(r.command("maint 9999", 10).starts_with("ok"));
+    for _ in 0..20 {
+        r.tick();
+    }
+    let t = r.command("calibrate tare", 10);
+    assert!(t.starts_with("ok: tare offset_counts="), "{t}");
+    // Hang a known 100 N on the idle cell.
+    r.script.borrow_mut().offset_n = 100.0;
+    for _ in 0..20 {
+        r.tick();
+    }
+    let s = r.command("calibrate span 100.000", 10);
+    assert!(s.starts_with("ok: span set"), "{s}");
+    let force = json(&r.command("status --json", 10))["force_n"]
+        .as_f64()
+        .unwrap();
+    assert!((force - 100.0).abs() < 1.0, "{force}");
+    // It survives a reboot.
+    let cal = r.ctrl.calibration();
+    let r2 = Rig::with_flash(RigOptions::new(80), r.flash.clone());
+    assert_eq!(r2.ctrl.calibration(), cal);
+}
+
+#[test]
+fn console_flood_does_not_delay_the_overload_stop() {
+    for rate in [80, 320] {
+        let quiet = run(
+            "overload",
+            SceneOptions {
+                cycles: 1,
+                rate_sps: rate,
+                seed: 3,
+                adc: hil_sim::rig::AdcMode::Pins,
+            },
+        )
+        .unwrap();
+        let flooded = hil_sim::scene::run_with_console_flood(
+            "overload",
+            SceneOptions {
+                cycles: 1,
+                rate_sps: rate,
+                seed: 3,
+                adc: hil_sim::rig::AdcMode::Pins,
+            },
+        )
+        .unwrap();
+        assert!(
+            flooded.console_bytes > 10_000,
+            "the console was flooded: {}",
+            flooded.console_bytes
+        );
+        assert_eq!(flooded.report.faults.len(), 1);
+        assert_eq!(
+            flooded.report.stop_latency_s, quiet.stop_latency_s,
+            "stop latency unchanged at {rate} SPS"
+        );
+        assert!(flooded.report.stop_latency_s.unwrap() <= 1.0 / rate as f64);
+    }
+}

@@ -1,0 +1,677 @@
+//! Console service: runs technician commands against the controller.
+//!
+//! [`Console::poll`] is called from the main loop after the controller's poll. Per call it
+//! reads at most [`MAX_BYTES_PER_POLL`](super::line::MAX_BYTES_PER_POLL) bytes and runs
+//! at most one command, so a flood of input costs the control loop a bounded slice of
+//! time per iteration and is otherwise absorbed by the UART's receive buffer. Replies go
+//! to an output ring that is drained into the [`ConsoleIo`] as fast as it takes them; a
+//! reply that does not fit is dropped whole and replaced by a one-line notice.
+//!
+//! Text replies are `key=value` lines (easy to read, easy to `grep`); `CMD --json`
+//! replies are one JSON object on one line. Errors are one line starting `error: `.
+//! Every line ends with CR LF (terminals). The formats are documented in the README and
+//! are stable: fields may be added, never renamed or removed.
+//!
+//! State-changing commands (`clear-fault`, `cone replace`, `measure`, `calibrate`,
+//! `pin set` once a PIN exists) need maintenance mode (`maint <pin>`) and a machine at
+//! rest (idle or faulted); each writes an audit record with the cycle count. Nothing on
+//! the console can reset the lifetime totals.
+
+use core::fmt::{self, Write};
+
+use heapless::{Deque, String};
+use sha2::{Digest, Sha256};
+
+use super::auth::{make_pin_record, MaintenanceAuth, PinRecord};
+use super::json::JsonObject;
+use super::line::{LineEvent, LineReader, MAX_BYTES_PER_POLL};
+use super::parse::{parse, Command};
+use crate::controller::{Bsp, Controller, HistoryEntry};
+use crate::hal::ConsoleIo;
+use crate::odometer::kind;
+use crate::sequencer::{Request, State};
+
+/// Longest input line, bytes.
+pub const LINE_MAX: usize = 128;
+/// Output ring, bytes (holds `history 100 --json`).
+pub const OUT_CAP: usize = 8192;
+/// Nominal bore of a new cone, µm (D2 = 26 mm, reference §2).
+pub const NEW_BORE_UM: u32 = 26_000;
+
+/// Audited maintenance actions (the `action` byte of an audit record).
+pub mod action {
+    /// A latched fault was cleared.
+    pub const CLEAR_FAULT: u8 = 1;
+    /// A cone was replaced.
+    pub const CONE_REPLACE: u8 = 2;
+    /// A bore measurement was recorded.
+    pub const MEASURE: u8 = 3;
+    /// The load cell was tared.
+    pub const CALIBRATE_TARE: u8 = 4;
+    /// The load cell's span was set.
+    pub const CALIBRATE_SPAN: u8 = 5;
+    /// The maintenance PIN was set.
+    pub const PIN_SET: u8 = 6;
+}
+
+/// What one poll did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ConsolePoll {
+    /// Bytes read.
+    pub bytes_in: usize,
+    /// Commands run (0 or 1).
+    pub commands: u32,
+    /// PIN hashes computed (each ~257 SHA-256 compressions).
+    pub pin_hashes: u32,
+}
+
+struct Out {
+    buf: Deque<u8, OUT_CAP>,
+}
+
+impl Write for Out {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        for b in s.bytes() {
+            self.buf.push_back(b).map_err(|_| fmt::Error)?;
+        }
+        Ok(())
+    }
+}
+
+/// The console.
+pub struct Console {
+    reader: LineReader<LINE_MAX>,
+    auth: MaintenanceAuth,
+    out: Out,
+    entropy: [u8; 32],
+    salts_made: u32,
+    dropped_replies: u32,
+    rx_errors: u32,
+}
+
+impl Console {
+    /// A console; `entropy` seeds the PIN salts (device ID, boot time… anything unique).
+    pub fn new(entropy: [u8; 32]) -> Self {
+        Self {
+            reader: LineReader::new(),
+            auth: MaintenanceAuth::new(),
+            out: Out { buf: Deque::new() },
+            entropy,
+            salts_made: 0,
+            dropped_replies: 0,
+            rx_errors: 0,
+        }
+    }
+
+    /// Replies dropped because the output ring was full.
+    pub fn dropped_replies(&self) -> u32 {
+        self.dropped_replies
+    }
+
+    /// Whether maintenance mode is active at `now_ms`.
+    pub fn maintenance_active(&self, now_ms: u64) -> bool {
+        self.auth.is_active(now_ms)
+    }
+
+    fn flush(&mut self, io: &mut impl ConsoleIo) {
+        while !self.out.buf.is_empty() {
+            let (a, b) = self.out.buf.as_slices();
+            let chunk = if a.is_empty() { b } else { a };
+            let n = io.write(chunk);
+            if n == 0 {
+                break;
+            }
+            for _ in 0..n.min(chunk.len()) {
+                self.out.buf.pop_front();
+            }
+        }
+    }
+
+    /// Read and act on console input; bounded work (see the module doc).
+    pub fn poll<B: Bsp>(
+        &mut self,
+        ctrl: &mut Controller<B>,
+        io: &mut impl ConsoleIo,
+        now_ms: u64,
+    ) -> ConsolePoll {
+        self.flush(io);
+        let mut st = ConsolePoll::default();
+        while st.bytes_in < MAX_BYTES_PER_POLL && st.commands == 0 {
+            let byte = match io.read_byte() {
+                Ok(b) => b,
+                Err(nb::Error::WouldBlock) => break,
+                Err(nb::Error::Other(())) => {
+                    // Framing/overrun/noise: the byte is gone; the line will likely be
+                    // refused by the parser. Count it for the status.
+                    self.rx_errors = self.rx_errors.saturating_add(1);
+                    st.bytes_in += 1;
+                    continue;
+                }
+            };
+            st.bytes_in += 1;
+            let mut line: String<LINE_MAX> = String::new();
+            match self.reader.push(byte) {
+                None => {}
+                Some(LineEvent::Error(e)) => {
+                    self.reply(|o| write!(o, "error: {}\r\n", e.message()))
+                }
+                Some(LineEvent::Line(l)) => {
+                    let _ = line.push_str(l);
+                    st.commands = 1;
+                }
+            }
+            if st.commands == 1 {
+                st.pin_hashes = self.execute(ctrl, &line, now_ms);
+            }
+        }
+        self.flush(io);
+        st
+    }
+
+    /// Write one whole reply or none (replaced by a short notice when it does not fit).
+    fn reply(&mut self, f: impl FnOnce(&mut Out) -> fmt::Result) {
+        let mark = self.out.buf.len();
+        if f(&mut self.out).is_err() {
+            while self.out.buf.len() > mark {
+                self.out.buf.pop_back();
+            }
+            self.dropped_replies = self.dropped_replies.saturating_add(1);
+            let _ = self
+                .out
+                .write_str("error: reply dropped, output buffer full\r\n");
+        }
+    }
+
+    fn err(&mut self, msg: &dyn fmt::Display) {
+        self.reply(|o| write!(o, "error: {msg}\r\n"));
+    }
+
+    fn ok(&mut self, msg: &dyn fmt::Display) {
+        self.reply(|o| write!(o, "ok: {msg}\r\n"));
+    }
+
+    fn pin_record<B: Bsp>(ctrl: &mut Controller<B>) -> Option<PinRecord> {
+        let mut buf = [0u8; 48];
+        let n = ctrl.load_record(kind::PIN, &mut buf)?;
+        PinRecord::from_bytes(buf.get(..n)?)
+    }
+
+    fn new_salt(&mut self, now_ms: u64) -> [u8; 16] {
+        self.salts_made = self.salts_made.wrapping_add(1);
+        let mut h = Sha256::new();
+        h.update(self.entropy);
+        h.update(self.salts_made.to_le_bytes());
+        h.update(now_ms.to_le_bytes());
+        let d = h.finalize();
+        let mut salt = [0u8; 16];
+        if let Some(src) = d.get(..16) {
+            salt.copy_from_slice(src);
+        }
+        salt
+    }
+
+    fn audit<B: Bsp>(&mut self, ctrl: &mut Controller<B>, act: u8, now_ms: u64, detail: &[u8]) {
+        // action u8 | lifetime cycle u32 | cone id u16 | cone cycle u32 | t_ms u64 | detail ≤ 29 B
+        let odo = ctrl.odometer();
+        let mut rec = [0u8; 48];
+        let head = [act];
+        let parts: [&[u8]; 5] = [
+            &head,
+            &odo.lifetime().cycles.to_le_bytes(),
+            &odo.cone().id.to_le_bytes(),
+            &odo.cone().cycles.to_le_bytes(),
+            &now_ms.to_le_bytes(),
+        ];
+        let mut at = 0;
+        for p in parts.into_iter().chain(core::iter::once(detail)) {
+            let n = p.len().min(rec.len().saturating_sub(at));
+            if let (Some(d), Some(s)) = (rec.get_mut(at..at + n), p.get(..n)) {
+                d.copy_from_slice(s);
+            }
+            at += n;
+        }
+        info!(
+            "maintenance: action {} at lifetime cycle {}",
+            act,
+            odo.lifetime().cycles
+        );
+        if ctrl
+            .store_record(kind::AUDIT, rec.get(..at).unwrap_or(&rec))
+            .is_err()
+        {
+            error!("maintenance: audit record not written");
+        }
+    }
+
+    /// Run one command line; returns the PIN hashes computed.
+    fn execute<B: Bsp>(&mut self, ctrl: &mut Controller<B>, line: &str, now_ms: u64) -> u32 {
+        let cmd = match parse(line) {
+            Ok(c) => c,
+            Err(e) => {
+                self.err(&e);
+                return 0;
+            }
+        };
+        let maint = self.auth.is_active(now_ms);
+        if maint {
+            self.auth.touch(now_ms);
+        }
+        let pin_exists = Self::pin_record(ctrl).is_some();
+        let gated = match cmd {
+            Command::PinSet { .. } => pin_exists,
+            Command::Measure { .. } => true,
+            c => c.is_state_changing(),
+        };
+        if gated && !maint {
+            self.err(&"maintenance mode required (maint <pin>)");
+            return 0;
+        }
+        if gated && !ctrl.is_quiet() {
+            self.err(&"refused while a docking is moving");
+            return 0;
+        }
+        match cmd {
+            Command::Help { json } => self.help(json),
+            Command::Version { json } => {
+                let v = env!("CARGO_PKG_VERSION");
+                if json {
+                    self.reply(|o| {
+                        let mut j = JsonObject::new(o);
+                        j.str("name", "docking-controller")?.str("version", v)?;
+                        j.finish()?;
+                        o.write_str("\r\n")
+                    });
+                } else {
+                    self.reply(|o| write!(o, "docking-controller {v}\r\n"));
+                }
+            }
+            Command::Status { json } => self.status(ctrl, json, maint),
+            Command::Wear { json } => self.wear(ctrl, json),
+            Command::History { n, json } => self.history(ctrl, n as usize, json),
+            Command::Faults { json } => self.faults(ctrl, json),
+            Command::ClearFault => {
+                if !matches!(ctrl.state(), State::Faulted { .. }) {
+                    self.err(&"no fault to clear");
+                } else {
+                    ctrl.request(Request::ClearFault);
+                    self.audit(ctrl, action::CLEAR_FAULT, now_ms, &[]);
+                    self.ok(&"fault cleared; recovering to home");
+                }
+            }
+            Command::ConeReplace { material, serial } => {
+                match ctrl.replace_cone(material, serial) {
+                    Ok(()) => {
+                        // material code | serial (≤ 20 bytes)
+                        let mut detail = [0u8; 21];
+                        let n = serial.len().min(20);
+                        if let (Some(d), Some(src)) =
+                            (detail.get_mut(1..1 + n), serial.as_bytes().get(..n))
+                        {
+                            d.copy_from_slice(src);
+                        }
+                        if let Some(d0) = detail.first_mut() {
+                            *d0 = material.code();
+                        }
+                        self.audit(ctrl, action::CONE_REPLACE, now_ms, &detail);
+                        let id = ctrl.odometer().cone().id;
+                        self.reply(|o| write!(o, "ok: cone {id} installed ({}, serial {serial}); cone counters start at zero\r\n", material.name()));
+                    }
+                    Err(e) => self.err(&e),
+                }
+            }
+            Command::Measure { bore_um } => self.measure(ctrl, bore_um, now_ms),
+            Command::CalibrateTare => match ctrl.calibrate_tare() {
+                Ok(c) => {
+                    self.audit(
+                        ctrl,
+                        action::CALIBRATE_TARE,
+                        now_ms,
+                        &c.offset_counts.to_le_bytes(),
+                    );
+                    self.reply(|o| write!(o, "ok: tare offset_counts={}\r\n", c.offset_counts));
+                }
+                Err(e) => self.err(&e),
+            },
+            Command::CalibrateSpan { force_mn } => {
+                match ctrl.calibrate_span(force_mn.min(i32::MAX as u32) as i32) {
+                    Ok(c) => {
+                        self.audit(
+                            ctrl,
+                            action::CALIBRATE_SPAN,
+                            now_ms,
+                            &force_mn.to_le_bytes(),
+                        );
+                        self.reply(|o| {
+                            write!(
+                                o,
+                                "ok: span set, mn_per_count_q32={}\r\n",
+                                c.mn_per_count_q32
+                            )
+                        });
+                    }
+                    Err(e) => self.err(&e),
+                }
+            }
+            Command::Maint { pin } => {
+                let rec = Self::pin_record(ctrl);
+                let hashed = rec.is_some() && self.auth.lockout_remaining_s(now_ms).is_none();
+                match self.auth.try_enter(now_ms, pin, rec.as_ref()) {
+                    Ok(()) => {
+                        info!("maintenance mode entered");
+                        self.ok(&"maintenance mode (ends after 10 min idle or `maint exit`)");
+                    }
+                    Err(e) => {
+                        warn!("maintenance login refused");
+                        self.err(&e);
+                    }
+                }
+                return hashed as u32;
+            }
+            Command::MaintExit => {
+                self.auth.exit();
+                self.ok(&"maintenance mode ended");
+            }
+            Command::PinSet { pin } => {
+                let salt = self.new_salt(now_ms);
+                match make_pin_record(pin, salt) {
+                    Ok(rec) => match ctrl.store_record(kind::PIN, &rec.to_bytes()) {
+                        Ok(()) => {
+                            self.audit(ctrl, action::PIN_SET, now_ms, &[]);
+                            self.ok(&"PIN set");
+                        }
+                        Err(e) => self.err(&e),
+                    },
+                    Err(e) => self.err(&e),
+                }
+                return 1;
+            }
+        }
+        0
+    }
+
+    fn help(&mut self, json: bool) {
+        const CMDS: [&str; 14] = [
+            "help [--json]",
+            "version [--json]",
+            "status [--json]",
+            "wear [--json]",
+            "history [N] [--json]",
+            "faults [--json]",
+            "clear-fault",
+            "cone replace <material> <serial>",
+            "measure <bore_diameter_mm>",
+            "calibrate tare",
+            "calibrate span <force_n>",
+            "maint <pin>",
+            "maint exit",
+            "pin set <new_pin>",
+        ];
+        if json {
+            self.reply(|o| {
+                let mut j = JsonObject::new(o);
+                j.array("commands", |a| {
+                    for c in CMDS {
+                        a.str(c)?;
+                    }
+                    Ok(())
+                })?;
+                j.finish()?;
+                o.write_str("\r\n")
+            });
+        } else {
+            self.reply(|o| {
+                for c in CMDS {
+                    write!(o, "{c}\r\n")?;
+                }
+                o.write_str(
+                    "(state-changing commands need `maint <pin>` and a machine at rest)\r\n",
+                )
+            });
+        }
+    }
+
+    fn status<B: Bsp>(&mut self, ctrl: &mut Controller<B>, json: bool, maint: bool) {
+        let s = ctrl.status();
+        let fault = s.fault.map(|f| f.name());
+        if json {
+            self.reply(|o| {
+                let mut j = JsonObject::new(o);
+                j.str("state", s.state.name())?;
+                match s.phase {
+                    Some(p) => j.u64("phase", p.number() as u64)?,
+                    None => j.null("phase")?,
+                };
+                j.fixed("force_n", s.force_mn as i64, 3)?
+                    .fixed("limit_n", s.limit_mn as i64, 3)?
+                    .fixed("pos_mm", s.pos_um as i64, 3)?
+                    .u64("cycles_completed", s.cycles_completed as u64)?;
+                match fault {
+                    Some(f) => j.str("fault", f)?,
+                    None => j.null("fault")?,
+                };
+                j.bool("warning", s.warning)?
+                    .fixed("peak_force_n", s.peak_force_mn as i64, 3)?
+                    .bool("maintenance", maint)?;
+                j.finish()?;
+                o.write_str("\r\n")
+            });
+        } else {
+            self.reply(|o| {
+                write!(o, "state={} phase=", s.state.name())?;
+                match s.phase {
+                    Some(p) => write!(o, "{}", p.number())?,
+                    None => o.write_str("none")?,
+                }
+                o.write_str(" force_n=")?;
+                super::json::write_fixed(o, s.force_mn as i64, 3)?;
+                o.write_str(" limit_n=")?;
+                super::json::write_fixed(o, s.limit_mn as i64, 3)?;
+                o.write_str(" pos_mm=")?;
+                super::json::write_fixed(o, s.pos_um as i64, 3)?;
+                write!(
+                    o,
+                    " cycles={} fault={} warning={} maintenance={}\r\n",
+                    s.cycles_completed,
+                    fault.unwrap_or("none"),
+                    if s.warning { "yes" } else { "no" },
+                    if maint { "yes" } else { "no" }
+                )
+            });
+        }
+    }
+
+    fn wear<B: Bsp>(&mut self, ctrl: &mut Controller<B>, json: bool) {
+        let odo = ctrl.odometer();
+        let cone = *odo.cone();
+        let life = *odo.lifetime();
+        let (wear_nm, remaining, level) = (odo.wear_nm(), odo.remaining_cycles(), odo.level());
+        let cfg = *odo.config();
+        let warn_nm = (cfg.limit_nm as u64 * cfg.warn_pct as u64 / 100) as i64;
+        if json {
+            self.reply(|o| {
+                let mut j = JsonObject::new(o);
+                j.u64("cone", cone.id as u64)?
+                    .str("material", cone.material.name())?
+                    .str("serial", cone.serial_str())?
+                    .u64("cycles", cone.cycles as u64)?
+                    .fixed("wear_mm", wear_nm as i64, 6)?
+                    .u64("remaining_cycles", remaining as u64)?
+                    .str("level", level.name())?
+                    .fixed("limit_mm", cfg.limit_nm as i64, 6)?
+                    .fixed("warn_mm", warn_nm, 6)?
+                    .u64("lifetime_cycles", life.cycles as u64)?
+                    .u64("cones_installed", life.cones_installed as u64)?
+                    .u64("overload_events", life.overload_events as u64)?
+                    .u64("faults", life.faults as u64)?
+                    .fixed("peak_force_n", life.peak_force_mn as i64, 3)?;
+                j.finish()?;
+                o.write_str("\r\n")
+            });
+        } else {
+            self.reply(|o| {
+                write!(o, "cone={} material={} serial={} cycles={} wear_mm=", cone.id, cone.material.name(), cone.serial_str(), cone.cycles)?;
+                super::json::write_fixed(o, wear_nm as i64, 6)?;
+                write!(o, " remaining_cycles={remaining} level={} limit_mm=", level.name())?;
+                super::json::write_fixed(o, cfg.limit_nm as i64, 6)?;
+                o.write_str(" warn_mm=")?;
+                super::json::write_fixed(o, warn_nm, 6)?;
+                write!(
+                    o,
+                    " lifetime_cycles={} cones_installed={} overload_events={} faults={} peak_force_n=",
+                    life.cycles, life.cones_installed, life.overload_events, life.faults
+                )?;
+                super::json::write_fixed(o, life.peak_force_mn as i64, 3)?;
+                o.write_str("\r\n")
+            });
+        }
+    }
+
+    fn history<B: Bsp>(&mut self, ctrl: &mut Controller<B>, n: usize, json: bool) {
+        let mut entries: heapless::Vec<HistoryEntry, { super::parse::HISTORY_MAX as usize }> =
+            heapless::Vec::new();
+        ctrl.history(n, |e| {
+            let _ = entries.push(e);
+        });
+        // W in Q63.1 mN·µm → N·mm with 3 decimals: q1 / 2 / 1000 (mN·µm → 1e-3 N·mm units).
+        let nmm_milli = |e: &HistoryEntry| (e.w_q1 / 2_000) as i64;
+        if json {
+            self.reply(|o| {
+                let mut j = JsonObject::new(o);
+                j.array("history", |a| {
+                    for e in &entries {
+                        a.object(|x| {
+                            x.u64("cycle", e.lifetime_cycle as u64)?
+                                .u64("cone", e.cone_id as u64)?
+                                .u64("cone_cycle", e.cone_cycle as u64)?
+                                .fixed("load_distance_nmm", nmm_milli(e), 3)?
+                                .fixed("wear_mm", e.wear_nm as i64, 6)?;
+                            Ok(())
+                        })?;
+                    }
+                    Ok(())
+                })?;
+                j.finish()?;
+                o.write_str("\r\n")
+            });
+        } else if entries.is_empty() {
+            self.reply(|o| o.write_str("no completed cycles recorded\r\n"));
+        } else {
+            self.reply(|o| {
+                for e in &entries {
+                    write!(
+                        o,
+                        "cycle={} cone={} cone_cycle={} load_distance_nmm=",
+                        e.lifetime_cycle, e.cone_id, e.cone_cycle
+                    )?;
+                    super::json::write_fixed(o, nmm_milli(e), 3)?;
+                    o.write_str(" wear_mm=")?;
+                    super::json::write_fixed(o, e.wear_nm as i64, 6)?;
+                    o.write_str("\r\n")?;
+                }
+                Ok(())
+            });
+        }
+    }
+
+    fn faults<B: Bsp>(&mut self, ctrl: &mut Controller<B>, json: bool) {
+        let active = ctrl.status().fault.map(|f| f.name());
+        let count = ctrl.fault_count();
+        let overloads = ctrl.odometer().lifetime().overload_events;
+        let recs: heapless::Vec<crate::controller::FaultRecord, 16> =
+            ctrl.faults().copied().collect();
+        if json {
+            self.reply(|o| {
+                let mut j = JsonObject::new(o);
+                match active {
+                    Some(a) => j.str("active", a)?,
+                    None => j.null("active")?,
+                };
+                j.u64("count_since_boot", count as u64)?
+                    .u64("overload_events_lifetime", overloads as u64)?;
+                j.array("faults", |a| {
+                    for f in &recs {
+                        a.object(|x| {
+                            x.str("kind", f.kind.name())?.u64("cycle", f.cycle as u64)?;
+                            match f.phase {
+                                Some(p) => x.u64("phase", p.number() as u64)?,
+                                None => x.null("phase")?,
+                            };
+                            x.fixed("t_s", f.t_ms as i64, 3)?.fixed(
+                                "peak_force_n",
+                                f.peak_force_mn as i64,
+                                3,
+                            )?;
+                            Ok(())
+                        })?;
+                    }
+                    Ok(())
+                })?;
+                j.finish()?;
+                o.write_str("\r\n")
+            });
+        } else {
+            self.reply(|o| {
+                write!(
+                    o,
+                    "active={} count_since_boot={count} overload_events_lifetime={overloads}\r\n",
+                    active.unwrap_or("none")
+                )?;
+                for f in &recs {
+                    write!(o, "kind={} cycle={} phase=", f.kind.name(), f.cycle)?;
+                    match f.phase {
+                        Some(p) => write!(o, "{}", p.number())?,
+                        None => o.write_str("none")?,
+                    }
+                    o.write_str(" t_s=")?;
+                    super::json::write_fixed(o, f.t_ms as i64, 3)?;
+                    o.write_str(" peak_force_n=")?;
+                    super::json::write_fixed(o, f.peak_force_mn as i64, 3)?;
+                    o.write_str("\r\n")?;
+                }
+                Ok(())
+            });
+        }
+    }
+
+    fn measure<B: Bsp>(&mut self, ctrl: &mut Controller<B>, bore_um: u32, now_ms: u64) {
+        let odo = ctrl.odometer();
+        let (cycles, cone_id, cone_cycles, model_nm) = (
+            odo.lifetime().cycles,
+            odo.cone().id,
+            odo.cone().cycles,
+            odo.wear_nm(),
+        );
+        // Radial wear from the bore: (bore − new bore) / 2, in nm.
+        let measured_nm = (bore_um.saturating_sub(NEW_BORE_UM) as u64 * 1000 / 2) as i64;
+        // bore_um u32 | lifetime cycle u32 | cone id u16 | cone cycle u32 | model nm u32
+        let mut rec = [0u8; 18];
+        let fields: [&[u8]; 5] = [
+            &bore_um.to_le_bytes(),
+            &cycles.to_le_bytes(),
+            &cone_id.to_le_bytes(),
+            &cone_cycles.to_le_bytes(),
+            &model_nm.to_le_bytes(),
+        ];
+        let mut at = 0;
+        for f in fields {
+            if let Some(d) = rec.get_mut(at..at + f.len()) {
+                d.copy_from_slice(f);
+            }
+            at += f.len();
+        }
+        if let Err(e) = ctrl.store_record(kind::MEASURE, &rec) {
+            self.err(&e);
+            return;
+        }
+        self.audit(ctrl, action::MEASURE, now_ms, &bore_um.to_le_bytes());
+        self.reply(|o| {
+            o.write_str("ok: bore_mm=")?;
+            super::json::write_fixed(o, bore_um as i64, 3)?;
+            write!(o, " cone_cycle={cone_cycles} measured_wear_mm=")?;
+            super::json::write_fixed(o, measured_nm, 6)?;
+            o.write_str(" model_wear_mm=")?;
+            super::json::write_fixed(o, model_nm as i64, 6)?;
+            o.write_str("\r\n")
+        });
+    }
+}
