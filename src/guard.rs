@@ -26,7 +26,7 @@
 //! a live HX711 at gain 128 has tens of counts of noise), and an implausible tare are
 //! named faults.
 
-use crate::profile::{forces_at_depth_um, STROKE_UM};
+use crate::profile::{BOUNDARY_UM, STROKE_UM};
 
 /// Overload-guard configuration.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -37,8 +37,6 @@ pub struct GuardConfig {
     pub rel_pct: u32,
     /// Envelope: absolute margin over the nominal force, mN.
     pub abs_mn: i32,
-    /// Envelope: the nominal force is maximised over ±this depth, µm.
-    pub window_um: i32,
     /// Largest sample-to-sample change taken as a real load change, mN.
     pub slew_mn: i32,
     /// Warn above this percentage of the limit in force.
@@ -53,7 +51,6 @@ impl GuardConfig {
         hard_limit_mn: 300_000,
         rel_pct: 25,
         abs_mn: 30_000,
-        window_um: 500,
         slew_mn: 40_000,
         warn_pct: 90,
         warn_clear_pct: 80,
@@ -70,6 +67,65 @@ impl Default for GuardConfig {
 const ENV_STEP_UM: i32 = 100;
 /// Entries of the envelope table (0..=30 mm).
 const ENV_LEN: usize = (STROKE_UM / ENV_STEP_UM) as usize + 1;
+/// The nominal force is maximised over ±this depth around each table cell, µm (half a
+/// millimetre of position error at a phase boundary cannot trip the envelope).
+pub const ENVELOPE_WINDOW_UM: i32 = 500;
+
+/// Eq. 7's N3 at insertion depth `depth_um` (clamped to the stroke), N: a `const fn`
+/// twin of [`crate::profile::forces_at_depth_um`] (tested bit-equal) so the envelope is
+/// computed at build time and the firmware carries no floating-point code for it.
+const fn n3_at_depth_n(depth_um: i32) -> f64 {
+    let d = if depth_um < 0 {
+        0
+    } else if depth_um > STROKE_UM {
+        STROKE_UM
+    } else {
+        depth_um
+    };
+    let t = d as f64 / 1200.0;
+    if d < BOUNDARY_UM[0] {
+        112.64
+    } else if d < BOUNDARY_UM[1] {
+        115.05
+    } else if d < BOUNDARY_UM[2] {
+        17429.0 / (175.2 - t)
+    } else {
+        3989.0 / (t + 6.887)
+    }
+}
+
+/// Nominal N3 maximised over each cell ± [`ENVELOPE_WINDOW_UM`], mN, computed at build
+/// time (the profile is monotone between boundaries, so sampling every 10 µm plus the
+/// 14.934 mm jump itself finds the maximum).
+// Evaluated by the compiler: an out-of-range index here fails the build, it cannot panic
+// on the board (and `get_mut` is not usable in const context).
+#[allow(clippy::indexing_slicing)]
+const NOMINAL_MAX_MN: [i32; ENV_LEN] = {
+    let mut t = [0i32; ENV_LEN];
+    let mut i = 0;
+    while i < ENV_LEN {
+        let lo = i as i32 * ENV_STEP_UM - ENVELOPE_WINDOW_UM;
+        let hi = (i as i32 + 1) * ENV_STEP_UM + ENVELOPE_WINDOW_UM;
+        let mut max_n = 0.0f64;
+        let mut d = if lo < 0 { 0 } else { lo };
+        while d <= hi && d <= STROKE_UM {
+            let f = n3_at_depth_n(d);
+            if f > max_n {
+                max_n = f;
+            }
+            d += 10;
+        }
+        if lo <= BOUNDARY_UM[2] && BOUNDARY_UM[2] <= hi {
+            let f = n3_at_depth_n(BOUNDARY_UM[2]);
+            if f > max_n {
+                max_n = f;
+            }
+        }
+        t[i] = (max_n * 1000.0) as i32;
+        i += 1;
+    }
+    t
+};
 
 /// What the guard says about one sample.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -102,26 +158,11 @@ pub struct OverloadGuard {
 impl OverloadGuard {
     /// A guard with its envelope table computed from Eq. 7.
     pub fn new(cfg: GuardConfig) -> Self {
+        // Integer margins over the build-time nominal table.
         let mut envelope_mn = [0i32; ENV_LEN];
-        for (i, e) in envelope_mn.iter_mut().enumerate() {
-            let lo = i as i32 * ENV_STEP_UM - cfg.window_um;
-            let hi = (i as i32 + 1) * ENV_STEP_UM + cfg.window_um;
-            // Sample the window every 10 µm (the profile is monotone between boundaries,
-            // and the boundaries themselves are multiples of 10 µm except 14 934, which
-            // is sampled explicitly).
-            let mut max_n = 0.0f64;
-            let mut d = lo.max(0);
-            while d <= hi.min(STROKE_UM) {
-                max_n = max_n.max(forces_at_depth_um(d as f64).n3_n);
-                d += 10;
-            }
-            if lo <= 14_934 && 14_934 <= hi {
-                max_n = max_n.max(forces_at_depth_um(14_934.0).n3_n);
-            }
-            let limit_n = max_n * (100 + cfg.rel_pct) as f64 / 100.0;
-            *e = ((limit_n * 1000.0) as i32)
-                .saturating_add(cfg.abs_mn)
-                .min(cfg.hard_limit_mn);
+        for (e, &nominal_mn) in envelope_mn.iter_mut().zip(NOMINAL_MAX_MN.iter()) {
+            let scaled = nominal_mn as i64 * (100 + cfg.rel_pct as i64) / 100;
+            *e = (scaled + cfg.abs_mn as i64).min(cfg.hard_limit_mn as i64) as i32;
         }
         Self {
             cfg,
@@ -294,6 +335,15 @@ impl SensorMonitor {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::profile::forces_at_depth_um;
+
+    #[test]
+    fn const_n3_twin_equals_the_profile() {
+        for d in (-100..=30_100).step_by(7) {
+            let want = forces_at_depth_um(d.clamp(0, STROKE_UM) as f64).n3_n;
+            assert_eq!(n3_at_depth_n(d).to_bits(), want.to_bits(), "depth {d}");
+        }
+    }
 
     fn nominal_mn(d: i32) -> i32 {
         (forces_at_depth_um(d as f64).n3_n * 1000.0) as i32

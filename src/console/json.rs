@@ -82,7 +82,10 @@ pub fn write_fixed<W: Write + ?Sized>(w: &mut W, value_scaled: i64, decimals: u8
         }
         w.write_str(digits)
     } else {
-        let (int, frac) = digits.split_at(digits.len() - dec);
+        // `get` rather than `split_at`: digits are ASCII, and no panic path (with its
+        // Unicode-aware message formatting) ends up in the firmware.
+        let k = digits.len() - dec;
+        let (int, frac) = (digits.get(..k).unwrap_or(""), digits.get(k..).unwrap_or(""));
         w.write_str(int)?;
         w.write_char('.')?;
         w.write_str(frac)
