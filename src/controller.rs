@@ -26,7 +26,7 @@ use crate::hx711::{Calibration, CODE_MAX, CODE_MIN};
 use crate::lock::{LockActuator, LockCmd};
 use crate::material::Material;
 use crate::odometer::{self, restore, CycleSummary, Odometer, StateRecord, WearConfig, WearLevel};
-use crate::profile::{ContactPhase, BOUNDARY_UM};
+use crate::profile::{ContactPhase, BOUNDARY_UM, STROKE_UM};
 use crate::propulsion::Propulsion;
 use crate::sequencer::{AxisCmd, FaultKind, Inputs, Request, SeqEvent, Sequencer, State, Switches};
 use crate::storage::{OpenReport, RecordLog};
@@ -205,6 +205,8 @@ pub struct Status {
     pub wear_level: WearLevel,
 }
 
+/// Samples this close outside the cone (µm) still count for wear (the mouth).
+const CONE_MARGIN_UM: i32 = 500;
 /// Zero-load samples averaged for the tare.
 const TARE_SAMPLES: usize = 16;
 /// Fewest tare samples before a cycle may start.
@@ -594,9 +596,12 @@ impl<B: Bsp> Controller<B> {
                 }
                 Verdict::Ok | Verdict::Suspect => self.warning = false,
             }
-            // Wear: load × sliding distance while the rod may be in the cone.
+            // Wear: load × sliding distance wherever the rod can touch the cone (by
+            // position, whatever the state: the sample at the cone mouth belongs to the
+            // stroke); outside it the chain is broken so sensor noise adds nothing.
             self.odo.record_force(self.force_mn);
-            if state.in_compliant_motion() {
+            let cone_depth_um = pos_um - self.cfg.machine.engage_um;
+            if (-CONE_MARGIN_UM..=STROKE_UM + CONE_MARGIN_UM).contains(&cone_depth_um) {
                 self.odo.on_contact_sample(pos_um, self.force_mn);
             } else {
                 self.odo.end_contact();

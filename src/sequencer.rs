@@ -18,8 +18,8 @@
 //!                                                        ▼                               │
 //!   PreAlign (locked, fast, to engage) ─▶ Releasing (lock → released sw)                 │
 //!        ─▶ Inserting (compliant, ≤ v0, phases 1→2→3→4, to mated) ─▶ Holding (hold_ms)   │
-//!        ─▶ Extracting (≤ v0, to engage) ─▶ Locking (→ locked sw) ─▶ Returning (fast, ───┘
-//!                                                                    to the home sw)
+//!        ─▶ Extracting (≤ v0, to engage) ─▶ Locking (→ locked sw) ─▶ Returning (fast to ─┘
+//!                                               0.5 mm, then creeping onto the home sw)
 //!
 //!  any state ──fault──▶ Faulted (motors off, latched)
 //!  moving, overload ──▶ BackingOff (retreat `back_off_um` at ≤ v0, guard still active) ─▶ Faulted
@@ -250,12 +250,16 @@ pub enum State {
         /// Deadline, ms.
         deadline_ms: u64,
     },
-    /// Locked panel returning fast to the home switch.
+    /// Locked panel returning to the home switch: fast to `HOME_APPROACH_UM`, then
+    /// creeping onto the switch (so the switch is met at creep speed: the position error
+    /// of zeroing is at most one control period of creep travel).
     Returning {
         /// Deadline, ms.
         deadline_ms: u64,
         /// Whether this return ends a docking cycle (else a recovery).
         ends_cycle: bool,
+        /// In the creep phase.
+        creeping: bool,
     },
     /// Controlled retreat after an overload.
     BackingOff {
@@ -327,6 +331,10 @@ impl State {
 pub const BACK_OFF_UM: i32 = 2_000;
 /// How far past the counted home the search goes before it gives up, µm.
 pub const HOME_OVERSHOOT_UM: i32 = 3_000;
+/// Where the fast return hands over to the creep onto the home switch, µm.
+pub const HOME_APPROACH_UM: i32 = 500;
+/// Creep speed onto the home switch, µm/s (5 µm per control period at 80 SPS).
+pub const HOME_CREEP_UM_PER_S: u32 = 400;
 
 /// The sequencer.
 #[derive(Clone, Debug)]
@@ -396,14 +404,31 @@ impl Sequencer {
     }
 
     fn start_return(&self, now_ms: u64, pos_um: i32, ends_cycle: bool) -> State {
+        if pos_um <= HOME_APPROACH_UM {
+            return self.start_creep(now_ms, ends_cycle);
+        }
         let deadline_ms = self.move_deadline(
             now_ms,
-            pos_um + HOME_OVERSHOOT_UM,
+            pos_um - HOME_APPROACH_UM,
             self.cfg.fast_speed_um_per_s,
         );
         State::Returning {
             deadline_ms,
             ends_cycle,
+            creeping: false,
+        }
+    }
+
+    fn start_creep(&self, now_ms: u64, ends_cycle: bool) -> State {
+        let deadline_ms = self.move_deadline(
+            now_ms,
+            HOME_APPROACH_UM + HOME_OVERSHOOT_UM,
+            HOME_CREEP_UM_PER_S,
+        );
+        State::Returning {
+            deadline_ms,
+            ends_cycle,
+            creeping: true,
         }
     }
 
@@ -486,10 +511,19 @@ impl Sequencer {
                 },
                 LockCmd::Off,
             ),
-            State::Returning { .. } => (
+            State::Returning {
+                creeping: false, ..
+            } => (
+                AxisCmd::Move {
+                    target_um: HOME_APPROACH_UM,
+                    speed_um_per_s: cfg.fast_speed_um_per_s,
+                },
+                LockCmd::Off,
+            ),
+            State::Returning { creeping: true, .. } => (
                 AxisCmd::Move {
                     target_um: -HOME_OVERSHOOT_UM,
-                    speed_um_per_s: cfg.fast_speed_um_per_s,
+                    speed_um_per_s: HOME_CREEP_UM_PER_S,
                 },
                 LockCmd::Off,
             ),
@@ -518,6 +552,15 @@ impl Sequencer {
         let stay = |s: State| (s, None, false);
         let fault = |f: FaultKind| (State::Faulted { fault: f }, Some(SeqEvent::Fault(f)), false);
         match self.state {
+            // Already on the home switch: zero here, no motion at all.
+            State::PowerUp if sw.home => (
+                State::Locking {
+                    deadline_ms: self.lock_deadline(now),
+                    then: AfterLock::Idle,
+                },
+                Some(SeqEvent::Homed),
+                true,
+            ),
             State::PowerUp => {
                 let deadline_ms = self.move_deadline(
                     now,
@@ -655,6 +698,7 @@ impl Sequencer {
             State::Returning {
                 deadline_ms,
                 ends_cycle,
+                creeping,
             } => {
                 if sw.home {
                     let ev = if ends_cycle {
@@ -664,7 +708,10 @@ impl Sequencer {
                         Some(SeqEvent::Homed)
                     };
                     (State::Idle, ev, true)
-                } else if past(deadline_ms) || inp.axis_idle {
+                } else if !creeping && inp.axis_idle && (inp.pos_um - HOME_APPROACH_UM).abs() <= 10
+                {
+                    (self.start_creep(now, ends_cycle), None, false)
+                } else if past(deadline_ms) || (creeping && inp.axis_idle) {
                     // Counted position says home (or time is up) but the switch is open.
                     fault(FaultKind::AxisStall)
                 } else {
@@ -749,16 +796,32 @@ mod tests {
 
     #[test]
     fn boots_homes_locks_and_idles() {
+        // On the home switch at power-up: zero at once, no motion.
         let mut r = Rig::new();
-        r.tick(10);
-        assert!(matches!(r.seq.state(), State::Homing { .. }));
         let o = r.step(10);
         assert!(o.zero_position);
         assert_eq!(o.event, Some(SeqEvent::Homed));
-        assert_eq!(o.lock, LockCmd::ToLocked);
+        assert_eq!((o.axis, o.lock), (AxisCmd::Hold, LockCmd::ToLocked));
         let o = r.step(10);
         assert_eq!(r.seq.state(), State::Idle);
         assert_eq!(o.axis, AxisCmd::Disabled);
+    }
+
+    #[test]
+    fn boots_away_from_home_and_searches_at_no_more_than_v0() {
+        let mut r = Rig::new();
+        r.inp.switches.home = false;
+        r.inp.axis_idle = false;
+        r.inp.pos_um = 0; // unknown: counted from zero at boot
+        let o = r.step(10);
+        assert!(matches!(r.seq.state(), State::Homing { .. }));
+        assert!(
+            matches!(o.axis, AxisCmd::Move { target_um, speed_um_per_s: 1_200 } if target_um < -50_000)
+        );
+        r.inp.switches.home = true;
+        let o = r.step(10);
+        assert_eq!(o.event, Some(SeqEvent::Homed));
+        assert!(o.zero_position);
     }
 
     #[test]
@@ -813,14 +876,24 @@ mod tests {
             locked: true,
             ..Switches::default()
         };
+        // Fast to the approach point, then creeping onto the switch.
         let o = r.step(400);
-        assert!(matches!(
+        assert_eq!(
             o.axis,
             AxisCmd::Move {
-                target_um: -3_000,
-                ..
+                target_um: HOME_APPROACH_UM,
+                speed_um_per_s: cfg.fast_speed_um_per_s
             }
-        ));
+        );
+        r.inp.pos_um = HOME_APPROACH_UM;
+        let o = r.step(2_000);
+        assert_eq!(
+            o.axis,
+            AxisCmd::Move {
+                target_um: -HOME_OVERSHOOT_UM,
+                speed_um_per_s: HOME_CREEP_UM_PER_S
+            }
+        );
         r.inp.switches.home = true;
         r.inp.pos_um = 0;
         let o = r.step(2_000);
@@ -908,7 +981,6 @@ mod tests {
     #[test]
     fn return_without_home_switch_is_a_stall() {
         let mut r = Rig::new();
-        r.tick(10);
         r.inp.switches.home = false;
         r.inp.axis_idle = false;
         let o = r.step(10);

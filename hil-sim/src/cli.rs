@@ -16,7 +16,7 @@ impl std::fmt::Display for UsageError {
 }
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate SPS] [--seed S] [--json] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--json] | endurance --cycles N [--material NAME] [--rate SPS]";
+pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate SPS] [--seed S] [--json] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--json] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json]";
 
 /// Parse `--rate` as one of the HX711 rates.
 fn hx_rate(o: &Opts) -> Result<u32, UsageError> {
@@ -119,6 +119,18 @@ fn endurance(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         r.erase_counts.iter().max().copied().unwrap_or(0),
         r.wall_time_s
     );
+    Ok(())
+}
+
+fn accuracy(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
+    let o = Opts::parse(args, &[], &["json"])?;
+    let r = crate::accuracy::run();
+    let text = if o.flag("json") {
+        r.to_json()
+    } else {
+        r.to_text()
+    };
+    let _ = writeln!(out, "{text}");
     Ok(())
 }
 
@@ -255,6 +267,7 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         "bench" => bench(rest, out),
         "life" => life(rest, out),
         "endurance" => endurance(rest, out),
+        "accuracy" => accuracy(rest, out),
         "help" | "--help" | "-h" => {
             let _ = writeln!(out, "{USAGE}");
             Ok(())

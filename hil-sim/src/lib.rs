@@ -17,6 +17,7 @@
 #![cfg_attr(target_os = "none", no_std)]
 #![cfg(not(target_os = "none"))]
 
+pub mod accuracy;
 pub mod axis;
 pub mod cli;
 pub mod clock;

@@ -1,0 +1,569 @@
+//! `hil-sim accuracy`: numerical error against run time.
+//!
+//! For each load-cell rate of [`RATES_SPS`] one docking cycle runs through the closed
+//! loop (the real `Controller`, the simulated HAL) and the odometer's own integral is
+//! split into its two strokes: the insertion is the pending load–distance at the first
+//! step in `Holding`, the extraction the rest of the cycle. Each is compared with the
+//! exact stroke integral of Eq. 7, [`EXACT_STROKE_N_MM`] = 4042.7297 N·mm. Then the
+//! wall time per simulated cycle is measured at that rate with the default sensor noise,
+//! and finally the fixed-point odometer is compared with an `f64` reference over 45 000
+//! and 10^6 cycles ([`fixed_vs_f64_from`]).
+//!
+//! "Noise-free" means a 1-count RMS dither ([`DITHER_COUNTS`], 0.12 mN): with exactly
+//! zero noise the controller's stuck-converter check (32 identical codes) latches a
+//! fault before the first cycle.
+//!
+//! ## Where the stroke error comes from (measured, first cycle of a fresh rig)
+//!
+//! Every source below was isolated by recording the samples of the chain and
+//! recomputing the trapezoid with the exact Eq. 7 forces at the same positions; N·mm
+//! per stroke, 1 % = 40.4 N·mm.
+//!
+//! * **The jumps.** Across a jump of `ΔF` at `x_j` inside a sample interval
+//!   `[x0, x1]` the trapezoid errs by `ΔF · (x_j − (x0 + x1)/2)`: zero when the jump sits
+//!   mid-interval, `±ΔF · Δx/2` at worst, and which one a cycle gets is the sampling
+//!   phase. N3's 107.1 → 206.3 N jump at 14.934 mm dominates (ΔF = 99.25 N; the other
+//!   two are +2.41 N at 4.5 mm and −11.28 N at 8.7 mm). Bound for jump 3: 5.96 N·mm
+//!   (0.147 %) at 10 SPS (Δx = 120 µm), 0.74 N·mm at 80 SPS (15 µm), and from 320 SPS on
+//!   the axis's 5-µm step, not the rate, sets Δx: 14.934 mm falls inside the step
+//!   [14 930, 14 935] µm, +0.149 N·mm at 320 and 1280 SPS alike. Measured: 10 SPS
+//!   −0.61, 80 SPS +0.149 (jump 3) and −0.085 (jump 2, whose sample lands exactly on
+//!   8.700 mm), 320/1280 SPS +0.149.
+//! * **The contact edges.** The cone's edge is a fourth jump (0 → 112.64 N at depth 0),
+//!   and where each stroke's chain begins and ends is decided by the sequencer, not the
+//!   integrator. The insertion chain starts at the first sample taken in `Inserting`
+//!   (10 SPS: one period, 120 µm, into the stroke), and the sequencer accepts arrival
+//!   within one step (5 µm): at 320/1280 SPS pre-alignment stops at −5 µm (+0.28 N·mm
+//!   credited for no contact) and the mate at 29 995 µm (−0.63 N·mm); the extraction
+//!   ends at +5 µm at 80–1280 SPS (−0.56 N·mm).
+//! * **The homing overshoot (10 SPS).** The home switch is read once per control
+//!   step, so the carriage stops up to `v · T` past it and that point is called zero.
+//!   At 10 SPS the boot homing starts at full speed (the whole acceleration ramp fits in
+//!   one 100 ms period) and overshoots by 120 µm: every counted position is 120 µm ahead
+//!   of the truth, the mate is really at 29.88 mm, and each stroke loses ≈ 15.05 N·mm
+//!   (0.37 %) at its deep end; the extraction chain then runs 120 µm past the cone edge
+//!   and its trapezoid credits +6.76 N·mm of the edge jump. This is most of the 10 SPS
+//!   error (insertion −15.65 N·mm, −0.387 %; extraction −8.89 N·mm, −0.220 %). At 80
+//!   SPS the boot homing does not overshoot, but the fast return to home does: 55–60 µm on
+//!   every other cycle (cycles 2, 4, … measure ≈ −0.18 % per stroke, not shown here).
+//! * **Load conversion.** The odometer's forces minus the exact forces at the same
+//!   positions: −0.0095 N·mm per stroke (−2.3e-6): the floor of the counts → mN
+//!   conversion (−0.5 mN mean), whole-count codes (±0.06 mN) and the tare mean's
+//!   truncation to whole counts. Negligible.
+//!
+//! Totals, N·mm per stroke (insertion / extraction): 10 SPS −15.65 / −8.89; 80 SPS
+//! +0.073 / −0.490; 320 and 1280 SPS −0.227 / −1.072 (identical: every 5-µm step is
+//! sampled from 320 SPS on). So the error falls by two orders from 10 to 80 SPS and
+//! then sits at the one-step floor; strictly, 320 SPS is a few thousandths of a percent
+//! worse than 80 SPS, because of where the two runs' strokes happen to start and end
+//! (one step), not because of the rate. With the default noise (0.3 N RMS) the tare's
+//! error (≈ 0.075 N over the stroke) makes cycles scatter by ≈ ±0.1 % at every rate.
+
+use std::time::Instant;
+
+use docking_controller::controller::PollResult;
+use docking_controller::material::Material;
+use docking_controller::odometer::{
+    depth_nm, e_at_depth_q32, equivalent_cycles_q32, wear_factor_q32, WearConfig, W_NOM_MN_UM,
+    W_NOM_Q1,
+};
+use docking_controller::sequencer::{Request, State};
+
+use crate::rig::{Rig, RigOptions};
+
+/// Load-cell rates compared, SPS (the CLI's 10/80/320 and a 1280 SPS part).
+pub const RATES_SPS: [u32; 4] = [10, 80, 320, 1280];
+
+/// Exact load–distance of one stroke of Eq. 7 at v0, N·mm (half of
+/// [`W_NOM_MN_UM`]: 1.2 mm/s × 3368.94 N·s = 4042.729725 N·mm).
+pub const EXACT_STROKE_N_MM: f64 = W_NOM_MN_UM as f64 / 2.0 / 1e6;
+
+/// Load-cell noise of the "noise-free" stroke runs, RMS counts (≈ 0.12 mN). Exactly zero
+/// cannot run the closed loop: identical codes trip the controller's stuck-converter
+/// check (32 equal codes in a row: 3.2 s at 10 SPS idle, or phase 1's constant force).
+pub const DITHER_COUNTS: f64 = 1.0;
+
+/// Cycle counts of the fixed-point vs `f64` comparison: inside the life, and far past it.
+pub const FIXED_CYCLES: [u32; 2] = [45_000, 1_000_000];
+
+/// Spread of the per-cycle load–distance in the fixed-point comparison, ± ppm (5 %).
+pub const PERTURB_PPM: u64 = 50_000;
+
+/// Seed of the perturbation (xorshift64).
+pub const PERTURB_SEED: u64 = 0x5EED_0D0C_2025_0001;
+
+/// Rate of the noisy reference cycle whose load–distance the comparison perturbs, SPS.
+pub const REFERENCE_RATE_SPS: u32 = 80;
+
+/// Longest virtual time one docking cycle may take before the run is declared stuck, s
+/// (a nominal cycle takes ≈ 57 s).
+const CYCLE_TIMEOUT_S: f64 = 300.0;
+
+/// Cycles timed at `rate_sps` for the wall-time column.
+pub fn timing_cycles(rate_sps: u32) -> u32 {
+    match rate_sps {
+        0..=80 => 200,
+        81..=320 => 100,
+        _ => 30,
+    }
+}
+
+/// Q63.1 mN·µm to N·mm.
+pub fn q1_to_n_mm(q1: u64) -> f64 {
+    q1 as f64 / 2.0 / 1e6
+}
+
+/// Signed relative error of `n_mm` against the exact stroke, %.
+pub fn stroke_err_pct(n_mm: f64) -> f64 {
+    (n_mm / EXACT_STROKE_N_MM - 1.0) * 100.0
+}
+
+/// Run a rig's closed loop until `cycles` docking cycles have completed (counted on the
+/// cone) and the controller is idle again, calling `on_tick(rig, state_before, poll)`
+/// after every control step.
+///
+/// # Panics
+/// If the controller latches a fault or a cycle overruns [`CYCLE_TIMEOUT_S`] of virtual
+/// time: neither happens on a healthy simulated machine, and the numbers would mean
+/// nothing.
+fn drive(rig: &mut Rig, cycles: u32, mut on_tick: impl FnMut(&Rig, State, PollResult)) {
+    let deadline_s = rig.clock.now_s() + CYCLE_TIMEOUT_S * (cycles as f64 + 1.0);
+    loop {
+        let before = rig.ctrl.state();
+        let poll = rig.tick();
+        on_tick(rig, before, poll);
+        match rig.ctrl.state() {
+            State::Idle if !rig.ctrl.persist_pending() => {
+                if rig.ctrl.odometer().cone().cycles >= cycles {
+                    return;
+                }
+                rig.ctrl.request(Request::StartCycle);
+            }
+            State::Faulted { fault } => panic!(
+                "accuracy run: fault {} at {:.3} s (cycle {})",
+                fault.name(),
+                rig.clock.now_s(),
+                rig.ctrl.odometer().cone().cycles + 1
+            ),
+            _ => {}
+        }
+        if rig.clock.now_s() > deadline_s {
+            panic!(
+                "accuracy run: {} cycle(s) not done after {:.0} s of virtual time (state {})",
+                cycles,
+                rig.clock.now_s(),
+                rig.ctrl.state().name()
+            );
+        }
+    }
+}
+
+/// One closed-loop docking cycle's two strokes as the odometer measured them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StrokeMeasurement {
+    /// Load-cell rate, SPS.
+    pub rate_sps: u32,
+    /// Insertion stroke: the odometer's pending load–distance at the first step in
+    /// `Holding`, Q63.1 mN·µm.
+    pub insertion_q1: u64,
+    /// Extraction stroke: the rest of the cycle (`last_cycle_q1 − insertion`), Q63.1.
+    pub extraction_q1: u64,
+    /// Counted minus true carriage position when the cycle starts, µm (a homing that
+    /// overshoots the switch by one control period leaves the count ahead of the truth).
+    pub position_offset_um: f64,
+    /// Counted insertion depth of the first and last sample of the insertion chain, µm.
+    pub insertion_span_um: (i32, i32),
+    /// Counted insertion depth of the first and last sample of the extraction, µm.
+    pub extraction_span_um: (i32, i32),
+}
+
+impl StrokeMeasurement {
+    /// Insertion stroke, N·mm.
+    pub fn insertion_n_mm(&self) -> f64 {
+        q1_to_n_mm(self.insertion_q1)
+    }
+
+    /// Extraction stroke, N·mm.
+    pub fn extraction_n_mm(&self) -> f64 {
+        q1_to_n_mm(self.extraction_q1)
+    }
+
+    /// Insertion error against [`EXACT_STROKE_N_MM`], signed %.
+    pub fn insertion_err_pct(&self) -> f64 {
+        stroke_err_pct(self.insertion_n_mm())
+    }
+
+    /// Extraction error against [`EXACT_STROKE_N_MM`], signed %.
+    pub fn extraction_err_pct(&self) -> f64 {
+        stroke_err_pct(self.extraction_n_mm())
+    }
+}
+
+/// Measure both strokes of the first docking cycle of a fresh rig at `rate_sps` with the
+/// load cell dithered by [`DITHER_COUNTS`] (practically noise-free).
+///
+/// # Panics
+/// If the simulated machine latches a fault or a cycle overruns 300 s of virtual time
+/// (neither happens on a healthy simulated machine). The same holds for every function
+/// of this module that runs the closed loop.
+pub fn measure_strokes(rate_sps: u32) -> StrokeMeasurement {
+    let mut rig = Rig::new(RigOptions {
+        noise_counts: Some(DITHER_COUNTS),
+        ..RigOptions::new(rate_sps)
+    });
+    let engage_um = rig.ctrl.config().machine.engage_um;
+    let mut offset_um: Option<f64> = None;
+    let mut insertion_q1: Option<u64> = None;
+    let mut ins_first: Option<i32> = None;
+    let mut ins_last = 0;
+    let mut ext_last = 0;
+    drive(&mut rig, 1, |rig, before, poll| {
+        let now = rig.ctrl.state();
+        if offset_um.is_none() && matches!(now, State::PreAlign { .. }) {
+            offset_um = Some(rig.ctrl.status().pos_um as f64 - rig.axis.pos_um());
+        }
+        if poll.sampled {
+            let depth = rig.ctrl.status().pos_um - engage_um;
+            match before {
+                State::Inserting { .. } => {
+                    ins_first.get_or_insert(depth);
+                    ins_last = depth;
+                }
+                State::Extracting { .. } => ext_last = depth,
+                _ => {}
+            }
+        }
+        if insertion_q1.is_none() && matches!(now, State::Holding { .. }) {
+            insertion_q1 = Some(rig.ctrl.odometer().pending_q1());
+        }
+    });
+    let total_q1 = rig.ctrl.odometer().last_cycle_q1();
+    let insertion_q1 = insertion_q1.unwrap_or(0);
+    StrokeMeasurement {
+        rate_sps,
+        insertion_q1,
+        extraction_q1: total_q1.saturating_sub(insertion_q1),
+        position_offset_um: offset_um.unwrap_or(0.0),
+        insertion_span_um: (ins_first.unwrap_or(0), ins_last),
+        extraction_span_um: (ins_last, ext_last),
+    }
+}
+
+/// Insertion and extraction load–distance of one closed-loop cycle at `rate_sps`, N·mm.
+pub fn stroke_integrals(rate_sps: u32) -> (f64, f64) {
+    let m = measure_strokes(rate_sps);
+    (m.insertion_n_mm(), m.extraction_n_mm())
+}
+
+/// Wall time per simulated docking cycle at `rate_sps`: `cycles` closed-loop cycles of a
+/// fresh rig with the load cell's default noise (boot and homing included), s.
+pub fn wall_s_per_cycle(rate_sps: u32, cycles: u32) -> f64 {
+    let cycles = cycles.max(1);
+    let started = Instant::now();
+    let mut rig = Rig::new(RigOptions::new(rate_sps));
+    drive(&mut rig, cycles, |_, _, _| {});
+    started.elapsed().as_secs_f64() / cycles as f64
+}
+
+/// Load–distance of the first cycle of a fresh rig at `rate_sps` with the load cell's
+/// default noise (≈ 0.3 N RMS, seed 1), Q63.1 mN·µm.
+pub fn noisy_cycle_q1(rate_sps: u32) -> u64 {
+    let mut rig = Rig::new(RigOptions::new(rate_sps));
+    drive(&mut rig, 1, |_, _, _| {});
+    rig.ctrl.odometer().last_cycle_q1()
+}
+
+/// xorshift64 (Marsaglia's 13/7/17), enough for a reproducible perturbation.
+#[derive(Clone, Debug)]
+struct XorShift64(u64);
+
+impl XorShift64 {
+    fn next(&mut self) -> u64 {
+        let mut x = self.0;
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        self.0 = x;
+        x
+    }
+}
+
+/// The per-cycle load–distances of the comparison: `base_q1 × (1 + u)`, `u` uniform on
+/// ±[`PERTURB_PPM`] in whole ppm, from [`PERTURB_SEED`]; rounded down to Q63.1 integers.
+pub fn perturbed_cycles(base_q1: u64) -> impl Iterator<Item = u64> {
+    let mut rng = XorShift64(PERTURB_SEED | 1);
+    std::iter::repeat_with(move || {
+        let ppm = 1_000_000 - PERTURB_PPM + rng.next() % (2 * PERTURB_PPM + 1);
+        (base_q1 as u128 * ppm as u128 / 1_000_000) as u64
+    })
+}
+
+/// Eq. 17 reduced-order constants in `f64` (mm).
+const A_MM: f64 = 0.01372;
+const B: f64 = 0.3813;
+const C_MM: f64 = 0.01774;
+
+/// `m0 = (c/a)^(1/b)` in `f64`.
+pub fn m0_f64() -> f64 {
+    (C_MM / A_MM).powf(1.0 / B)
+}
+
+/// Depth after `e` equivalent nominal cycles, `f64` reference, nm.
+pub fn depth_f64_nm(e: f64) -> f64 {
+    (A_MM * (e + m0_f64()).powf(B) - C_MM) * 1e6
+}
+
+/// Equivalent cycles at which the depth reaches `limit_nm`, `f64` reference.
+pub fn e_limit_f64(limit_nm: u32) -> f64 {
+    ((limit_nm as f64 / 1e6 + C_MM) / A_MM).powf(1.0 / B) - m0_f64()
+}
+
+/// The fixed-point odometer against an `f64` reference after `cycles` cycles (ZQSn5-2).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FixedReport {
+    /// Cycles accumulated.
+    pub cycles: u32,
+    /// Unperturbed per-cycle load–distance, Q63.1 mN·µm.
+    pub base_q1: u64,
+    /// Sum of the perturbed load–distances (the odometer's `u64` saturating sum), Q63.1.
+    pub sum_q1: u64,
+    /// Equivalent nominal cycles, fixed point (Q32.32 as a number).
+    pub e_fixed: f64,
+    /// Equivalent nominal cycles, `f64` (`Σ W_i / W_NOM_Q1`).
+    pub e_f64: f64,
+    /// Depth, fixed point (`depth_nm`), nm.
+    pub depth_fixed_nm: u32,
+    /// Depth, `f64` (`a·(E + m0)^b − c` with `powf`), nm.
+    pub depth_f64_nm: f64,
+    /// Remaining life as the odometer computes it (nominal cycles, floor), `None` past
+    /// the 0.8 mm limit.
+    pub remaining_fixed: Option<u32>,
+    /// Remaining life in `f64` (`E_limit − E`), `None` past the limit.
+    pub remaining_f64: Option<f64>,
+}
+
+impl FixedReport {
+    /// `E` fixed − `f64`, relative to `f64`.
+    pub fn e_rel_diff(&self) -> f64 {
+        (self.e_fixed - self.e_f64) / self.e_f64
+    }
+
+    /// Depth fixed − `f64`, nm.
+    pub fn depth_abs_diff_nm(&self) -> f64 {
+        self.depth_fixed_nm as f64 - self.depth_f64_nm
+    }
+
+    /// Depth fixed − `f64`, relative to `f64`.
+    pub fn depth_rel_diff(&self) -> f64 {
+        self.depth_abs_diff_nm() / self.depth_f64_nm
+    }
+
+    /// Remaining life fixed − `f64`, cycles (both within the life only).
+    pub fn remaining_diff(&self) -> Option<f64> {
+        Some(self.remaining_fixed? as f64 - self.remaining_f64?)
+    }
+
+    fn to_json(self) -> String {
+        let opt = |v: Option<f64>| v.map_or("null".to_string(), |x| format!("{x}"));
+        format!(
+            "{{\"cycles\":{},\"base_q1\":{},\"sum_q1\":{},\"e_fixed\":{},\"e_f64\":{},\"e_rel_diff\":{:e},\"depth_fixed_nm\":{},\"depth_f64_nm\":{},\"depth_abs_diff_nm\":{},\"depth_rel_diff\":{:e},\"remaining_fixed\":{},\"remaining_f64\":{},\"remaining_diff\":{}}}",
+            self.cycles,
+            self.base_q1,
+            self.sum_q1,
+            self.e_fixed,
+            self.e_f64,
+            self.e_rel_diff(),
+            self.depth_fixed_nm,
+            self.depth_f64_nm,
+            self.depth_abs_diff_nm(),
+            self.depth_rel_diff(),
+            opt(self.remaining_fixed.map(f64::from)),
+            opt(self.remaining_f64),
+            opt(self.remaining_diff()),
+        )
+    }
+}
+
+/// Accumulate `cycles` perturbed copies of `base_q1` both ways (ZQSn5-2, 0.8 mm limit):
+/// (a) as the odometer does — `u64` saturating sum, [`equivalent_cycles_q32`],
+/// [`depth_nm`], remaining `(E_limit − E) / k`; (b) in `f64` — `E += W_i / W_NOM_Q1`,
+/// `h = a·(E + m0)^b − c` with `powf`.
+pub fn fixed_vs_f64_from(base_q1: u64, cycles: u32) -> FixedReport {
+    let material = Material::ZQSn5_2;
+    let limit_nm = WearConfig::DEFAULT.limit_nm;
+    let mut sum_q1 = 0u64;
+    let mut e_f64 = 0.0f64;
+    for w in perturbed_cycles(base_q1).take(cycles as usize) {
+        sum_q1 = sum_q1.saturating_add(w);
+        e_f64 += w as f64 / W_NOM_Q1 as f64;
+    }
+    let e_q32 = equivalent_cycles_q32(sum_q1, material);
+    let e_limit_q32 = e_at_depth_q32(limit_nm);
+    let k = wear_factor_q32(material).max(1) as u128;
+    let remaining_fixed = (e_q32 < e_limit_q32)
+        .then(|| ((e_limit_q32 - e_q32) as u128 / k).min(u32::MAX as u128) as u32);
+    let e_limit = e_limit_f64(limit_nm);
+    FixedReport {
+        cycles,
+        base_q1,
+        sum_q1,
+        e_fixed: e_q32 as f64 / 4_294_967_296.0,
+        e_f64,
+        depth_fixed_nm: depth_nm(e_q32),
+        depth_f64_nm: depth_f64_nm(e_f64),
+        remaining_fixed,
+        remaining_f64: (e_f64 < e_limit).then_some(e_limit - e_f64),
+    }
+}
+
+/// [`fixed_vs_f64_from`] with the load–distance of a noisy closed-loop cycle at
+/// [`REFERENCE_RATE_SPS`] ([`noisy_cycle_q1`]).
+pub fn fixed_vs_f64(cycles: u32) -> FixedReport {
+    fixed_vs_f64_from(noisy_cycle_q1(REFERENCE_RATE_SPS), cycles)
+}
+
+/// One row of the rate table.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RateRow {
+    /// The two strokes of one dithered cycle.
+    pub strokes: StrokeMeasurement,
+    /// Cycles timed.
+    pub timing_cycles: u32,
+    /// Wall time per simulated cycle (default noise), s.
+    pub wall_s_per_cycle: f64,
+}
+
+/// Everything `hil-sim accuracy` reports.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AccuracyReport {
+    /// One row per rate of [`RATES_SPS`].
+    pub rows: Vec<RateRow>,
+    /// Fixed point vs `f64`, one per [`FIXED_CYCLES`].
+    pub fixed: Vec<FixedReport>,
+}
+
+/// Run everything: per-rate stroke errors and wall time, then the fixed-point
+/// comparison (a few seconds in release, dominated by the 1280 SPS timing run).
+pub fn run() -> AccuracyReport {
+    let rows = RATES_SPS
+        .iter()
+        .map(|&rate| {
+            let n = timing_cycles(rate);
+            RateRow {
+                strokes: measure_strokes(rate),
+                timing_cycles: n,
+                wall_s_per_cycle: wall_s_per_cycle(rate, n),
+            }
+        })
+        .collect();
+    let base_q1 = noisy_cycle_q1(REFERENCE_RATE_SPS);
+    let fixed = FIXED_CYCLES
+        .iter()
+        .map(|&n| fixed_vs_f64_from(base_q1, n))
+        .collect();
+    AccuracyReport { rows, fixed }
+}
+
+impl AccuracyReport {
+    /// One JSON object on one line.
+    pub fn to_json(&self) -> String {
+        let rows: Vec<String> = self
+            .rows
+            .iter()
+            .map(|r| {
+                let s = &r.strokes;
+                format!(
+                    "{{\"rate_sps\":{},\"insertion_n_mm\":{},\"insertion_err_pct\":{},\"extraction_n_mm\":{},\"extraction_err_pct\":{},\"position_offset_um\":{},\"insertion_span_um\":[{},{}],\"extraction_span_um\":[{},{}],\"timing_cycles\":{},\"wall_ms_per_cycle\":{}}}",
+                    s.rate_sps,
+                    s.insertion_n_mm(),
+                    s.insertion_err_pct(),
+                    s.extraction_n_mm(),
+                    s.extraction_err_pct(),
+                    s.position_offset_um,
+                    s.insertion_span_um.0,
+                    s.insertion_span_um.1,
+                    s.extraction_span_um.0,
+                    s.extraction_span_um.1,
+                    r.timing_cycles,
+                    r.wall_s_per_cycle * 1e3
+                )
+            })
+            .collect();
+        let fixed: Vec<String> = self.fixed.iter().map(|f| f.to_json()).collect();
+        format!(
+            "{{\"exact_stroke_n_mm\":{},\"dither_counts\":{},\"rates\":[{}],\"fixed\":{{\"material\":\"{}\",\"reference_rate_sps\":{},\"perturb_ppm\":{},\"seed\":{},\"runs\":[{}]}}}}",
+            EXACT_STROKE_N_MM,
+            DITHER_COUNTS,
+            rows.join(","),
+            Material::ZQSn5_2.name(),
+            REFERENCE_RATE_SPS,
+            PERTURB_PPM,
+            PERTURB_SEED,
+            fixed.join(",")
+        )
+    }
+
+    /// Tables for a terminal.
+    pub fn to_text(&self) -> String {
+        let mut s = format!(
+            "# per-stroke load-distance vs the exact {EXACT_STROKE_N_MM:.4} N·mm (closed loop, 1st cycle, load cell dithered {DITHER_COUNTS} count RMS)\n"
+        );
+        s += "rate_sps | insertion N·mm |    err % | extraction N·mm |    err % | wall ms/cycle\n";
+        for r in &self.rows {
+            let m = &r.strokes;
+            s += &format!(
+                "{:>8} | {:>14.4} | {:>+8.4} | {:>15.4} | {:>+8.4} | {:>13.3}\n",
+                m.rate_sps,
+                m.insertion_n_mm(),
+                m.insertion_err_pct(),
+                m.extraction_n_mm(),
+                m.extraction_err_pct(),
+                r.wall_s_per_cycle * 1e3
+            );
+        }
+        s += "# counted depth of each stroke's first/last sample, µm, and counted-minus-true position (homing overshoot)\n";
+        for r in &self.rows {
+            let m = &r.strokes;
+            s += &format!(
+                "#   {:>4} SPS: insertion {} → {}, extraction {} → {}, offset {} µm; wall time over {} cycles (default noise)\n",
+                m.rate_sps,
+                m.insertion_span_um.0,
+                m.insertion_span_um.1,
+                m.extraction_span_um.0,
+                m.extraction_span_um.1,
+                m.position_offset_um,
+                r.timing_cycles
+            );
+        }
+        if let Some(f) = self.fixed.first() {
+            s += &format!(
+                "# fixed-point odometer vs f64 ({}): W_i = {:.4} N·mm ({} SPS noisy cycle) × (1 ± {} %), xorshift seed {:#x}\n",
+                Material::ZQSn5_2.name(),
+                q1_to_n_mm(f.base_q1),
+                REFERENCE_RATE_SPS,
+                PERTURB_PPM as f64 / 1e4,
+                PERTURB_SEED
+            );
+        }
+        s += "  cycles |        E fixed |          E f64 | E rel diff | depth fixed nm |   depth f64 nm | diff nm |  rel diff | remaining fixed / f64\n";
+        for f in &self.fixed {
+            let remaining = match (f.remaining_fixed, f.remaining_f64) {
+                (Some(a), Some(b)) => format!("{a} / {b:.3} (diff {:+.3})", a as f64 - b),
+                _ => "past the 0.8 mm limit".to_string(),
+            };
+            s += &format!(
+                "{:>8} | {:>14.6} | {:>14.6} | {:>+10.2e} | {:>14} | {:>14.3} | {:>+7.3} | {:>+9.2e} | {}\n",
+                f.cycles,
+                f.e_fixed,
+                f.e_f64,
+                f.e_rel_diff(),
+                f.depth_fixed_nm,
+                f.depth_f64_nm,
+                f.depth_abs_diff_nm(),
+                f.depth_rel_diff(),
+                remaining
+            );
+        }
+        s
+    }
+}
