@@ -25,13 +25,18 @@ use cortex_m::interrupt::Mutex;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::{entry, exception, ExceptionFrame};
 use defmt_rtt as _;
+use docking_controller::console::service::Console;
 use docking_controller::controller::{Bsp, Controller, ControllerConfig, Parts};
-use docking_controller::hal::{Monotonic, StepPulses, Watchdog};
+use docking_controller::hal::{ConsoleIo, Monotonic, StepPulses, Watchdog};
 use docking_controller::hx711::{Calibration, Gain, Hx711};
+use embedded_hal_nb::serial::{Read as _, Write as _};
 use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };
+use heapless::Deque;
 use stm32f4xx_hal::flash::{FlashExt, LockedFlash};
+use stm32f4xx_hal::interrupt;
+use stm32f4xx_hal::serial::{config::Config as SerialConfig, Rx, RxListen, Tx};
 use stm32f4xx_hal::{
     gpio::{Input, Output, PinState, PB0, PB1, PC0, PC1, PC2, PC3, PD12, PD13, PE10, PE11, PE9},
     pac,
@@ -264,6 +269,95 @@ impl NorFlash for OdometerFlash {
     }
 }
 
+// --- Console: USART2, 115200 8N1, PA2 (TX) / PA3 (RX) ------------------------------
+
+/// Receive ring filled by the USART2 interrupt (bytes beyond it are lost: an overrun).
+static RX_RING: Mutex<RefCell<Deque<u8, 256>>> = Mutex::new(RefCell::new(Deque::new()));
+/// The receiver, owned by the interrupt.
+static CONSOLE_RX: Mutex<RefCell<Option<Rx<pac::USART2>>>> = Mutex::new(RefCell::new(None));
+/// Receive errors (framing, noise, overrun) and ring overruns.
+static RX_ERRORS: AtomicU32 = AtomicU32::new(0);
+
+#[interrupt]
+fn USART2() {
+    cortex_m::interrupt::free(|cs| {
+        let mut rx = CONSOLE_RX.borrow(cs).borrow_mut();
+        let Some(rx) = rx.as_mut() else { return };
+        let mut ring = RX_RING.borrow(cs).borrow_mut();
+        match rx.read() {
+            Ok(b) => {
+                if ring.push_back(b).is_err() {
+                    RX_ERRORS.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            Err(nb::Error::WouldBlock) => {}
+            Err(nb::Error::Other(_)) => {
+                RX_ERRORS.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    });
+}
+
+/// The console's byte stream: RX from the interrupt's ring, TX through a ring pumped
+/// from the main loop (never blocks the control loop).
+pub struct BoardConsole {
+    tx: Tx<pac::USART2>,
+    out: Deque<u8, 1024>,
+}
+
+impl BoardConsole {
+    /// Move queued bytes into the transmitter while it has room.
+    pub fn pump(&mut self) {
+        while let Some(&b) = self.out.front() {
+            if self.tx.write(b).is_err() {
+                break;
+            }
+            self.out.pop_front();
+        }
+    }
+}
+
+impl ConsoleIo for BoardConsole {
+    fn read_byte(&mut self) -> nb::Result<u8, ()> {
+        cortex_m::interrupt::free(|cs| RX_RING.borrow(cs).borrow_mut().pop_front())
+            .ok_or(nb::Error::WouldBlock)
+    }
+
+    fn write(&mut self, bytes: &[u8]) -> usize {
+        let mut n = 0;
+        for &b in bytes {
+            if self.out.push_back(b).is_err() {
+                break;
+            }
+            n += 1;
+        }
+        self.pump();
+        n
+    }
+}
+
+/// Seed for PIN salts: the chip's 96-bit unique ID and the cycle counter at boot.
+fn entropy() -> [u8; 32] {
+    let uid = stm32f4xx_hal::signature::Uid::get();
+    let mut e = [0u8; 32];
+    let parts: [&[u8]; 4] = [
+        &uid.x().to_le_bytes(),
+        &uid.y().to_le_bytes(),
+        uid.lot_num().as_bytes(),
+        &cortex_m::peripheral::DWT::cycle_count().to_le_bytes(),
+    ];
+    let mut at = 0;
+    for p in parts {
+        for &b in p {
+            if let Some(slot) = e.get_mut(at) {
+                *slot = b;
+            }
+            at += 1;
+        }
+    }
+    e
+}
+
 /// The board's parts for the controller.
 pub struct Board;
 
@@ -318,6 +412,7 @@ fn main() -> ! {
     let released = gpioc.pc3.into_pull_up_input();
     let hx_dout = gpiob.pb0.into_pull_up_input();
     let hx_sck = gpiob.pb1.into_push_pull_output_in_state(PinState::Low);
+    let gpioa = dp.GPIOA.split(&mut rcc);
 
     cortex_m::interrupt::free(|cs| {
         STEP_GEN.borrow(cs).replace(Some(StepGen {
@@ -366,6 +461,26 @@ fn main() -> ! {
         wdg,
     };
     let cfg = ControllerConfig::new(SAMPLE_RATE_SPS, DEFAULT_CALIBRATION);
+    // Console on USART2; a console that cannot start leaves the controller running.
+    let mut term = match dp.USART2.serial(
+        (gpioa.pa2, gpioa.pa3),
+        SerialConfig::default().baudrate(115_200.bps()),
+        &mut rcc,
+    ) {
+        Ok(serial) => {
+            let (tx, mut rx) = serial.split();
+            rx.listen();
+            cortex_m::interrupt::free(|cs| CONSOLE_RX.borrow(cs).replace(Some(rx)));
+            // SAFETY: the handler only touches statics behind critical sections.
+            unsafe { cortex_m::peripheral::NVIC::unmask(pac::Interrupt::USART2) };
+            Some(BoardConsole {
+                tx,
+                out: Deque::new(),
+            })
+        }
+        Err(_) => None,
+    };
+    let mut console = Console::new(entropy());
     let Ok(mut ctrl) = Controller::new(parts, cfg, clock.now_us()) else {
         halt_safe()
     };
@@ -378,6 +493,11 @@ fn main() -> ! {
     loop {
         let now_us = clock.now_us();
         let _ = ctrl.poll(now_us);
+        if let Some(t) = term.as_mut() {
+            // After the control step: bounded work, see console::service.
+            let _ = console.poll(&mut ctrl, t, now_us / 1_000);
+            t.pump();
+        }
         while let Some(ev) = ctrl.next_event() {
             defmt::info!("t={=u64} ms {}", ev.t_ms, ev.event);
         }
