@@ -102,14 +102,16 @@ impl Default for WearConfig {
 
 /// Equivalent nominal cycles (Q32.32) at which the depth reaches `depth_nm`.
 pub const fn e_at_depth_q32(depth_nm: u32) -> u64 {
-    let x = ((depth_nm as u64 + C_NM) << 32) / A_NM;
+    // In u128: (depth + c) << 32 overflows u64 for depths near u32::MAX.
+    let x = (((depth_nm as u128 + C_NM as u128) << 32) / A_NM as u128) as u64;
     pow_q32(x, INV_B_Q32).saturating_sub(M0_Q32)
 }
 
 /// Depth (nm) after `e_q32` equivalent nominal cycles.
 pub const fn depth_nm(e_q32: u64) -> u32 {
     let p = pow_q32(e_q32.saturating_add(M0_Q32), B_Q32);
-    let h = ((A_NM as u128 * p as u128) >> 32) as u64;
+    // Rounded to the nearest nm (so the depth read at `e_at_depth_q32(d)` is `d`).
+    let h = ((A_NM as u128 * p as u128 + (1 << 31)) >> 32) as u64;
     let d = h.saturating_sub(C_NM);
     if d > u32::MAX as u64 {
         u32::MAX
@@ -618,6 +620,17 @@ mod tests {
         c.w_q1 = W_NOM_Q1 * n as u64;
         c.cycles = n;
         Odometer::new(WearConfig::DEFAULT, c, Lifetime::default())
+    }
+
+    #[test]
+    fn depth_at_the_limit_reads_the_limit() {
+        for d in [640_000, 800_000, 10_000, 5_000_000] {
+            assert_eq!(depth_nm(e_at_depth_q32(d)), d);
+        }
+        assert!(
+            e_at_depth_q32(u32::MAX) > e_at_depth_q32(5_000_000),
+            "no overflow at the top"
+        );
     }
 
     #[test]
