@@ -16,7 +16,7 @@ impl std::fmt::Display for UsageError {
 }
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate SPS] [--seed S] [--json] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--json] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json]";
+pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate SPS] [--seed S] [--json] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--json] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS]";
 
 /// Parse `--rate` as one of the HX711 rates.
 fn hx_rate(o: &Opts) -> Result<u32, UsageError> {
@@ -132,6 +132,30 @@ fn accuracy(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
     };
     let _ = writeln!(out, "{text}");
     Ok(())
+}
+
+fn serve(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
+    let o = Opts::parse(args, &["tcp", "scene", "speed", "rate", "for"], &["pty"])?;
+    let link = match (o.flag("pty"), o.get("tcp")) {
+        (true, Some(_)) => return err("give --pty or --tcp, not both"),
+        (_, Some(a)) => crate::serve::Link::Tcp(a.parse().map_err(|_| {
+            UsageError(format!(
+                "--tcp must be an address like 127.0.0.1:7000, got '{a}'"
+            ))
+        })?),
+        _ => crate::serve::Link::Pty,
+    };
+    let opts = crate::serve::ServeOptions {
+        link,
+        scene: o.get("scene").unwrap_or("nominal").to_string(),
+        speed: o.num("speed", 1.0f64, 1e-3, 1e4)?,
+        rate_sps: hx_rate(&o)?,
+        duration_s: match o.get("for") {
+            None => None,
+            Some(_) => Some(o.num("for", 0.0f64, 0.0, 1e7)?),
+        },
+    };
+    crate::serve::run(&opts, out).map_err(UsageError)
 }
 
 fn bench(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
@@ -268,6 +292,7 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         "life" => life(rest, out),
         "endurance" => endurance(rest, out),
         "accuracy" => accuracy(rest, out),
+        "serve" => serve(rest, out),
         "help" | "--help" | "-h" => {
             let _ = writeln!(out, "{USAGE}");
             Ok(())

@@ -30,3 +30,4 @@ pub mod profile_cmd;
 pub mod rig;
 pub mod rng;
 pub mod scene;
+pub mod serve;

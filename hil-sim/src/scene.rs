@@ -15,7 +15,7 @@
 
 use std::time::Instant;
 
-use docking_controller::controller::Event;
+use docking_controller::controller::{Event, Status};
 use docking_controller::profile::ContactPhase;
 use docking_controller::sequencer::{Request, SeqEvent, State, BACK_OFF_UM};
 
@@ -107,6 +107,96 @@ pub struct SceneReport {
     pub watchdog_bit: bool,
 }
 
+/// Sets up a scene's disturbance and injects it when its moment comes (shared by the
+/// batch runner and `hil-sim serve`).
+#[derive(Clone, Debug)]
+pub struct SceneDriver {
+    name: &'static str,
+    /// The disturbance comes in this cycle (1-based).
+    in_cycle: u32,
+    injected: bool,
+}
+
+impl SceneDriver {
+    /// A driver for scene `name` whose disturbance comes in cycle `in_cycle`.
+    pub fn new(name: &str, in_cycle: u32) -> Result<Self, String> {
+        let Some(&name) = SCENES.iter().find(|&&s| s == name) else {
+            return Err(format!(
+                "unknown scene '{name}' (scenes: {})",
+                SCENES.join(", ")
+            ));
+        };
+        Ok(Self {
+            name,
+            in_cycle: in_cycle.max(1),
+            injected: false,
+        })
+    }
+
+    /// Prepare the rig before the first tick (spike schedule, shifted bridge); returns
+    /// the spikes scheduled. `horizon_cycles` bounds the spike schedule.
+    pub fn setup(&self, rig: &mut Rig, seed: u64, rate_sps: u32, horizon_cycles: u32) -> u32 {
+        match self.name {
+            "spike" => {
+                // Isolated spikes: about every 40 samples, never two within 3 samples.
+                let mut rng = Rng::new(seed ^ 0x5eed);
+                let total = (horizon_cycles as f64 * 75.0 * rate_sps as f64) as u64;
+                let mut at = Vec::new();
+                let mut n = 20u64;
+                while n < total {
+                    n += 4 + (rng.uniform() * 70.0) as u64;
+                    at.push(n);
+                }
+                let count = at.len() as u32;
+                let mut s = rig.script.borrow_mut();
+                s.spikes_at = at;
+                s.spike_n = 350.0;
+                count
+            }
+            "bad-tare" => {
+                rig.script.borrow_mut().offset_n = 50.0;
+                0
+            }
+            _ => 0,
+        }
+    }
+
+    /// Inject the disturbance if this is its moment.
+    pub fn on_tick(&mut self, rig: &mut Rig, st: &Status) {
+        if self.injected {
+            return;
+        }
+        let depth = st.pos_um - rig.ctrl.config().machine.engage_um;
+        let in_cycle = st.cycles_completed + 1 >= self.in_cycle;
+        let inserting = matches!(st.state, State::Inserting { .. });
+        self.injected = match self.name {
+            "overload" if in_cycle && inserting => {
+                let mut s = rig.script.borrow_mut();
+                s.jam_from_um = Some(10_000.0);
+                s.jam_n_per_mm = 60.0;
+                true
+            }
+            "disconnect" | "saturation" | "stuck" if in_cycle && inserting && depth >= 5_000 => {
+                rig.hx.set_fault(match self.name {
+                    "disconnect" => Hx711Fault::Disconnected,
+                    "saturation" => Hx711Fault::Saturated,
+                    _ => Hx711Fault::Stuck,
+                });
+                true
+            }
+            "stall" if in_cycle && matches!(st.state, State::Returning { .. }) => {
+                rig.axis.set_fault(AxisFault::Stalled);
+                true
+            }
+            "lock-stuck" if in_cycle && matches!(st.state, State::PreAlign { .. }) => {
+                rig.lock.set_fault(LockFault::Stuck);
+                true
+            }
+            _ => false,
+        };
+    }
+}
+
 /// A scene run while the console is flooded.
 #[derive(Clone, Debug)]
 pub struct FloodReport {
@@ -160,12 +250,7 @@ fn run_inner(
     opts: SceneOptions,
     each_tick: &mut dyn FnMut(&mut Rig, &mut Rng),
 ) -> Result<SceneReport, String> {
-    if !SCENES.contains(&name) {
-        return Err(format!(
-            "unknown scene '{name}' (scenes: {})",
-            SCENES.join(", ")
-        ));
-    }
+    let mut driver = SceneDriver::new(name, opts.cycles.max(1))?;
     let started = Instant::now();
     let mut rig = Rig::new(RigOptions {
         seed: opts.seed,
@@ -173,32 +258,11 @@ fn run_inner(
         ..RigOptions::new(opts.rate_sps)
     });
     let cycles = opts.cycles.max(1);
-    let engage = rig.ctrl.config().machine.engage_um;
     let period_s = 1.0 / opts.rate_sps as f64;
-    let mut spikes_injected = 0u32;
-
-    if name == "spike" {
-        // Isolated spikes: about every 40 samples, never two within 3 samples.
-        let mut rng = Rng::new(opts.seed ^ 0x5eed);
-        let total = (cycles as f64 * 75.0 * opts.rate_sps as f64) as u64;
-        let mut at = Vec::new();
-        let mut n = 20u64;
-        while n < total {
-            n += 4 + (rng.uniform() * 70.0) as u64;
-            at.push(n);
-        }
-        spikes_injected = at.len() as u32;
-        let mut s = rig.script.borrow_mut();
-        s.spikes_at = at;
-        s.spike_n = 350.0;
-    }
-    if name == "bad-tare" {
-        rig.script.borrow_mut().offset_n = 50.0;
-    }
+    let spikes_injected = driver.setup(&mut rig, opts.seed, opts.rate_sps, cycles);
 
     let mut insertion_phases: Vec<Vec<u8>> = Vec::new();
     let mut faults = Vec::new();
-    let mut injected = false;
     let mut episode_start_ns: Option<u64> = None;
     let mut stop_latency_s = None;
     let mut trip_pos_um: Option<f64> = None;
@@ -256,36 +320,7 @@ fn run_inner(
         }
 
         // Disturbances.
-        let depth = st.pos_um - engage;
-        let last_cycle = st.cycles_completed + 1 >= cycles;
-        if !injected {
-            let inserting = matches!(st.state, State::Inserting { .. });
-            match name {
-                "overload" if last_cycle && inserting => {
-                    let mut s = rig.script.borrow_mut();
-                    s.jam_from_um = Some(10_000.0);
-                    s.jam_n_per_mm = 60.0;
-                    injected = true;
-                }
-                "disconnect" | "saturation" | "stuck" if inserting && depth >= 5_000 => {
-                    rig.hx.set_fault(match name {
-                        "disconnect" => Hx711Fault::Disconnected,
-                        "saturation" => Hx711Fault::Saturated,
-                        _ => Hx711Fault::Stuck,
-                    });
-                    injected = true;
-                }
-                "stall" if matches!(st.state, State::Returning { .. }) => {
-                    rig.axis.set_fault(AxisFault::Stalled);
-                    injected = true;
-                }
-                "lock-stuck" if matches!(st.state, State::PreAlign { .. }) => {
-                    rig.lock.set_fault(LockFault::Stuck);
-                    injected = true;
-                }
-                _ => {}
-            }
-        }
+        driver.on_tick(&mut rig, &st);
 
         // Drive the machine: start cycles while there are cycles to run.
         if st.state == State::Idle && st.cycles_completed < cycles {

@@ -81,7 +81,11 @@ fn stroke_error_does_not_grow_with_rate() {
     let last = &rows[rows.len() - 1];
     // Which stroke takes the jump errors depends on the sampling phase: compare each
     // rate's worse stroke.
-    let worst = |m: &hil_sim::accuracy::StrokeMeasurement| m.insertion_err_pct().abs().max(m.extraction_err_pct().abs());
+    let worst = |m: &hil_sim::accuracy::StrokeMeasurement| {
+        m.insertion_err_pct()
+            .abs()
+            .max(m.extraction_err_pct().abs())
+    };
     assert!(worst(first) > 10.0 * worst(last), "{}", table.join("\n"));
     assert!(last.insertion_err_pct().abs() < tol && last.extraction_err_pct().abs() < tol);
 }

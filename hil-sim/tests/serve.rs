@@ -1,0 +1,157 @@
+//! `hil-sim serve`: a technician's terminal on the live simulator, through a real
+//! pseudo-terminal (as picocom would open it) and through loopback TCP.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+struct Server(Child);
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Start the server; return it and its first stdout line.
+fn serve(args: &[&str]) -> (Server, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hil-sim"))
+        .arg("serve")
+        .args(args)
+        .args(["--for", "60"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    (Server(child), first.trim().to_string())
+}
+
+/// A terminal: a reader thread feeding a channel, so reads can time out.
+struct Terminal<W: Write> {
+    tx: W,
+    rx: mpsc::Receiver<u8>,
+}
+
+impl<W: Write> Terminal<W> {
+    fn new<R: Read + Send + 'static>(reader: R, writer: W) -> Self {
+        let (send, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            for b in reader.bytes() {
+                match b {
+                    Ok(b) => {
+                        if send.send(b).is_err() {
+                            break;
+                        }
+                    }
+                    Err(_) => break,
+                }
+            }
+        });
+        Self { tx: writer, rx }
+    }
+
+    /// Type a command, return the reply's first line (without CR LF).
+    fn ask(&mut self, cmd: &str) -> String {
+        self.tx.write_all(cmd.as_bytes()).unwrap();
+        self.tx.write_all(b"\r\n").unwrap();
+        self.tx.flush().unwrap();
+        let deadline = Instant::now() + Duration::from_secs(10);
+        let mut line = Vec::new();
+        while !line.ends_with(b"\r\n") {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.rx.recv_timeout(left) {
+                Ok(b) => line.push(b),
+                Err(_) => panic!(
+                    "no reply to {cmd:?}; got {:?}",
+                    String::from_utf8_lossy(&line)
+                ),
+            }
+        }
+        line.truncate(line.len() - 2);
+        String::from_utf8(line).unwrap()
+    }
+}
+
+fn check_wear(term: &mut Terminal<impl Write>) {
+    let text = term.ask("wear");
+    assert!(
+        text.starts_with("cone=1 material=zqsn5-2 serial= cycles="),
+        "{text}"
+    );
+    assert!(
+        text.contains(" remaining_cycles=") && text.contains(" level=ok "),
+        "{text}"
+    );
+    let json = term.ask("wear --json");
+    assert!(
+        json.starts_with("{\"cone\":1,\"material\":\"zqsn5-2\""),
+        "{json}"
+    );
+    assert!(
+        json.ends_with('}')
+            && json.contains("\"remaining_cycles\":")
+            && json.contains("\"wear_mm\":"),
+        "{json}"
+    );
+    let err = term.ask("wear --xml");
+    assert!(err.starts_with("error: "), "{err}");
+}
+
+#[test]
+fn a_serial_client_reads_wear_through_a_real_pty() {
+    let (_server, path) = serve(&["--pty", "--speed", "20"]);
+    assert!(
+        path.starts_with("/dev/pts/"),
+        "first line is the pty path: {path:?}"
+    );
+    let port = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(&path)
+        .unwrap();
+    let reader = port.try_clone().unwrap();
+    let mut term = Terminal::new(reader, port);
+    check_wear(&mut term);
+    let status = term.ask("status");
+    assert!(status.starts_with("state="), "{status}");
+}
+
+#[test]
+fn a_script_reads_wear_over_loopback_tcp() {
+    let (_server, addr) = serve(&["--tcp", "127.0.0.1:0", "--speed", "20"]);
+    assert!(
+        addr.starts_with("127.0.0.1:"),
+        "first line is the bound address: {addr:?}"
+    );
+    let stream = std::net::TcpStream::connect(&addr).unwrap();
+    let reader = stream.try_clone().unwrap();
+    let mut term = Terminal::new(reader, stream);
+    check_wear(&mut term);
+}
+
+#[test]
+fn serve_refuses_bad_arguments() {
+    for args in [
+        &["serve", "--tcp", "10.0.0.1:7000"][..],
+        &["serve", "--tcp", "nonsense"],
+        &["serve", "--pty", "--tcp", "127.0.0.1:0"],
+        &["serve", "--scene", "meltdown"],
+        &["serve", "--speed", "0"],
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_hil-sim"))
+            .args(args)
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(2), "{args:?}");
+        assert_eq!(
+            String::from_utf8_lossy(&out.stderr).lines().count(),
+            1,
+            "{args:?}"
+        );
+    }
+}
