@@ -41,7 +41,7 @@ impl<W: Write> Terminal<W> {
     fn new<R: Read + Send + 'static>(reader: R, writer: W) -> Self {
         let (send, rx) = mpsc::channel();
         std::thread::spawn(move || {
-            for b in reader.bytes() {
+            for b in BufReader::new(reader).bytes() {
                 match b {
                     Ok(b) => {
                         if send.send(b).is_err() {
