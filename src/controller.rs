@@ -573,7 +573,7 @@ impl<B: Bsp> Controller<B> {
                 fault = fault.or(Some(sensor_fault(sf)));
             }
             self.limit_mn = self.guard.limit_mn(guard_depth_um);
-            match self.guard.check(self.force_mn, guard_depth_um) {
+            match self.guard.check_against(self.force_mn, self.limit_mn) {
                 Verdict::Trip { .. } => {
                     // Stop now, in this step; the sequencer then backs off under control.
                     let _ = self.prop.disable();

@@ -190,7 +190,11 @@ impl OverloadGuard {
 
     /// Judge one sample of `force_mn` at `depth_um`.
     pub fn check(&mut self, force_mn: i32, depth_um: Option<i32>) -> Verdict {
-        let limit = self.limit_mn(depth_um);
+        self.check_against(force_mn, self.limit_mn(depth_um))
+    }
+
+    /// Judge one sample of `force_mn` against `limit` (from [`Self::limit_mn`]).
+    pub fn check_against(&mut self, force_mn: i32, limit: i32) -> Verdict {
         let over = force_mn > limit;
         let plausible = self.prev_over
             || self

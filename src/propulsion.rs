@@ -46,6 +46,8 @@ pub struct Propulsion<EN, DIR, P> {
     dir_positive: bool,
     /// The last `move_to` command (target µm, speed µm/s).
     last_move: Option<(i32, u32)>,
+    /// The rate the pulse generator was last set to, Hz.
+    rate_hz: u32,
 }
 
 /// Arrival tolerance, steps (5 µm at 200 steps/mm).
@@ -74,6 +76,7 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
             enabled: false,
             dir_positive: false,
             last_move: None,
+            rate_hz: 0,
         };
         p.disable()?;
         Ok(p)
@@ -82,6 +85,7 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
     /// Emergency stop: pulses stop and the power stage is switched off, now.
     pub fn disable(&mut self) -> Result<(), PropulsionError> {
         self.pulses.set_rate_hz(0);
+        self.rate_hz = 0;
         self.vel_sps = 0;
         self.target_steps = None;
         self.enabled = false;
@@ -121,6 +125,7 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
     /// Stop pulses at once, keeping the power stage as it is (at a switch).
     pub fn halt(&mut self) {
         self.pulses.set_rate_hz(0);
+        self.rate_hz = 0;
         self.vel_sps = 0;
         self.target_steps = None;
     }
@@ -178,6 +183,7 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
     pub fn plan(&mut self, dt_us: u32) -> Result<(), PropulsionError> {
         if !self.enabled {
             self.pulses.set_rate_hz(0);
+            self.rate_hz = 0;
             self.vel_sps = 0;
             return Ok(());
         }
@@ -248,7 +254,12 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
                 self.dir_positive = positive;
             }
         }
-        self.pulses.set_rate_hz(new_v.unsigned_abs() as u32);
+        let rate = new_v.unsigned_abs() as u32;
+        if rate != self.rate_hz {
+            // Reprogram the generator only on a change (cruising, nothing to do).
+            self.pulses.set_rate_hz(rate);
+            self.rate_hz = rate;
+        }
         Ok(())
     }
 }
