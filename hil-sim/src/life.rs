@@ -49,6 +49,9 @@ pub struct LifeReport {
     pub material: Material,
     /// Checkpoints reached.
     pub points: Vec<LifePoint>,
+    /// Checkpoints not reached: the cone hit its wear limit first and the controller
+    /// refused to dock it again.
+    pub not_reached: Vec<u32>,
     /// Cycle at which the wear limit was reached (extrapolated by the model if later).
     pub life_cycles: u32,
     /// Whether the limit was reached within the run (the controller then refused to go on).
@@ -110,6 +113,7 @@ pub fn run(opts: &LifeOptions) -> LifeReport {
     LifeReport {
         material: opts.material,
         points,
+        not_reached: next_at.collect(),
         life_cycles,
         limit_reached: limit_at.is_some(),
         cycles_run: odo.cone().cycles,
@@ -142,9 +146,10 @@ impl LifeReport {
             })
             .collect();
         format!(
-            "{{\"material\":\"{}\",\"points\":[{}],\"life_cycles\":{},\"limit_reached\":{},\"cycles_run\":{},\"erases_per_sector_max\":{},\"faults\":{},\"sim_time_s\":{:.1},\"wall_time_s\":{:.3}}}",
+            "{{\"material\":\"{}\",\"points\":[{}],\"not_reached\":{:?},\"life_cycles\":{},\"limit_reached\":{},\"cycles_run\":{},\"erases_per_sector_max\":{},\"faults\":{},\"sim_time_s\":{:.1},\"wall_time_s\":{:.3}}}",
             self.material.name(),
             pts.join(","),
+            self.not_reached,
             self.life_cycles,
             self.limit_reached,
             self.cycles_run,
@@ -160,6 +165,12 @@ impl LifeReport {
         let mut s = String::from("cycle,wear_mm,remaining_cycles\n");
         for p in &self.points {
             s += &format!("{},{},{}\n", p.cycle, mm(p.wear_nm), p.remaining_cycles);
+        }
+        if !self.not_reached.is_empty() {
+            s += &format!(
+                "# not reached (the cone hit its wear limit at cycle {} and the controller refuses to dock it): {:?}\n",
+                self.life_cycles, self.not_reached
+            );
         }
         s += &format!(
             "# {}: life {} cycles ({}), {} cycles run, {} fault(s), erases per sector max {}, {:.0} s simulated in {:.2} s",

@@ -1,0 +1,91 @@
+//! `hil-sim life`, `accuracy` and `endurance` on the command line.
+
+use std::process::Command;
+
+fn run(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_hil-sim"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8(out.stdout).unwrap(),
+        String::from_utf8(out.stderr).unwrap(),
+    )
+}
+
+fn field(json: &str, key: &str) -> f64 {
+    let at = json
+        .find(&format!("\"{key}\":"))
+        .unwrap_or_else(|| panic!("{key} missing in {json}"))
+        + key.len()
+        + 3;
+    let rest = &json[at..];
+    let end = rest.find([',', '}', ']']).unwrap();
+    rest[..end].parse().unwrap()
+}
+
+#[test]
+fn life_json_has_the_documented_fields_and_follows_eq17() {
+    let (code, out, _) = run(&["life", "--cycles", "60", "--at", "1,50,60", "--json"]);
+    assert_eq!(code, 0);
+    assert_eq!(out.lines().count(), 1);
+    assert!(
+        out.starts_with("{\"material\":\"zqsn5-2\",\"points\":[{\"cycle\":1,\"wear_mm\":"),
+        "{out}"
+    );
+    for key in ["life_cycles", "erases_per_sector_max", "remaining_cycles"] {
+        field(&out, key);
+    }
+    // The cycle-50 point against Eq. 17's reduced-order form (the odometer's model).
+    let p50 = &out[out.find("{\"cycle\":50,").unwrap()..];
+    let wear = field(p50, "wear_mm");
+    let eq = 0.01372 * (50.0f64 + 1.961_921_5).powf(0.3813) - 0.01774;
+    assert!((wear - eq).abs() / eq < 0.01, "{wear} vs {eq}");
+    let life = field(&out, "life_cycles");
+    assert!((life - 45_270.0).abs() / 45_270.0 < 0.005, "{life}");
+}
+
+#[test]
+fn life_materials_have_their_own_lives() {
+    let life = |m: &str| {
+        let (code, out, _) = run(&["life", "--cycles", "5", "--material", m, "--json"]);
+        assert_eq!(code, 0, "{m}");
+        field(&out, "life_cycles")
+    };
+    let (z, q, p) = (life("zqsn5-2"), life("QSn6-6-3"), life("cf-peek"));
+    assert!(((q / z) - 1.0 / 0.5701).abs() < 0.01, "{q} / {z}");
+    assert!((p - 90_540.0).abs() / 90_540.0 < 0.005, "{p}");
+}
+
+#[test]
+fn life_text_is_a_table() {
+    let (code, out, _) = run(&["life", "--cycles", "3"]);
+    assert_eq!(code, 0);
+    let mut lines = out.lines();
+    assert_eq!(lines.next(), Some("cycle,wear_mm,remaining_cycles"));
+    assert!(lines.next().unwrap().starts_with("1,0.00"));
+    assert!(out.lines().last().unwrap().starts_with("# zqsn5-2: life "));
+}
+
+#[test]
+fn bad_life_arguments_exit_2_with_one_line() {
+    for args in [
+        &["life"][..],
+        &["life", "--cycles", "0"],
+        &["life", "--cycles", "-5"],
+        &["life", "--cycles", "10", "--material", "unobtainium"],
+        &["life", "--cycles", "10", "--at", "1,,3"],
+        &["life", "--cycles", "10", "--at", "11"],
+        &["life", "--cycles", "10", "--at", "0"],
+        &["life", "--cycles", "10", "--at", "a"],
+        &["life", "--cycles", "10", "--rate", "81"],
+        &["endurance", "--cycles", "0"],
+        &["accuracy", "--extra"],
+    ] {
+        let (code, out, err) = run(args);
+        assert_eq!(code, 2, "{args:?}");
+        assert!(out.is_empty(), "{args:?}");
+        assert_eq!(err.lines().count(), 1, "{args:?}: {err}");
+    }
+}
