@@ -717,3 +717,81 @@ mod tests {
         assert_eq!(back.lifetime().cones_installed, 3);
     }
 }
+
+/// Result of [`reference_run`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReferenceRun {
+    /// Cycles run.
+    pub cycles: u32,
+    /// Equivalent nominal cycles, Q32.32.
+    pub e_q32: u64,
+    /// Wear depth, nm.
+    pub wear_nm: u32,
+    /// Remaining life, cycles.
+    pub remaining_cycles: u32,
+    /// The persisted counter snapshot.
+    pub record: [u8; STATE_LEN],
+}
+
+/// A deterministic odometer workload in integers only — a load shaped like Eq. 7 (four
+/// phases, the 3→4 jump) with ±2 N of pseudo-random noise, sampled at irregular 10–29 µm
+/// steps over both strokes, `cycles` times — for comparing host and target bit for bit
+/// (the firmware image's arithmetic under QEMU against the host's: see `.ci/run`).
+pub fn reference_run(cycles: u32) -> ReferenceRun {
+    let mut odo = Odometer::new(
+        WearConfig::DEFAULT,
+        Cone::new(1, Material::ZQSn5_2, "REF", 0),
+        Lifetime::default(),
+    );
+    let mut x: u32 = 0x9E37_79B9;
+    let mut rnd = move || {
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        x
+    };
+    // Piecewise load in mN at depth d (µm): constants, then rising, then the jump.
+    let load = |d: i32| -> i32 {
+        match d {
+            i32::MIN..=4_499 => 112_640,
+            4_500..=8_699 => 115_050,
+            8_700..=14_933 => 103_770 + (d - 8_700) / 2,
+            _ => 206_340 - (d - 14_934) * 5,
+        }
+    };
+    for _ in 0..cycles {
+        let mut d = 0i32;
+        while d <= 30_000 {
+            let noise = (rnd() % 4_001) as i32 - 2_000;
+            odo.on_contact_sample(d, load(d) + noise);
+            d += 10 + (rnd() % 20) as i32;
+        }
+        while d >= 0 {
+            let noise = (rnd() % 4_001) as i32 - 2_000;
+            odo.on_contact_sample(d, load(d) + noise);
+            d -= 10 + (rnd() % 20) as i32;
+        }
+        odo.complete_cycle();
+    }
+    ReferenceRun {
+        cycles,
+        e_q32: odo.equivalent_cycles_q32(),
+        wear_nm: odo.wear_nm(),
+        remaining_cycles: odo.remaining_cycles(),
+        record: StateRecord::of(&odo, true).to_bytes(),
+    }
+}
+
+impl core::fmt::Display for ReferenceRun {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(
+            f,
+            "odometer reference: cycles={} e_q32={} wear_nm={} remaining={} record=",
+            self.cycles, self.e_q32, self.wear_nm, self.remaining_cycles
+        )?;
+        for b in self.record {
+            write!(f, "{b:02x}")?;
+        }
+        Ok(())
+    }
+}

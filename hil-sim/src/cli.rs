@@ -293,6 +293,18 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         "endurance" => endurance(rest, out),
         "accuracy" => accuracy(rest, out),
         "serve" => serve(rest, out),
+        // The odometer's integer workload, for comparison with the same code on a
+        // Cortex-M4 under QEMU (.ci/run, qemu-check/).
+        "odometer-reference" => {
+            let o = Opts::parse(rest, &["cycles"], &[])?;
+            let cycles = o.num("cycles", 300u32, 1, 1_000_000)?;
+            let _ = writeln!(
+                out,
+                "{}",
+                docking_controller::odometer::reference_run(cycles)
+            );
+            Ok(())
+        }
         "help" | "--help" | "-h" => {
             let _ = writeln!(out, "{USAGE}");
             Ok(())
