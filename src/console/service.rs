@@ -78,6 +78,20 @@ impl Write for Out {
     }
 }
 
+/// Write ` key=` and a fixed-point value (`value_scaled` with `decimals` decimals).
+fn kv_fixed(o: &mut Out, key: &str, value_scaled: i64, decimals: u8) -> fmt::Result {
+    write!(o, " {key}=")?;
+    super::json::write_fixed(o, value_scaled, decimals)
+}
+
+/// Write ` phase=N`, or ` phase=none` outside the cone.
+fn kv_phase(o: &mut Out, phase: Option<crate::profile::ContactPhase>) -> fmt::Result {
+    match phase {
+        Some(p) => write!(o, " phase={}", p.number()),
+        None => o.write_str(" phase=none"),
+    }
+}
+
 /// The console.
 pub struct Console {
     reader: LineReader<LINE_MAX>,
@@ -457,17 +471,11 @@ impl Console {
             });
         } else {
             self.reply(|o| {
-                write!(o, "state={} phase=", s.state.name())?;
-                match s.phase {
-                    Some(p) => write!(o, "{}", p.number())?,
-                    None => o.write_str("none")?,
-                }
-                o.write_str(" force_n=")?;
-                super::json::write_fixed(o, s.force_mn as i64, 3)?;
-                o.write_str(" limit_n=")?;
-                super::json::write_fixed(o, s.limit_mn as i64, 3)?;
-                o.write_str(" pos_mm=")?;
-                super::json::write_fixed(o, s.pos_um as i64, 3)?;
+                write!(o, "state={}", s.state.name())?;
+                kv_phase(o, s.phase)?;
+                kv_fixed(o, "force_n", s.force_mn as i64, 3)?;
+                kv_fixed(o, "limit_n", s.limit_mn as i64, 3)?;
+                kv_fixed(o, "pos_mm", s.pos_um as i64, 3)?;
                 write!(
                     o,
                     " cycles={} fault={} warning={} maintenance={}\r\n",
@@ -509,18 +517,24 @@ impl Console {
             });
         } else {
             self.reply(|o| {
-                write!(o, "cone={} material={} serial={} cycles={} wear_mm=", cone.id, cone.material.name(), cone.serial_str(), cone.cycles)?;
-                super::json::write_fixed(o, wear_nm as i64, 6)?;
-                write!(o, " remaining_cycles={remaining} level={} limit_mm=", level.name())?;
-                super::json::write_fixed(o, cfg.limit_nm as i64, 6)?;
-                o.write_str(" warn_mm=")?;
-                super::json::write_fixed(o, warn_nm, 6)?;
                 write!(
                     o,
-                    " lifetime_cycles={} cones_installed={} overload_events={} faults={} peak_force_n=",
+                    "cone={} material={} serial={} cycles={}",
+                    cone.id,
+                    cone.material.name(),
+                    cone.serial_str(),
+                    cone.cycles
+                )?;
+                kv_fixed(o, "wear_mm", wear_nm as i64, 6)?;
+                write!(o, " remaining_cycles={remaining} level={}", level.name())?;
+                kv_fixed(o, "limit_mm", cfg.limit_nm as i64, 6)?;
+                kv_fixed(o, "warn_mm", warn_nm, 6)?;
+                write!(
+                    o,
+                    " lifetime_cycles={} cones_installed={} overload_events={} faults={}",
                     life.cycles, life.cones_installed, life.overload_events, life.faults
                 )?;
-                super::json::write_fixed(o, life.peak_force_mn as i64, 3)?;
+                kv_fixed(o, "peak_force_n", life.peak_force_mn as i64, 3)?;
                 o.write_str("\r\n")
             });
         }
@@ -560,12 +574,11 @@ impl Console {
                 for e in &entries {
                     write!(
                         o,
-                        "cycle={} cone={} cone_cycle={} load_distance_nmm=",
+                        "cycle={} cone={} cone_cycle={}",
                         e.lifetime_cycle, e.cone_id, e.cone_cycle
                     )?;
-                    super::json::write_fixed(o, nmm_milli(e), 3)?;
-                    o.write_str(" wear_mm=")?;
-                    super::json::write_fixed(o, e.wear_nm as i64, 6)?;
+                    kv_fixed(o, "load_distance_nmm", nmm_milli(e), 3)?;
+                    kv_fixed(o, "wear_mm", e.wear_nm as i64, 6)?;
                     o.write_str("\r\n")?;
                 }
                 Ok(())
@@ -617,15 +630,10 @@ impl Console {
                     active.unwrap_or("none")
                 )?;
                 for f in &recs {
-                    write!(o, "kind={} cycle={} phase=", f.kind.name(), f.cycle)?;
-                    match f.phase {
-                        Some(p) => write!(o, "{}", p.number())?,
-                        None => o.write_str("none")?,
-                    }
-                    o.write_str(" t_s=")?;
-                    super::json::write_fixed(o, f.t_ms as i64, 3)?;
-                    o.write_str(" peak_force_n=")?;
-                    super::json::write_fixed(o, f.peak_force_mn as i64, 3)?;
+                    write!(o, "kind={} cycle={}", f.kind.name(), f.cycle)?;
+                    kv_phase(o, f.phase)?;
+                    kv_fixed(o, "t_s", f.t_ms as i64, 3)?;
+                    kv_fixed(o, "peak_force_n", f.peak_force_mn as i64, 3)?;
                     o.write_str("\r\n")?;
                 }
                 Ok(())
@@ -665,12 +673,11 @@ impl Console {
         }
         self.audit(ctrl, action::MEASURE, now_ms, &bore_um.to_le_bytes());
         self.reply(|o| {
-            o.write_str("ok: bore_mm=")?;
-            super::json::write_fixed(o, bore_um as i64, 3)?;
-            write!(o, " cone_cycle={cone_cycles} measured_wear_mm=")?;
-            super::json::write_fixed(o, measured_nm, 6)?;
-            o.write_str(" model_wear_mm=")?;
-            super::json::write_fixed(o, model_nm as i64, 6)?;
+            o.write_str("ok:")?;
+            kv_fixed(o, "bore_mm", bore_um as i64, 3)?;
+            write!(o, " cone_cycle={cone_cycles}")?;
+            kv_fixed(o, "measured_wear_mm", measured_nm, 6)?;
+            kv_fixed(o, "model_wear_mm", model_nm as i64, 6)?;
             o.write_str("\r\n")
         });
     }
