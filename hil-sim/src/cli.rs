@@ -42,32 +42,17 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         adc: crate::rig::AdcMode::Pins,
     };
     let report = crate::scene::run(name, opts).map_err(UsageError)?;
-    let text = if o.flag("json") {
-        report.to_json()
-    } else {
-        report.to_text()
-    };
-    let _ = writeln!(out, "{text}");
+    print(out, &o, || report.to_json(), || report.to_text());
     Ok(())
 }
 
 fn life(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
-    use docking_controller::material::Material;
     let o = Opts::parse(args, &["cycles", "material", "at", "rate"], &["json"])?;
     if o.get("cycles").is_none() {
         return err("life needs --cycles N (N >= 1)");
     }
     let cycles = o.num("cycles", 1u32, 1, 10_000_000)?;
-    let material = match o.get("material") {
-        None => Material::ZQSn5_2,
-        Some(m) => Material::from_name(m).ok_or_else(|| {
-            let names: Vec<_> = Material::ALL.iter().map(|m| m.name()).collect();
-            UsageError(format!(
-                "unknown material '{m}' (materials: {})",
-                names.join(", ")
-            ))
-        })?,
-    };
+    let material = material(&o)?;
     let at = match o.get("at") {
         None => crate::life::default_checkpoints(cycles),
         Some(list) => {
@@ -90,25 +75,14 @@ fn life(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         rate_sps: hx_rate(&o)?,
     };
     let report = crate::life::run(&opts);
-    let text = if o.flag("json") {
-        report.to_json()
-    } else {
-        report.to_text()
-    };
-    let _ = writeln!(out, "{text}");
+    print(out, &o, || report.to_json(), || report.to_text());
     Ok(())
 }
 
 fn endurance(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
-    use docking_controller::material::Material;
     let o = Opts::parse(args, &["cycles", "material", "rate"], &[])?;
     let cycles = o.num("cycles", 100_000u32, 1, 10_000_000)?;
-    let material = match o.get("material") {
-        None => Material::ZQSn5_2,
-        Some(m) => {
-            Material::from_name(m).ok_or_else(|| UsageError(format!("unknown material '{m}'")))?
-        }
-    };
+    let material = material(&o)?;
     let r = crate::life::endurance(cycles, hx_rate(&o)?, material).map_err(UsageError)?;
     let _ = writeln!(
         out,
@@ -125,12 +99,7 @@ fn endurance(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
 fn accuracy(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
     let o = Opts::parse(args, &[], &["json"])?;
     let r = crate::accuracy::run();
-    let text = if o.flag("json") {
-        r.to_json()
-    } else {
-        r.to_text()
-    };
-    let _ = writeln!(out, "{text}");
+    print(out, &o, || r.to_json(), || r.to_text());
     Ok(())
 }
 
@@ -251,6 +220,32 @@ impl Opts {
             )),
         }
     }
+}
+
+/// `--material NAME` (default ZQSn5-2), case-insensitive.
+fn material(o: &Opts) -> Result<docking_controller::material::Material, UsageError> {
+    use docking_controller::material::Material;
+    match o.get("material") {
+        None => Ok(Material::ZQSn5_2),
+        Some(m) => Material::from_name(m).ok_or_else(|| {
+            let names: Vec<_> = Material::ALL.iter().map(|m| m.name()).collect();
+            UsageError(format!(
+                "unknown material '{m}' (materials: {})",
+                names.join(", ")
+            ))
+        }),
+    }
+}
+
+/// Print a report as one JSON line with `--json`, else as text.
+fn print(
+    out: &mut dyn Write,
+    o: &Opts,
+    json: impl FnOnce() -> String,
+    text: impl FnOnce() -> String,
+) {
+    let s = if o.flag("json") { json() } else { text() };
+    let _ = writeln!(out, "{s}");
 }
 
 /// Largest profile rate, Hz (25 s × 100 kHz = 2.5 M rows).
