@@ -785,6 +785,15 @@ mod tests {
         fn tick(&mut self, dt_ms: u64) {
             let _ = self.step(dt_ms);
         }
+        /// Boot to idle (at home, locked), then request a cycle: the start step's outputs.
+        fn started(&mut self) -> Outputs {
+            for _ in 0..3 {
+                self.tick(10);
+            }
+            assert_eq!(self.seq.state(), State::Idle);
+            self.inp.request = Some(Request::StartCycle);
+            self.step(10)
+        }
         fn step(&mut self, dt_ms: u64) -> Outputs {
             self.inp.now_ms += dt_ms;
             let o = self.seq.step(&self.inp);
@@ -828,11 +837,7 @@ mod tests {
     fn a_whole_cycle_as_a_timeline() {
         let cfg = MachineConfig::DEFAULT;
         let mut r = Rig::new();
-        for _ in 0..3 {
-            r.tick(10);
-        }
-        r.inp.request = Some(Request::StartCycle);
-        let o = r.step(10);
+        let o = r.started();
         assert_eq!(o.event, Some(SeqEvent::CycleStarted(1)));
         assert_eq!(
             o.axis,
@@ -905,11 +910,7 @@ mod tests {
     #[test]
     fn lock_that_never_releases_is_a_named_latched_fault() {
         let mut r = Rig::new();
-        for _ in 0..3 {
-            r.tick(10);
-        }
-        r.inp.request = Some(Request::StartCycle);
-        r.tick(10);
+        let _ = r.started();
         r.inp.switches.home = false;
         r.inp.pos_um = 20_000;
         r.tick(2_000);
@@ -941,11 +942,7 @@ mod tests {
     fn overload_while_inserting_backs_off_then_latches() {
         let cfg = MachineConfig::DEFAULT;
         let mut r = Rig::new();
-        for _ in 0..3 {
-            r.tick(10);
-        }
-        r.inp.request = Some(Request::StartCycle);
-        r.tick(10);
+        let _ = r.started();
         r.inp.switches = Switches {
             released: true,
             ..Switches::default()
