@@ -13,6 +13,7 @@
 //! | lock locked / released switch (active low) | PC2 / PC3 | input, pull-up |
 //! | HX711 DOUT / PD_SCK | PB0 / PB1 | input pull-up / low |
 //! | console USART2 TX / RX | PA2 / PA3 | 115200 8N1 |
+//! | dock request from the vehicle/PLC (active low) | PC4 | input, pull-up |
 //!
 //! Step pulses come from a SysTick interrupt at 20 kHz (a phase accumulator, i.e. DDS):
 //! the step rates this machine needs are ≤ 4 kHz, SysTick needs no PAC-specific timer
@@ -52,6 +53,8 @@ const SYSCLK_HZ: u32 = 168_000_000;
 const STEP_TICK_HZ: u32 = 20_000;
 /// Independent watchdog period, ms (the control loop runs at ≥ 10 Hz).
 const WATCHDOG_MS: u32 = 500;
+/// A dock request must stay asserted this long to count, µs.
+const DOCK_REQUEST_DEBOUNCE_US: u64 = 20_000;
 /// HX711 output data rate (its RATE pin is tied high on this board: 80 SPS).
 const SAMPLE_RATE_SPS: u32 = 80;
 /// Load-cell calibration until a technician calibrates the machine (500 N, 2 mV/V
@@ -410,6 +413,9 @@ fn main() -> ! {
     let end = gpioc.pc1.into_pull_up_input();
     let locked = gpioc.pc2.into_pull_up_input();
     let released = gpioc.pc3.into_pull_up_input();
+    // Dock request from the vehicle/PLC: a debounced press starts one cycle (the
+    // controller refuses it unless idle, homed, locked, tared and the cone not worn out).
+    let dock_request = gpioc.pc4.into_pull_up_input();
     let hx_dout = gpiob.pb0.into_pull_up_input();
     let hx_sck = gpiob.pb1.into_push_pull_output_in_state(PinState::Low);
     let gpioa = dp.GPIOA.split(&mut rcc);
@@ -490,8 +496,21 @@ fn main() -> ! {
     );
 
     // 4. The control loop: poll as fast as possible; a step runs per load-cell sample.
+    let mut request_low_since: Option<u64> = None;
+    let mut request_latched = false;
     loop {
         let now_us = clock.now_us();
+        // Dock request: low for 20 ms (debounce) starts one cycle; release re-arms.
+        if dock_request.is_low() {
+            let since = *request_low_since.get_or_insert(now_us);
+            if !request_latched && now_us.saturating_sub(since) >= DOCK_REQUEST_DEBOUNCE_US {
+                request_latched = true;
+                ctrl.request(docking_controller::sequencer::Request::StartCycle);
+            }
+        } else {
+            request_low_since = None;
+            request_latched = false;
+        }
         let _ = ctrl.poll(now_us);
         if let Some(t) = term.as_mut() {
             // After the control step: bounded work, see console::service.
