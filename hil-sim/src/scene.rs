@@ -258,7 +258,6 @@ fn run_inner(
         ..RigOptions::new(opts.rate_sps)
     });
     let cycles = opts.cycles.max(1);
-    let period_s = 1.0 / opts.rate_sps as f64;
     let spikes_injected = driver.setup(&mut rig, opts.seed, opts.rate_sps, cycles);
 
     let mut insertion_phases: Vec<Vec<u8>> = Vec::new();
@@ -346,7 +345,6 @@ fn run_inner(
     }
     let st = rig.ctrl.status();
     let tripped = trip_pos_um.is_some();
-    let _ = period_s;
     Ok(SceneReport {
         scene: name.to_string(),
         rate_sps: opts.rate_sps,
