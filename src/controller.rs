@@ -233,8 +233,8 @@ pub struct Controller<B: Bsp> {
     guard: OverloadGuard,
     sensor: SensorMonitor,
     cal: Calibration,
-    tare: Deque<i32, TARE_SAMPLES>,
-    /// Raw codes of the last samples taken while nothing moved (calibration).
+    /// Raw codes of the last samples taken at rest (Idle or Faulted): the per-cycle tare
+    /// and the technician's calibration both average them.
     recent_raw: Deque<i32, TARE_SAMPLES>,
     /// The calibration as set by a technician (the tare moves `cal.offset` per cycle).
     base_cal: Calibration,
@@ -425,7 +425,6 @@ impl<B: Bsp> Controller<B> {
             guard: OverloadGuard::new(cfg.guard),
             sensor: SensorMonitor::new(cfg.sample_rate_sps, now_us),
             cal: cal0,
-            tare: Deque::new(),
             recent_raw: Deque::new(),
             base_cal: cal0,
             phase: None,
@@ -614,12 +613,6 @@ impl<B: Bsp> Controller<B> {
             } else {
                 self.recent_raw.clear();
             }
-            if state == State::Idle && switches.home {
-                if self.tare.is_full() {
-                    self.tare.pop_front();
-                }
-                let _ = self.tare.push_back(code);
-            }
         } else if let Some(sf) = self.sensor.check_timeout(now_us) {
             fault = fault.or(Some(sensor_fault(sf)));
         }
@@ -722,12 +715,19 @@ impl<B: Bsp> Controller<B> {
         result
     }
 
-    fn take_tare(&mut self) -> TareResult {
-        if self.tare.len() < TARE_MIN_SAMPLES {
-            return TareResult::NotYet;
+    /// Mean raw code of the samples at rest, once there are enough of them.
+    fn rest_mean_code(&self) -> Option<i32> {
+        if self.recent_raw.len() < TARE_MIN_SAMPLES {
+            return None;
         }
-        let n = self.tare.len() as i64;
-        let mean = (self.tare.iter().map(|&c| c as i64).sum::<i64>() / n) as i32;
+        let n = self.recent_raw.len() as i64;
+        Some((self.recent_raw.iter().map(|&c| c as i64).sum::<i64>() / n) as i32)
+    }
+
+    fn take_tare(&mut self) -> TareResult {
+        let Some(mean) = self.rest_mean_code() else {
+            return TareResult::NotYet;
+        };
         let drift_mn = Calibration {
             offset_counts: self.base_cal.offset_counts,
             ..self.cal
@@ -743,7 +743,7 @@ impl<B: Bsp> Controller<B> {
             return TareResult::Implausible;
         }
         self.cal = self.cal.with_tare(mean);
-        self.tare.clear();
+        self.recent_raw.clear();
         TareResult::Ready
     }
 
@@ -978,11 +978,8 @@ impl<B: Bsp> Controller<B> {
         if !self.is_quiet() {
             return Err(CalibrateError::Moving);
         }
-        if self.recent_raw.len() < TARE_MIN_SAMPLES {
-            return Err(CalibrateError::NotEnoughSamples);
-        }
-        let n = self.recent_raw.len() as i64;
-        Ok((self.recent_raw.iter().map(|&c| c as i64).sum::<i64>() / n) as i32)
+        self.rest_mean_code()
+            .ok_or(CalibrateError::NotEnoughSamples)
     }
 
     fn store_calibration(&mut self, cal: Calibration) -> Result<Calibration, CalibrateError> {
