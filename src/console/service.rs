@@ -196,6 +196,16 @@ impl Console {
         }
     }
 
+    /// Write one reply as a JSON object on one line (`f` fills in the fields).
+    fn reply_json(&mut self, f: impl FnOnce(&mut JsonObject<'_, Out>) -> fmt::Result) {
+        self.reply(|o| {
+            let mut j = JsonObject::new(o);
+            f(&mut j)?;
+            j.finish()?;
+            o.write_str("\r\n")
+        });
+    }
+
     fn err(&mut self, msg: &dyn fmt::Display) {
         self.reply(|o| write!(o, "error: {msg}\r\n"));
     }
@@ -289,11 +299,9 @@ impl Console {
             Command::Version { json } => {
                 let v = env!("CARGO_PKG_VERSION");
                 if json {
-                    self.reply(|o| {
-                        let mut j = JsonObject::new(o);
+                    self.reply_json(|j| {
                         j.str("name", "docking-controller")?.str("version", v)?;
-                        j.finish()?;
-                        o.write_str("\r\n")
+                        Ok(())
                     });
                 } else {
                     self.reply(|o| write!(o, "docking-controller {v}\r\n"));
@@ -421,16 +429,14 @@ impl Console {
             "pin set <new_pin>",
         ];
         if json {
-            self.reply(|o| {
-                let mut j = JsonObject::new(o);
+            self.reply_json(|j| {
                 j.array("commands", |a| {
                     for c in CMDS {
                         a.str(c)?;
                     }
                     Ok(())
                 })?;
-                j.finish()?;
-                o.write_str("\r\n")
+                Ok(())
             });
         } else {
             self.reply(|o| {
@@ -448,8 +454,7 @@ impl Console {
         let s = ctrl.status();
         let fault = s.fault.map(|f| f.name());
         if json {
-            self.reply(|o| {
-                let mut j = JsonObject::new(o);
+            self.reply_json(|j| {
                 j.str("state", s.state.name())?;
                 match s.phase {
                     Some(p) => j.u64("phase", p.number() as u64)?,
@@ -466,8 +471,7 @@ impl Console {
                 j.bool("warning", s.warning)?
                     .fixed("peak_force_n", s.peak_force_mn as i64, 3)?
                     .bool("maintenance", maint)?;
-                j.finish()?;
-                o.write_str("\r\n")
+                Ok(())
             });
         } else {
             self.reply(|o| {
@@ -496,8 +500,7 @@ impl Console {
         let cfg = *odo.config();
         let warn_nm = (cfg.limit_nm as u64 * cfg.warn_pct as u64 / 100) as i64;
         if json {
-            self.reply(|o| {
-                let mut j = JsonObject::new(o);
+            self.reply_json(|j| {
                 j.u64("cone", cone.id as u64)?
                     .str("material", cone.material.name())?
                     .str("serial", cone.serial_str())?
@@ -512,8 +515,7 @@ impl Console {
                     .u64("overload_events", life.overload_events as u64)?
                     .u64("faults", life.faults as u64)?
                     .fixed("peak_force_n", life.peak_force_mn as i64, 3)?;
-                j.finish()?;
-                o.write_str("\r\n")
+                Ok(())
             });
         } else {
             self.reply(|o| {
@@ -549,8 +551,7 @@ impl Console {
         // W in Q63.1 mN·µm → N·mm with 3 decimals: q1 / 2 / 1000 (mN·µm → 1e-3 N·mm units).
         let nmm_milli = |e: &HistoryEntry| (e.w_q1 / 2_000) as i64;
         if json {
-            self.reply(|o| {
-                let mut j = JsonObject::new(o);
+            self.reply_json(|j| {
                 j.array("history", |a| {
                     for e in &entries {
                         a.object(|x| {
@@ -564,8 +565,7 @@ impl Console {
                     }
                     Ok(())
                 })?;
-                j.finish()?;
-                o.write_str("\r\n")
+                Ok(())
             });
         } else if entries.is_empty() {
             self.reply(|o| o.write_str("no completed cycles recorded\r\n"));
@@ -593,8 +593,7 @@ impl Console {
         let recs: heapless::Vec<crate::controller::FaultRecord, 16> =
             ctrl.faults().copied().collect();
         if json {
-            self.reply(|o| {
-                let mut j = JsonObject::new(o);
+            self.reply_json(|j| {
                 match active {
                     Some(a) => j.str("active", a)?,
                     None => j.null("active")?,
@@ -619,8 +618,7 @@ impl Console {
                     }
                     Ok(())
                 })?;
-                j.finish()?;
-                o.write_str("\r\n")
+                Ok(())
             });
         } else {
             self.reply(|o| {
