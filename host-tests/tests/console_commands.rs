@@ -267,26 +267,14 @@ fn calibration_tare_and_span_persist() {
 #[test]
 fn console_flood_does_not_delay_the_overload_stop() {
     for rate in [80, 320] {
-        let quiet = run(
-            "overload",
-            SceneOptions {
-                cycles: 1,
-                rate_sps: rate,
-                seed: 3,
-                adc: hil_sim::rig::AdcMode::Pins,
-            },
-        )
-        .unwrap();
-        let flooded = hil_sim::scene::run_with_console_flood(
-            "overload",
-            SceneOptions {
-                cycles: 1,
-                rate_sps: rate,
-                seed: 3,
-                adc: hil_sim::rig::AdcMode::Pins,
-            },
-        )
-        .unwrap();
+        let opts = SceneOptions {
+            cycles: 1,
+            rate_sps: rate,
+            seed: 3,
+            adc: hil_sim::rig::AdcMode::Pins,
+        };
+        let quiet = run("overload", opts).unwrap();
+        let flooded = hil_sim::scene::run_with_console_flood("overload", opts).unwrap();
         assert!(
             flooded.console_bytes > 10_000,
             "the console was flooded: {}",
