@@ -48,6 +48,47 @@ pub struct Propulsion<EN, DIR, P> {
     last_move: Option<(i32, u32)>,
     /// The rate the pulse generator was last set to, Hz.
     rate_hz: u32,
+    /// Cruise shortcut of [`plan`](Self::plan): for this (period µs, speed limit
+    /// steps/s), the distance to the target, steps, from which a move already at the
+    /// speed limit keeps cruising unchanged (see [`Cruise`]).
+    cruise: Option<Cruise>,
+}
+
+/// When a move at its speed limit keeps cruising: the full ramp computation of
+/// [`Propulsion::plan`] returns the same velocity whenever the remaining distance is at
+/// least `min_dist_steps` — the stopping distance plus this period's travel, and past the
+/// final-approach window. Derived once per (period, speed limit) instead of every step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Cruise {
+    dt_us: u64,
+    max_sps: u32,
+    min_dist_steps: i64,
+}
+
+impl Cruise {
+    fn new(dt_us: u64, max_sps: u32, accel_sps2: u32) -> Self {
+        let max = max_sps as i64;
+        let dv = ((accel_sps2 as u64 * dt_us) / 1_000_000).max(1) as i64;
+        let lead = (max * dt_us as i64) / 1_000_000;
+        if accel_sps2 == 0 {
+            // No ramp to stop on (never configured so): always take the full path.
+            return Self {
+                dt_us,
+                max_sps,
+                min_dist_steps: i64::MAX,
+            };
+        }
+        let two_a = 2 * accel_sps2 as i64;
+        // v_stop = max  ⟺  max² ≤ 2a·(D − lead)  ⟺  D ≥ lead + ⌈max² / 2a⌉
+        let stop = lead + (max * max + two_a - 1) / two_a;
+        // not the final approach  ⟺  D > max(lead, 1) + dv·dt/1e6 + 1
+        let approach = lead.max(1) + dv * dt_us as i64 / 1_000_000 + 2;
+        Self {
+            dt_us,
+            max_sps,
+            min_dist_steps: stop.max(approach),
+        }
+    }
 }
 
 /// Arrival tolerance, steps (5 µm at 200 steps/mm).
@@ -77,6 +118,7 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
             dir_positive: false,
             last_move: None,
             rate_hz: 0,
+            cruise: None,
         };
         p.disable()?;
         Ok(p)
@@ -188,6 +230,33 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
             return Ok(());
         }
         let dt_us = dt_us.clamp(1, 1_000_000) as u64;
+        if let Some(t) = self.target_steps {
+            // Cruising at the speed limit, far from the target: nothing changes (the
+            // common case; `Cruise` proves the full computation below agrees).
+            let c = match self.cruise {
+                Some(c) if c.dt_us == dt_us && c.max_sps == self.max_sps => c,
+                _ => {
+                    let c = Cruise::new(dt_us, self.max_sps, self.accel_sps2);
+                    self.cruise = Some(c);
+                    c
+                }
+            };
+            let dist = t as i64 - self.pos_steps as i64;
+            let v = self.vel_sps as i64;
+            if self.max_sps > 0
+                && v == dist.signum() * self.max_sps as i64
+                && dist.abs() >= c.min_dist_steps
+                && self.rate_hz == self.max_sps
+                && self.dir_positive == (v > 0)
+            {
+                return Ok(());
+            }
+        }
+        self.plan_ramp(dt_us)
+    }
+
+    /// The full ramp computation of [`plan`](Self::plan) for an enabled driver.
+    fn plan_ramp(&mut self, dt_us: u64) -> Result<(), PropulsionError> {
         // Speed change allowed this period (at least 1 step/s so a ramp always progresses).
         let dv = ((self.accel_sps2 as u64 * dt_us) / 1_000_000).max(1) as i64;
         let v = self.vel_sps as i64;
@@ -329,6 +398,58 @@ mod tests {
         }
         assert!(p.position_um().abs() <= 5, "{}", p.position_um());
         assert!(p.is_idle());
+    }
+
+    /// The cruise shortcut of `plan` agrees with the full ramp computation wherever it
+    /// is taken (same velocity, rate, direction and target afterwards).
+    #[test]
+    fn cruise_shortcut_matches_the_full_ramp() {
+        let (en, dir) = (Line::default(), Line::default());
+        let mk = || {
+            let mut p =
+                Propulsion::new(&en, &dir, Gen { rate: 0, frac: 0 }, MachineConfig::DEFAULT)
+                    .unwrap();
+            p.enable().unwrap();
+            p
+        };
+        let (mut shortcut_taken, mut cases) = (0u32, 0u32);
+        for dt_us in [1u32, 999, 3_125, 12_500, 100_000, 1_000_000] {
+            for max_sps in [1u32, 2, 239, 240, 2_000, 4_000] {
+                for accel_sps2 in [1u32, 7, 4_000, 100_000] {
+                    for dist in -3_000i32..=3_000 {
+                        for sign in [-1i32, 1] {
+                            let (mut a, mut b) = (mk(), mk());
+                            for p in [&mut a, &mut b] {
+                                p.pos_steps = 5_000;
+                                p.target_steps = Some(5_000 + dist);
+                                p.max_sps = max_sps;
+                                p.accel_sps2 = accel_sps2;
+                                p.vel_sps = sign * max_sps as i32;
+                                p.rate_hz = max_sps;
+                                p.dir_positive = sign > 0;
+                            }
+                            a.plan(dt_us).unwrap();
+                            b.plan_ramp(dt_us.clamp(1, 1_000_000) as u64).unwrap();
+                            let c = a.cruise.unwrap();
+                            if (dist as i64).abs() >= c.min_dist_steps && dist.signum() == sign {
+                                shortcut_taken += 1;
+                            }
+                            cases += 1;
+                            assert_eq!(
+                                (a.vel_sps, a.rate_hz, a.dir_positive, a.target_steps),
+                                (b.vel_sps, b.rate_hz, b.dir_positive, b.target_steps),
+                                "dt {dt_us} max {max_sps} accel {accel_sps2} dist {dist} sign {sign}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        // Both branches were exercised.
+        assert!(
+            shortcut_taken > cases / 10 && shortcut_taken < cases,
+            "{shortcut_taken}/{cases}"
+        );
     }
 
     #[test]
