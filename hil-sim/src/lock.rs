@@ -5,7 +5,7 @@
 //!
 //! Fault: `Stuck` — the screw does not move (seized, motor open-circuit).
 
-use std::cell::RefCell;
+use std::cell::Cell;
 use std::rc::Rc;
 
 use crate::clock::SimClock;
@@ -24,39 +24,45 @@ pub enum LockFault {
     Stuck,
 }
 
+/// The lock's state. Every field is a `Cell` (all are `Copy`): the pins read and drive
+/// it several times per control step, and a `Cell` needs no borrow bookkeeping.
 #[derive(Debug)]
 struct LockModel {
     /// Screw position, nm (exact integration): 0 = released.
-    pos_nm: u64,
-    in1: bool,
-    in2: bool,
-    last_ns: u64,
-    fault: LockFault,
+    pos_nm: Cell<u64>,
+    in1: Cell<bool>,
+    in2: Cell<bool>,
+    last_ns: Cell<u64>,
+    fault: Cell<LockFault>,
 }
 
 impl LockModel {
-    fn update(&mut self, now: u64) {
-        if self.fault == LockFault::Stuck || self.in1 == self.in2 {
-            self.last_ns = self.last_ns.max(now);
+    fn driven(&self) -> bool {
+        self.in1.get() != self.in2.get()
+    }
+
+    fn update(&self, now: u64) {
+        let last = self.last_ns.get();
+        self.last_ns.set(last.max(now));
+        if self.fault.get() == LockFault::Stuck || !self.driven() {
             return;
         }
-        let dt = now.saturating_sub(self.last_ns);
-        self.last_ns = self.last_ns.max(now);
         // dt ns · v µm/s · 1e-9 s/ns · 1e3 nm/µm = dt·v/1e6 nm
-        let d_nm = dt * LOCK_SPEED_UM_PER_S / 1_000_000;
+        let d_nm = now.saturating_sub(last) * LOCK_SPEED_UM_PER_S / 1_000_000;
         let max = LOCK_TRAVEL_UM * 1_000;
-        self.pos_nm = if self.in1 {
-            (self.pos_nm + d_nm).min(max)
+        let pos = self.pos_nm.get();
+        self.pos_nm.set(if self.in1.get() {
+            (pos + d_nm).min(max)
         } else {
-            self.pos_nm.saturating_sub(d_nm)
-        };
+            pos.saturating_sub(d_nm)
+        });
     }
 }
 
 /// Handle to the simulated lock.
 #[derive(Clone)]
 pub struct SimLock {
-    model: Rc<RefCell<LockModel>>,
+    model: Rc<LockModel>,
     clock: SimClock,
 }
 
@@ -64,37 +70,37 @@ impl SimLock {
     /// A lock that starts locked (the state the machine is parked in).
     pub fn new_locked(clock: SimClock) -> Self {
         let m = LockModel {
-            pos_nm: LOCK_TRAVEL_UM * 1_000,
-            in1: false,
-            in2: false,
-            last_ns: clock.now_ns(),
-            fault: LockFault::None,
+            pos_nm: Cell::new(LOCK_TRAVEL_UM * 1_000),
+            in1: Cell::new(false),
+            in2: Cell::new(false),
+            last_ns: Cell::new(clock.now_ns()),
+            fault: Cell::new(LockFault::None),
         };
         Self {
-            model: Rc::new(RefCell::new(m)),
+            model: Rc::new(m),
             clock,
         }
     }
 
-    fn with<R>(&self, f: impl FnOnce(&mut LockModel) -> R) -> R {
-        let mut m = self.model.borrow_mut();
-        m.update(self.clock.now_ns());
-        f(&mut m)
+    /// The model, moved up to now.
+    fn now(&self) -> &LockModel {
+        self.model.update(self.clock.now_ns());
+        &self.model
     }
 
     /// Inject or clear a fault.
     pub fn set_fault(&self, fault: LockFault) {
-        self.with(|m| m.fault = fault);
+        self.now().fault.set(fault);
     }
 
     /// Whether the motor is driven now.
     pub fn driven(&self) -> bool {
-        self.with(|m| m.in1 != m.in2)
+        self.now().driven()
     }
 
     /// Screw position, 0 = released, 1 = locked.
     pub fn fraction_locked(&self) -> f64 {
-        self.with(|m| m.pos_nm as f64 / (LOCK_TRAVEL_UM * 1_000) as f64)
+        self.now().pos_nm.get() as f64 / (LOCK_TRAVEL_UM * 1_000) as f64
     }
 
     /// IN1 (drive toward locked).
@@ -130,36 +136,37 @@ impl embedded_hal::digital::ErrorType for LockPin {
     type Error = core::convert::Infallible;
 }
 
+impl LockPin {
+    fn drive(&mut self, high: bool) {
+        let m = self.0.now();
+        match self.1 {
+            LockRole::In1 => m.in1.set(high),
+            LockRole::In2 => m.in2.set(high),
+            LockRole::LockedSw | LockRole::ReleasedSw => {}
+        }
+    }
+}
+
 impl embedded_hal::digital::OutputPin for LockPin {
     fn set_high(&mut self) -> Result<(), Self::Error> {
-        let r = self.1;
-        self.0.with(|m| match r {
-            LockRole::In1 => m.in1 = true,
-            LockRole::In2 => m.in2 = true,
-            _ => {}
-        });
+        self.drive(true);
         Ok(())
     }
     fn set_low(&mut self) -> Result<(), Self::Error> {
-        let r = self.1;
-        self.0.with(|m| match r {
-            LockRole::In1 => m.in1 = false,
-            LockRole::In2 => m.in2 = false,
-            _ => {}
-        });
+        self.drive(false);
         Ok(())
     }
 }
 
 impl embedded_hal::digital::InputPin for LockPin {
     fn is_high(&mut self) -> Result<bool, Self::Error> {
-        let r = self.1;
-        Ok(self.0.with(|m| match r {
-            LockRole::LockedSw => m.pos_nm < LOCK_TRAVEL_UM * 1_000,
-            LockRole::ReleasedSw => m.pos_nm > 0,
-            LockRole::In1 => m.in1,
-            LockRole::In2 => m.in2,
-        }))
+        let m = self.0.now();
+        Ok(match self.1 {
+            LockRole::LockedSw => m.pos_nm.get() < LOCK_TRAVEL_UM * 1_000,
+            LockRole::ReleasedSw => m.pos_nm.get() > 0,
+            LockRole::In1 => m.in1.get(),
+            LockRole::In2 => m.in2.get(),
+        })
     }
     fn is_low(&mut self) -> Result<bool, Self::Error> {
         self.is_high().map(|h| !h)
