@@ -12,7 +12,7 @@
 //! The axis keeps a motion log (driver enable edges with time and position) so tests
 //! can prove that nothing moved after a trip except the commanded back-off.
 
-use std::cell::RefCell;
+use std::cell::{Cell, RefCell};
 use std::rc::Rc;
 
 use docking_controller::config::MachineConfig;
@@ -44,25 +44,25 @@ pub struct EnableEdge {
     pub pos_um: f64,
 }
 
-/// Shared model.
+/// Shared model. The state every pin touches each control step is in `Cell`s (all
+/// `Copy`): a `Cell` needs no borrow bookkeeping, and the controller reads or drives the
+/// axis several times per step.
 #[derive(Debug)]
 pub struct AxisModel {
     cfg: MachineConfig,
     /// Carriage position, steps (physical truth).
-    pos_steps: i64,
-    rate_hz: u32,
+    pos_steps: Cell<i64>,
+    rate_hz: Cell<u32>,
     /// ns·Hz accumulator for fractional pulses.
-    frac: u64,
-    pending_pulses: u32,
-    dir_positive: bool,
-    enabled: bool,
-    last_ns: u64,
-    fault: AxisFault,
-    edges: Vec<EnableEdge>,
+    frac: Cell<u64>,
+    pending_pulses: Cell<u32>,
+    dir_positive: Cell<bool>,
+    enabled: Cell<bool>,
+    last_ns: Cell<u64>,
+    fault: Cell<AxisFault>,
+    edges: RefCell<Vec<EnableEdge>>,
     /// Total carriage travel, steps (both directions).
-    travel_steps: u64,
-    /// Travel since the driver was last disabled, steps.
-    travel_since_disable_steps: u64,
+    travel_steps: Cell<u64>,
     /// µm per step (cached).
     um_per_step: f64,
     /// Hard stops and end switch, steps.
@@ -72,42 +72,48 @@ pub struct AxisModel {
 }
 
 impl AxisModel {
-    fn update(&mut self, now: u64) {
-        if now <= self.last_ns {
+    /// Move the carriage to where the pulses since the last update put it.
+    fn update(&self, now: u64) {
+        let last = self.last_ns.get();
+        if now <= last {
             return;
         }
-        let dt = now - self.last_ns;
-        self.last_ns = now;
-        if self.rate_hz == 0 {
+        self.last_ns.set(now);
+        let rate = self.rate_hz.get();
+        if rate == 0 {
             return;
         }
-        let acc = self.frac + dt * self.rate_hz as u64;
+        let acc = self.frac.get() + (now - last) * rate as u64;
         let n = acc / 1_000_000_000;
-        self.frac = acc % 1_000_000_000;
-        self.pending_pulses = self.pending_pulses.saturating_add(n as u32);
-        if n > 0 && self.enabled && self.fault != AxisFault::Stalled {
-            let before = self.pos_steps;
-            let step = if self.dir_positive {
+        self.frac.set(acc % 1_000_000_000);
+        if n == 0 {
+            return;
+        }
+        self.pending_pulses
+            .set(self.pending_pulses.get().saturating_add(n as u32));
+        if self.enabled.get() && self.fault.get() != AxisFault::Stalled {
+            let before = self.pos_steps.get();
+            let step = if self.dir_positive.get() {
                 n as i64
             } else {
                 -(n as i64)
             };
-            self.pos_steps = (self.pos_steps + step).clamp(self.lo_steps, self.hi_steps);
-            let moved = (self.pos_steps - before).unsigned_abs();
-            self.travel_steps += moved;
-            self.travel_since_disable_steps += moved;
+            let after = (before + step).clamp(self.lo_steps, self.hi_steps);
+            self.pos_steps.set(after);
+            let moved = (after - before).unsigned_abs();
+            self.travel_steps.set(self.travel_steps.get() + moved);
         }
     }
 
     fn pos_um(&self) -> f64 {
-        self.pos_steps as f64 * self.um_per_step
+        self.pos_steps.get() as f64 * self.um_per_step
     }
 }
 
 /// Handle to the simulated axis.
 #[derive(Clone)]
 pub struct SimAxis {
-    model: Rc<RefCell<AxisModel>>,
+    model: Rc<AxisModel>,
     clock: SimClock,
 }
 
@@ -116,62 +122,62 @@ impl SimAxis {
     pub fn new(cfg: MachineConfig, clock: SimClock, start_um: i32) -> Self {
         let m = AxisModel {
             cfg,
-            pos_steps: cfg.um_to_steps(start_um) as i64,
-            rate_hz: 0,
-            frac: 0,
-            pending_pulses: 0,
-            dir_positive: false,
-            enabled: false,
-            last_ns: clock.now_ns(),
-            fault: AxisFault::None,
-            edges: Vec::new(),
-            travel_steps: 0,
-            travel_since_disable_steps: 0,
+            pos_steps: Cell::new(cfg.um_to_steps(start_um) as i64),
+            rate_hz: Cell::new(0),
+            frac: Cell::new(0),
+            pending_pulses: Cell::new(0),
+            dir_positive: Cell::new(false),
+            enabled: Cell::new(false),
+            last_ns: Cell::new(clock.now_ns()),
+            fault: Cell::new(AxisFault::None),
+            edges: RefCell::new(Vec::new()),
+            travel_steps: Cell::new(0),
             um_per_step: 1000.0 / cfg.steps_per_mm as f64,
             lo_steps: cfg.um_to_steps(-2_000) as i64,
             hi_steps: cfg.um_to_steps(cfg.end_switch_um + 2_000) as i64,
             end_steps: cfg.um_to_steps(cfg.end_switch_um) as i64,
         };
         Self {
-            model: Rc::new(RefCell::new(m)),
+            model: Rc::new(m),
             clock,
         }
     }
 
-    fn with<R>(&self, f: impl FnOnce(&mut AxisModel) -> R) -> R {
-        let mut m = self.model.borrow_mut();
-        m.update(self.clock.now_ns());
-        f(&mut m)
+    /// The model, moved up to now.
+    fn now(&self) -> &AxisModel {
+        self.model.update(self.clock.now_ns());
+        &self.model
     }
 
     /// Carriage position now, µm.
     pub fn pos_um(&self) -> f64 {
-        self.with(|m| m.pos_um())
+        self.now().pos_um()
     }
 
     /// Carriage position now, steps.
     pub fn pos_steps(&self) -> i64 {
-        self.with(|m| m.pos_steps)
+        self.now().pos_steps.get()
     }
 
     /// Whether the driver is enabled now.
     pub fn enabled(&self) -> bool {
-        self.with(|m| m.enabled)
+        self.now().enabled.get()
     }
 
     /// Inject or clear a fault.
     pub fn set_fault(&self, fault: AxisFault) {
-        self.with(|m| m.fault = fault);
+        self.now().fault.set(fault);
     }
 
     /// Driver-enable edges so far.
     pub fn enable_edges(&self) -> Vec<EnableEdge> {
-        self.with(|m| m.edges.clone())
+        self.now().edges.borrow().clone()
     }
 
     /// Total carriage travel so far, µm.
     pub fn travel_um(&self) -> f64 {
-        self.with(|m| m.travel_steps as f64 * 1000.0 / m.cfg.steps_per_mm as f64)
+        let m = self.now();
+        m.travel_steps.get() as f64 * 1000.0 / m.cfg.steps_per_mm as f64
     }
 
     /// The step-pulse generator (for the propulsion driver).
@@ -201,11 +207,11 @@ pub struct AxisPulses(SimAxis);
 
 impl StepPulses for AxisPulses {
     fn set_rate_hz(&mut self, rate_hz: u32) {
-        self.0.with(|m| m.rate_hz = rate_hz);
+        self.0.now().rate_hz.set(rate_hz);
     }
 
     fn take_pulses(&mut self) -> u32 {
-        self.0.with(|m| core::mem::take(&mut m.pending_pulses))
+        self.0.now().pending_pulses.replace(0)
     }
 }
 
@@ -238,38 +244,35 @@ impl embedded_hal::digital::OutputPin for AxisPin {
 impl AxisPin {
     fn set(&mut self, high: bool) {
         let now = self.0.clock.now_ns();
-        let role = self.1;
-        self.0.with(|m| match role {
+        let m = self.0.now();
+        match self.1 {
             PinRole::EnableN => {
                 let enabled = !high;
-                if enabled != m.enabled {
-                    m.enabled = enabled;
-                    if !enabled {
-                        m.travel_since_disable_steps = 0;
-                    }
-                    let pos_um = m.pos_um();
-                    m.edges.push(EnableEdge {
+                if enabled != m.enabled.get() {
+                    m.enabled.set(enabled);
+                    m.edges.borrow_mut().push(EnableEdge {
                         t_ns: now,
                         enabled,
-                        pos_um,
+                        pos_um: m.pos_um(),
                     });
                 }
             }
-            PinRole::Dir => m.dir_positive = high,
+            PinRole::Dir => m.dir_positive.set(high),
             PinRole::Home | PinRole::End => {}
-        });
+        }
     }
 }
 
 impl embedded_hal::digital::InputPin for AxisPin {
     fn is_high(&mut self) -> Result<bool, Self::Error> {
-        let role = self.1;
-        Ok(self.0.with(|m| match role {
-            PinRole::Home => !(m.fault != AxisFault::HomeSwitchDead && m.pos_steps <= 0),
-            PinRole::End => !(m.fault != AxisFault::EndSwitchDead && m.pos_steps >= m.end_steps),
-            PinRole::EnableN => !m.enabled,
-            PinRole::Dir => m.dir_positive,
-        }))
+        let m = self.0.now();
+        let pos = m.pos_steps.get();
+        Ok(match self.1 {
+            PinRole::Home => !(m.fault.get() != AxisFault::HomeSwitchDead && pos <= 0),
+            PinRole::End => !(m.fault.get() != AxisFault::EndSwitchDead && pos >= m.end_steps),
+            PinRole::EnableN => !m.enabled.get(),
+            PinRole::Dir => m.dir_positive.get(),
+        })
     }
     fn is_low(&mut self) -> Result<bool, Self::Error> {
         self.is_high().map(|h| !h)
