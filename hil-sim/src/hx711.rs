@@ -42,6 +42,15 @@ impl<F: FnMut(u64) -> f64> ForceSource for F {
     }
 }
 
+/// Any source, boxed (the default: scenes and tests pass closures).
+pub type BoxedSource = Box<dyn ForceSource>;
+
+impl ForceSource for BoxedSource {
+    fn force_n(&mut self, t_ns: u64) -> f64 {
+        (**self).force_n(t_ns)
+    }
+}
+
 /// Injected device faults.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Hx711Fault {
@@ -101,12 +110,13 @@ pub struct Hx711Stats {
     pub power_downs: u64,
 }
 
-/// The device model; shared by its two pins.
-pub struct Hx711Model {
+/// The device model; shared by its two pins. Generic over its force source so that a
+/// long run's source is called directly (inlined), not through a vtable.
+pub struct Hx711Model<S = BoxedSource> {
     cfg: Hx711Config,
     /// Conversion period, ns (cached: the model is consulted several times a sample).
     period_ns: u64,
-    source: Box<dyn ForceSource>,
+    source: S,
     rng: Rng,
     fault: Hx711Fault,
     /// Time of the next conversion completion, ns.
@@ -127,15 +137,21 @@ pub struct Hx711Model {
     last_read: Option<(i32, u64)>,
 }
 
-impl Hx711Model {
+impl<S: ForceSource> Hx711Model<S> {
     fn settle_ns(&self) -> u64 {
         4 * self.period_ns
     }
 
+    /// Complete the conversions due by `now`. Nothing is due in the common case (the
+    /// model is consulted several times per conversion): that is decided inline.
+    #[inline(always)]
     fn catch_up(&mut self, now: u64) {
-        if now < self.next_conv_ns {
-            return; // nothing due (the common case: checked many times per conversion)
+        if now >= self.next_conv_ns {
+            self.convert_due(now);
         }
+    }
+
+    fn convert_due(&mut self, now: u64) {
         if self
             .sck_high_since
             .is_some_and(|t| now.saturating_sub(t) > POWER_DOWN_NS)
@@ -143,19 +159,27 @@ impl Hx711Model {
             return; // powered down: no conversions
         }
         while self.next_conv_ns <= now {
-            let t = self.next_conv_ns;
-            self.next_conv_ns += self.period_ns;
-            if self.pulses != 0 && self.pulses < 25 {
-                continue; // readout in progress: the part holds its output register
-            }
-            let code = self.convert(t);
-            if self.ready.is_some() {
-                self.stats.samples_missed += 1;
-            }
-            self.stats.conversions += 1;
-            self.ready = Some((code, t));
-            self.pulses = 0;
+            self.complete_next();
         }
+    }
+
+    /// Complete the conversion due at `next_conv_ns`. Kept out of line: inlined into the
+    /// loop above, every field it reads would be loaded before the loop (which runs once
+    /// in the usual case) and spilled.
+    #[inline(never)]
+    fn complete_next(&mut self) {
+        let t = self.next_conv_ns;
+        self.next_conv_ns += self.period_ns;
+        if self.pulses != 0 && self.pulses < 25 {
+            return; // readout in progress: the part holds its output register
+        }
+        let code = self.convert(t);
+        if self.ready.is_some() {
+            self.stats.samples_missed += 1;
+        }
+        self.stats.conversions += 1;
+        self.ready = Some((code, t));
+        self.pulses = 0;
     }
 
     fn convert(&mut self, t_ns: u64) -> i32 {
@@ -239,10 +263,19 @@ impl Hx711Model {
 }
 
 /// Handle to a simulated HX711 for the scene (configuration, faults, statistics).
-#[derive(Clone)]
-pub struct SimHx711 {
-    model: Rc<RefCell<Hx711Model>>,
+pub struct SimHx711<S = BoxedSource> {
+    model: Rc<RefCell<Hx711Model<S>>>,
     clock: SimClock,
+}
+
+// Not derived: a derive would ask for `S: Clone`, and the handle only clones the `Rc`.
+impl<S> Clone for SimHx711<S> {
+    fn clone(&self) -> Self {
+        Self {
+            model: self.model.clone(),
+            clock: self.clock.clone(),
+        }
+    }
 }
 
 impl SimHx711 {
@@ -253,11 +286,18 @@ impl SimHx711 {
         source: impl ForceSource + 'static,
         seed: u64,
     ) -> Self {
+        Self::with_source(cfg, clock, Box::new(source), seed)
+    }
+}
+
+impl<S: ForceSource> SimHx711<S> {
+    /// [`SimHx711::new`] with a source of a named type (called without a vtable).
+    pub fn with_source(cfg: Hx711Config, clock: SimClock, source: S, seed: u64) -> Self {
         let now = clock.now_ns();
         let mut m = Hx711Model {
             period_ns: cfg.period_ns(),
             cfg,
-            source: Box::new(source),
+            source,
             rng: Rng::new(seed),
             fault: Hx711Fault::None,
             next_conv_ns: 0,
@@ -279,7 +319,7 @@ impl SimHx711 {
     }
 
     /// The data-output pin (an `InputPin` for the driver).
-    pub fn dout(&self) -> Hx711Dout {
+    pub fn dout(&self) -> Hx711Dout<S> {
         Hx711Dout {
             model: self.model.clone(),
             clock: self.clock.clone(),
@@ -287,7 +327,7 @@ impl SimHx711 {
     }
 
     /// The clock/power-down pin (an `OutputPin` for the driver).
-    pub fn pd_sck(&self) -> Hx711Sck {
+    pub fn pd_sck(&self) -> Hx711Sck<S> {
         Hx711Sck {
             model: self.model.clone(),
             clock: self.clock.clone(),
@@ -348,22 +388,22 @@ impl SimHx711 {
 }
 
 /// HX711 DOUT as an embedded-hal `InputPin`.
-pub struct Hx711Dout {
-    model: Rc<RefCell<Hx711Model>>,
+pub struct Hx711Dout<S = BoxedSource> {
+    model: Rc<RefCell<Hx711Model<S>>>,
     clock: SimClock,
 }
 
 /// HX711 PD_SCK as an embedded-hal `OutputPin`.
-pub struct Hx711Sck {
-    model: Rc<RefCell<Hx711Model>>,
+pub struct Hx711Sck<S = BoxedSource> {
+    model: Rc<RefCell<Hx711Model<S>>>,
     clock: SimClock,
 }
 
-impl embedded_hal::digital::ErrorType for Hx711Dout {
+impl<S> embedded_hal::digital::ErrorType for Hx711Dout<S> {
     type Error = core::convert::Infallible;
 }
 
-impl embedded_hal::digital::InputPin for Hx711Dout {
+impl<S: ForceSource> embedded_hal::digital::InputPin for Hx711Dout<S> {
     fn is_high(&mut self) -> Result<bool, Self::Error> {
         Ok(self.model.borrow_mut().dout_high(self.clock.now_ns()))
     }
@@ -373,11 +413,11 @@ impl embedded_hal::digital::InputPin for Hx711Dout {
     }
 }
 
-impl embedded_hal::digital::ErrorType for Hx711Sck {
+impl<S> embedded_hal::digital::ErrorType for Hx711Sck<S> {
     type Error = core::convert::Infallible;
 }
 
-impl embedded_hal::digital::OutputPin for Hx711Sck {
+impl<S: ForceSource> embedded_hal::digital::OutputPin for Hx711Sck<S> {
     fn set_high(&mut self) -> Result<(), Self::Error> {
         let mut m = self.model.borrow_mut();
         if m.sck_high_since.is_none() {

@@ -14,7 +14,7 @@ use crate::axis::{AxisPin, AxisPulses, SimAxis};
 use crate::clock::SimClock;
 use crate::console::SimConsole;
 use crate::flash::{SharedFlash, SimFlash};
-use crate::hx711::{Hx711Config, Hx711Dout, Hx711Sck, SimHx711};
+use crate::hx711::{ForceSource, Hx711Config, Hx711Dout, Hx711Sck, SimHx711};
 use crate::lock::{LockPin, SimLock};
 use docking_controller::console::service::{Console, ConsolePoll};
 
@@ -64,7 +64,7 @@ impl Watchdog for SimWatchdog {
 }
 
 /// The real HX711 driver on the simulated part's pins.
-pub type PinDriver = Hx711<Hx711Dout, Hx711Sck, SimClock>;
+pub type PinDriver = Hx711<Hx711Dout<ProfileForce>, Hx711Sck<ProfileForce>, SimClock>;
 
 /// How the controller reads the simulated HX711.
 pub enum SimAdc {
@@ -73,7 +73,7 @@ pub enum SimAdc {
     /// Word-level: the whole readout in one call, same data-ready semantics and virtual
     /// readout time, ~20x cheaper (long runs: `bench`, `life`; the bit protocol is proven
     /// by the driver tests and by every scene).
-    Word(SimHx711),
+    Word(SimHx711<ProfileForce>),
 }
 
 /// Which [`SimAdc`] a rig uses.
@@ -127,6 +127,67 @@ pub struct ForceScript {
     pub offset_n: f64,
 }
 
+/// What the rig's load cell measures: N3 of Eq. 7 at the carriage's position (the
+/// carriage moves in whole steps, so it is tabulated once per step position over the
+/// stroke: the same values without per-sample divisions), plus the scene's additions.
+pub struct ProfileForce {
+    axis: SimAxis,
+    script: Rc<RefCell<ForceScript>>,
+    conversions: Rc<Cell<u64>>,
+    /// N3 at each step of insertion depth, N.
+    table: Vec<f64>,
+    /// N3 past the end of the stroke, N.
+    n3_end: f64,
+    engage_steps: i64,
+    um_per_step: f64,
+}
+
+impl ProfileForce {
+    fn new(
+        machine: MachineConfig,
+        axis: SimAxis,
+        script: Rc<RefCell<ForceScript>>,
+        conversions: Rc<Cell<u64>>,
+    ) -> Self {
+        let um_per_step = 1000.0 / machine.steps_per_mm as f64;
+        let table: Vec<f64> = (0..=machine.um_to_steps(STROKE_UM))
+            .map(|k| forces_at_depth_um(k as f64 * um_per_step).n3_n)
+            .collect();
+        Self {
+            axis,
+            script,
+            conversions,
+            n3_end: table.last().copied().unwrap_or(0.0),
+            table,
+            engage_steps: machine.um_to_steps(machine.engage_um) as i64,
+            um_per_step,
+        }
+    }
+}
+
+impl ForceSource for ProfileForce {
+    fn force_n(&mut self, _t_ns: u64) -> f64 {
+        let n = self.conversions.get();
+        self.conversions.set(n + 1);
+        let depth_steps = self.axis.pos_steps() - self.engage_steps;
+        let s = self.script.borrow();
+        let mut f = match usize::try_from(depth_steps) {
+            Err(_) => 0.0, // before contact
+            Ok(k) => self.table.get(k).copied().unwrap_or(self.n3_end),
+        } + s.offset_n;
+        if let Some(j) = s.jam_from_um {
+            let depth = depth_steps as f64 * self.um_per_step;
+            if depth > j {
+                f += (depth - j) / 1000.0 * s.jam_n_per_mm;
+            }
+        }
+        if !s.spikes_at.is_empty() && s.spikes_at.binary_search(&n).is_ok() {
+            f += s.spike_n;
+        }
+        f
+    }
+}
+
 /// Rig options.
 #[derive(Clone, Copy, Debug)]
 pub struct RigOptions {
@@ -164,7 +225,7 @@ pub struct Rig {
     /// Lock actuator.
     pub lock: SimLock,
     /// Load cell.
-    pub hx: SimHx711,
+    pub hx: SimHx711<ProfileForce>,
     /// Watchdog.
     pub wdg: SimWatchdog,
     /// Scene force additions.
@@ -221,40 +282,12 @@ impl Rig {
         let lock = SimLock::new_locked(clock.clone());
         let script = Rc::new(RefCell::new(ForceScript::default()));
         let conversions = Rc::new(Cell::new(0u64));
-        let (ax, sc, conv) = (axis.clone(), script.clone(), conversions.clone());
-        // The carriage moves in whole steps, so N3 of Eq. 7 is tabulated once per step
-        // position over the stroke (the same values, without per-sample divisions).
-        let um_per_step = 1000.0 / machine.steps_per_mm as f64;
-        let engage_steps = machine.um_to_steps(machine.engage_um) as i64;
-        let table: Vec<f64> = (0..=machine.um_to_steps(STROKE_UM))
-            .map(|k| forces_at_depth_um(k as f64 * um_per_step).n3_n)
-            .collect();
-        let n3_end = table.last().copied().unwrap_or(0.0);
-        let source = move |_t_ns: u64| {
-            let n = conv.get();
-            conv.set(n + 1);
-            let depth_steps = ax.pos_steps() - engage_steps;
-            let s = sc.borrow();
-            let mut f = match usize::try_from(depth_steps) {
-                Err(_) => 0.0, // before contact
-                Ok(k) => table.get(k).copied().unwrap_or(n3_end),
-            } + s.offset_n;
-            if let Some(j) = s.jam_from_um {
-                let depth = depth_steps as f64 * um_per_step;
-                if depth > j {
-                    f += (depth - j) / 1000.0 * s.jam_n_per_mm;
-                }
-            }
-            if !s.spikes_at.is_empty() && s.spikes_at.binary_search(&n).is_ok() {
-                f += s.spike_n;
-            }
-            f
-        };
+        let source = ProfileForce::new(machine, axis.clone(), script.clone(), conversions.clone());
         let mut hx_cfg = Hx711Config::default_for_rate(opts.rate_sps);
         if let Some(n) = opts.noise_counts {
             hx_cfg.noise_counts = n;
         }
-        let hx = SimHx711::new(hx_cfg, clock.clone(), source, opts.seed);
+        let hx = SimHx711::with_source(hx_cfg, clock.clone(), source, opts.seed);
         let wdg = SimWatchdog::new(clock.clone());
         let parts = Parts::<SimBsp> {
             en_n: axis.enable_n(),
