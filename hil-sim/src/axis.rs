@@ -72,23 +72,29 @@ pub struct AxisModel {
 }
 
 impl AxisModel {
-    /// Move the carriage to where the pulses since the last update put it.
+    /// Move the carriage to where the pulses since the last update put it. Several
+    /// lines are read at one instant each control step: only the first moves the model,
+    /// and that is decided inline.
     fn update(&self, now: u64) {
-        let last = self.last_ns.get();
-        if now <= last {
-            return;
+        if now > self.last_ns.get() {
+            self.advance(now);
         }
+    }
+
+    fn advance(&self, now: u64) {
+        let last = self.last_ns.get();
         self.last_ns.set(now);
         let rate = self.rate_hz.get();
         if rate == 0 {
             return;
         }
         let acc = self.frac.get() + (now - last) * rate as u64;
-        let n = acc / 1_000_000_000;
-        self.frac.set(acc % 1_000_000_000);
-        if n == 0 {
+        if acc < 1_000_000_000 {
+            self.frac.set(acc); // no whole pulse yet (a readout's 50 µs, say)
             return;
         }
+        let n = acc / 1_000_000_000;
+        self.frac.set(acc % 1_000_000_000);
         self.pending_pulses
             .set(self.pending_pulses.get().saturating_add(n as u32));
         if self.enabled.get() && self.fault.get() != AxisFault::Stalled {
