@@ -48,46 +48,41 @@ pub struct Propulsion<EN, DIR, P> {
     last_move: Option<(i32, u32)>,
     /// The rate the pulse generator was last set to, Hz.
     rate_hz: u32,
-    /// Cruise shortcut of [`plan`](Self::plan): for this (period µs, speed limit
-    /// steps/s), the distance to the target, steps, from which a move already at the
-    /// speed limit keeps cruising unchanged (see [`Cruise`]).
+    /// Cruise shortcut of [`plan`](Self::plan), set while the move cruises at its speed
+    /// limit and cleared by anything that changes the move (see [`Cruise`]).
     cruise: Option<Cruise>,
 }
 
-/// When a move at its speed limit keeps cruising: the full ramp computation of
-/// [`Propulsion::plan`] returns the same velocity whenever the remaining distance is at
-/// least `min_dist_steps` — the stopping distance plus this period's travel, and past the
-/// final-approach window. Derived once per (period, speed limit) instead of every step.
+/// How long a move at its speed limit keeps cruising: the full ramp computation of
+/// [`Propulsion::plan`] returns the same velocity (so nothing is reprogrammed) as long as
+/// the distance left is at least [`Cruise::min_dist_steps`] — the stopping distance plus
+/// one period's travel, and short of the final-approach window. Set after a ramp step
+/// that ends at the speed limit, as the position up to which that holds for this period.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Cruise {
+    /// The control period it was derived for, µs.
     dt_us: u64,
-    max_sps: u32,
-    min_dist_steps: i64,
+    /// Cruise on while the position is at most this (moving +) or at least this (moving
+    /// −), steps.
+    until_steps: i64,
 }
 
 impl Cruise {
-    fn new(dt_us: u64, max_sps: u32, accel_sps2: u32) -> Self {
+    /// Least distance to the target, steps, from which a move at `max_sps` keeps
+    /// cruising for a period of `dt_us` (`None`: never, with no acceleration).
+    fn min_dist_steps(dt_us: u64, max_sps: u32, accel_sps2: u32) -> Option<i64> {
+        if accel_sps2 == 0 {
+            return None;
+        }
         let max = max_sps as i64;
         let dv = ((accel_sps2 as u64 * dt_us) / 1_000_000).max(1) as i64;
         let lead = (max * dt_us as i64) / 1_000_000;
-        if accel_sps2 == 0 {
-            // No ramp to stop on (never configured so): always take the full path.
-            return Self {
-                dt_us,
-                max_sps,
-                min_dist_steps: i64::MAX,
-            };
-        }
         let two_a = 2 * accel_sps2 as i64;
         // v_stop = max  ⟺  max² ≤ 2a·(D − lead)  ⟺  D ≥ lead + ⌈max² / 2a⌉
         let stop = lead + (max * max + two_a - 1) / two_a;
         // not the final approach  ⟺  D > max(lead, 1) + dv·dt/1e6 + 1
         let approach = lead.max(1) + dv * dt_us as i64 / 1_000_000 + 2;
-        Self {
-            dt_us,
-            max_sps,
-            min_dist_steps: stop.max(approach),
-        }
+        Some(stop.max(approach))
     }
 }
 
@@ -126,6 +121,7 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
 
     /// Emergency stop: pulses stop and the power stage is switched off, now.
     pub fn disable(&mut self) -> Result<(), PropulsionError> {
+        self.cruise = None;
         self.pulses.set_rate_hz(0);
         self.rate_hz = 0;
         self.vel_sps = 0;
@@ -155,17 +151,20 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
             return; // the same command as last step: nothing to convert
         }
         self.last_move = Some((target_um, speed_um_per_s));
+        self.cruise = None;
         self.target_steps = Some(self.cfg.um_to_steps(target_um));
         self.max_sps = self.cfg.speed_to_step_hz(speed_um_per_s);
     }
 
     /// Ramp down to a stop wherever that ends.
     pub fn stop(&mut self) {
+        self.cruise = None;
         self.target_steps = None;
     }
 
     /// Stop pulses at once, keeping the power stage as it is (at a switch).
     pub fn halt(&mut self) {
+        self.cruise = None;
         self.pulses.set_rate_hz(0);
         self.rate_hz = 0;
         self.vel_sps = 0;
@@ -174,6 +173,7 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
 
     /// Declare the current position to be `pos_um` (homing).
     pub fn set_position_um(&mut self, pos_um: i32) {
+        self.cruise = None;
         self.pos_steps = self.cfg.um_to_steps(pos_um);
         self.pos_um = self.cfg.steps_to_um(self.pos_steps);
     }
@@ -224,35 +224,48 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
     /// toward the target.
     pub fn plan(&mut self, dt_us: u32) -> Result<(), PropulsionError> {
         if !self.enabled {
+            self.cruise = None;
             self.pulses.set_rate_hz(0);
             self.rate_hz = 0;
             self.vel_sps = 0;
             return Ok(());
         }
         let dt_us = dt_us.clamp(1, 1_000_000) as u64;
-        if let Some(t) = self.target_steps {
+        if let Some(c) = self.cruise {
             // Cruising at the speed limit, far from the target: nothing changes (the
-            // common case; `Cruise` proves the full computation below agrees).
-            let c = match self.cruise {
-                Some(c) if c.dt_us == dt_us && c.max_sps == self.max_sps => c,
-                _ => {
-                    let c = Cruise::new(dt_us, self.max_sps, self.accel_sps2);
-                    self.cruise = Some(c);
-                    c
-                }
+            // common case; `Cruise` says why the ramp computation would agree).
+            let pos = self.pos_steps as i64;
+            let on = if self.dir_positive {
+                pos <= c.until_steps
+            } else {
+                pos >= c.until_steps
             };
-            let dist = t as i64 - self.pos_steps as i64;
-            let v = self.vel_sps as i64;
-            if self.max_sps > 0
-                && v == dist.signum() * self.max_sps as i64
-                && dist.abs() >= c.min_dist_steps
-                && self.rate_hz == self.max_sps
-                && self.dir_positive == (v > 0)
-            {
+            if on && c.dt_us == dt_us {
                 return Ok(());
             }
         }
-        self.plan_ramp(dt_us)
+        self.plan_ramp(dt_us)?;
+        self.cruise = self.cruise_ahead(dt_us);
+        Ok(())
+    }
+
+    /// After a ramp step: how far the move now cruises unchanged, if it is at its limit.
+    fn cruise_ahead(&self, dt_us: u64) -> Option<Cruise> {
+        let t = self.target_steps? as i64;
+        let max = self.max_sps;
+        let v = self.vel_sps as i64;
+        let cruising = max > 0
+            && v.unsigned_abs() == max as u64
+            && self.rate_hz == max
+            && self.dir_positive == (v > 0);
+        if !cruising {
+            return None;
+        }
+        let d = Cruise::min_dist_steps(dt_us, max, self.accel_sps2)?;
+        Some(Cruise {
+            dt_us,
+            until_steps: if v > 0 { t - d } else { t + d },
+        })
     }
 
     /// The full ramp computation of [`plan`](Self::plan) for an enabled driver.
@@ -400,55 +413,91 @@ mod tests {
         assert!(p.is_idle());
     }
 
-    /// The cruise shortcut of `plan` agrees with the full ramp computation wherever it
-    /// is taken (same velocity, rate, direction and target afterwards).
+    /// Pulses emitted at the last rate for a period of `dt_us`.
+    struct GenDt {
+        rate: u32,
+        frac: u64,
+        dt_us: u64,
+    }
+    impl StepPulses for GenDt {
+        fn set_rate_hz(&mut self, r: u32) {
+            self.rate = r;
+        }
+        fn take_pulses(&mut self) -> u32 {
+            let acc = self.frac + self.rate as u64 * self.dt_us;
+            self.frac = acc % 1_000_000;
+            (acc / 1_000_000) as u32
+        }
+    }
+
+    /// The cruise shortcut of `plan` changes nothing: a driver using it and one that
+    /// always runs the full ramp computation step through the same moves (ramps, cruise,
+    /// arrival, reversal, a new target mid-cruise, a stop) in lockstep, for a grid of
+    /// periods, speed limits and accelerations.
     #[test]
     fn cruise_shortcut_matches_the_full_ramp() {
         let (en, dir) = (Line::default(), Line::default());
-        let mk = || {
-            let mut p =
-                Propulsion::new(&en, &dir, Gen { rate: 0, frac: 0 }, MachineConfig::DEFAULT)
-                    .unwrap();
-            p.enable().unwrap();
-            p
-        };
-        let (mut shortcut_taken, mut cases) = (0u32, 0u32);
-        for dt_us in [1u32, 999, 3_125, 12_500, 100_000, 1_000_000] {
-            for max_sps in [1u32, 2, 239, 240, 2_000, 4_000] {
+        let (mut shortcuts, mut steps) = (0u32, 0u32);
+        for dt_us in [999u32, 3_125, 12_500, 100_000] {
+            for speed_um_per_s in [5u32, 400, 1_200, 10_000, 20_000] {
                 for accel_sps2 in [1u32, 7, 4_000, 100_000] {
-                    for dist in -3_000i32..=3_000 {
-                        for sign in [-1i32, 1] {
-                            let (mut a, mut b) = (mk(), mk());
-                            for p in [&mut a, &mut b] {
-                                p.pos_steps = 5_000;
-                                p.target_steps = Some(5_000 + dist);
-                                p.max_sps = max_sps;
-                                p.accel_sps2 = accel_sps2;
-                                p.vel_sps = sign * max_sps as i32;
-                                p.rate_hz = max_sps;
-                                p.dir_positive = sign > 0;
+                    let mk = || {
+                        let gen = GenDt {
+                            rate: 0,
+                            frac: 0,
+                            dt_us: dt_us as u64,
+                        };
+                        let mut p =
+                            Propulsion::new(&en, &dir, gen, MachineConfig::DEFAULT).unwrap();
+                        p.accel_sps2 = accel_sps2;
+                        p.enable().unwrap();
+                        p
+                    };
+                    let (mut a, mut b) = (mk(), mk());
+                    let moves: [(i32, u32); 5] = [
+                        (30_000, 60),
+                        (12_000, 25),
+                        (40_000, 8),
+                        (-1_000, 80),
+                        (20_000, 80),
+                    ];
+                    for (k, &(target_um, n)) in moves.iter().enumerate() {
+                        for p in [&mut a, &mut b] {
+                            p.move_to(target_um, speed_um_per_s);
+                        }
+                        for i in 0..n * 10 {
+                            if k == 2 && i == 20 {
+                                a.stop();
+                                b.stop();
                             }
+                            a.sync();
+                            b.sync();
+                            let took = a.cruise.is_some_and(|c| {
+                                c.dt_us == dt_us as u64
+                                    && if a.dir_positive {
+                                        a.pos_steps as i64 <= c.until_steps
+                                    } else {
+                                        a.pos_steps as i64 >= c.until_steps
+                                    }
+                            });
                             a.plan(dt_us).unwrap();
-                            b.plan_ramp(dt_us.clamp(1, 1_000_000) as u64).unwrap();
-                            let c = a.cruise.unwrap();
-                            if (dist as i64).abs() >= c.min_dist_steps && dist.signum() == sign {
-                                shortcut_taken += 1;
-                            }
-                            cases += 1;
+                            b.plan_ramp(dt_us as u64).unwrap();
+                            shortcuts += took as u32;
+                            steps += 1;
                             assert_eq!(
-                                (a.vel_sps, a.rate_hz, a.dir_positive, a.target_steps),
-                                (b.vel_sps, b.rate_hz, b.dir_positive, b.target_steps),
-                                "dt {dt_us} max {max_sps} accel {accel_sps2} dist {dist} sign {sign}"
+                                (a.vel_sps, a.rate_hz, a.dir_positive, a.target_steps, a.pos_steps),
+                                (b.vel_sps, b.rate_hz, b.dir_positive, b.target_steps, b.pos_steps),
+                                "dt {dt_us} µs, {speed_um_per_s} µm/s, {accel_sps2} steps/s², move {k}, step {i}"
                             );
                         }
                     }
                 }
             }
         }
-        // Both branches were exercised.
+        // Both paths ran, the shortcut most of the time.
         assert!(
-            shortcut_taken > cases / 10 && shortcut_taken < cases,
-            "{shortcut_taken}/{cases}"
+            shortcuts > steps / 3 && shortcuts < steps,
+            "{shortcuts}/{steps}"
         );
     }
 
