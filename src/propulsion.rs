@@ -224,29 +224,33 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
     /// toward the target.
     pub fn plan(&mut self, dt_us: u32) -> Result<(), PropulsionError> {
         if !self.enabled {
-            self.cruise = None;
             self.pulses.set_rate_hz(0);
             self.rate_hz = 0;
             self.vel_sps = 0;
             return Ok(());
         }
         let dt_us = dt_us.clamp(1, 1_000_000) as u64;
-        if let Some(c) = self.cruise {
+        if self.cruises_on(dt_us) {
             // Cruising at the speed limit, far from the target: nothing changes (the
             // common case; `Cruise` says why the ramp computation would agree).
-            let pos = self.pos_steps as i64;
-            let on = if self.dir_positive {
-                pos <= c.until_steps
-            } else {
-                pos >= c.until_steps
-            };
-            if on && c.dt_us == dt_us {
-                return Ok(());
-            }
+            return Ok(());
         }
         self.plan_ramp(dt_us)?;
         self.cruise = self.cruise_ahead(dt_us);
         Ok(())
+    }
+
+    /// Whether the recorded cruise still holds for a period of `dt_us` here.
+    fn cruises_on(&self, dt_us: u64) -> bool {
+        self.cruise.is_some_and(|c| {
+            let pos = self.pos_steps as i64;
+            c.dt_us == dt_us
+                && if self.dir_positive {
+                    pos <= c.until_steps
+                } else {
+                    pos >= c.until_steps
+                }
+        })
     }
 
     /// After a ramp step: how far the move now cruises unchanged, if it is at its limit.
@@ -367,10 +371,20 @@ mod tests {
             Ok(())
         }
     }
-    /// Pulses emitted at the last rate for exactly one period of `PERIOD_US`.
+    /// Pulses emitted at the last rate for exactly one period of `dt_us`.
     struct Gen {
         rate: u32,
         frac: u64,
+        dt_us: u64,
+    }
+    impl Gen {
+        fn new(dt_us: u32) -> Self {
+            Self {
+                rate: 0,
+                frac: 0,
+                dt_us: dt_us as u64,
+            }
+        }
     }
     const PERIOD_US: u32 = 12_500;
     impl StepPulses for Gen {
@@ -378,7 +392,7 @@ mod tests {
             self.rate = r;
         }
         fn take_pulses(&mut self) -> u32 {
-            let acc = self.frac + self.rate as u64 * PERIOD_US as u64;
+            let acc = self.frac + self.rate as u64 * self.dt_us;
             self.frac = acc % 1_000_000;
             (acc / 1_000_000) as u32
         }
@@ -388,7 +402,7 @@ mod tests {
     fn ramps_to_target_without_overshoot_and_reverses() {
         let (en, dir) = (Line::default(), Line::default());
         let cfg = MachineConfig::DEFAULT;
-        let mut p = Propulsion::new(&en, &dir, Gen { rate: 0, frac: 0 }, cfg).unwrap();
+        let mut p = Propulsion::new(&en, &dir, Gen::new(PERIOD_US), cfg).unwrap();
         assert!(en.0.get(), "starts disabled");
         p.enable().unwrap();
         p.move_to(20_000, cfg.fast_speed_um_per_s);
@@ -413,23 +427,6 @@ mod tests {
         assert!(p.is_idle());
     }
 
-    /// Pulses emitted at the last rate for a period of `dt_us`.
-    struct GenDt {
-        rate: u32,
-        frac: u64,
-        dt_us: u64,
-    }
-    impl StepPulses for GenDt {
-        fn set_rate_hz(&mut self, r: u32) {
-            self.rate = r;
-        }
-        fn take_pulses(&mut self) -> u32 {
-            let acc = self.frac + self.rate as u64 * self.dt_us;
-            self.frac = acc % 1_000_000;
-            (acc / 1_000_000) as u32
-        }
-    }
-
     /// The cruise shortcut of `plan` changes nothing: a driver using it and one that
     /// always runs the full ramp computation step through the same moves (ramps, cruise,
     /// arrival, reversal, a new target mid-cruise, a stop) in lockstep, for a grid of
@@ -442,13 +439,9 @@ mod tests {
             for speed_um_per_s in [5u32, 400, 1_200, 10_000, 20_000] {
                 for accel_sps2 in [1u32, 7, 4_000, 100_000] {
                     let mk = || {
-                        let gen = GenDt {
-                            rate: 0,
-                            frac: 0,
-                            dt_us: dt_us as u64,
-                        };
                         let mut p =
-                            Propulsion::new(&en, &dir, gen, MachineConfig::DEFAULT).unwrap();
+                            Propulsion::new(&en, &dir, Gen::new(dt_us), MachineConfig::DEFAULT)
+                                .unwrap();
                         p.accel_sps2 = accel_sps2;
                         p.enable().unwrap();
                         p
@@ -472,14 +465,7 @@ mod tests {
                             }
                             a.sync();
                             b.sync();
-                            let took = a.cruise.is_some_and(|c| {
-                                c.dt_us == dt_us as u64
-                                    && if a.dir_positive {
-                                        a.pos_steps as i64 <= c.until_steps
-                                    } else {
-                                        a.pos_steps as i64 >= c.until_steps
-                                    }
-                            });
+                            let took = a.cruises_on(dt_us as u64);
                             a.plan(dt_us).unwrap();
                             b.plan_ramp(dt_us as u64).unwrap();
                             shortcuts += took as u32;
@@ -505,7 +491,7 @@ mod tests {
     fn disable_stops_at_once() {
         let (en, dir) = (Line::default(), Line::default());
         let mut p =
-            Propulsion::new(&en, &dir, Gen { rate: 0, frac: 0 }, MachineConfig::DEFAULT).unwrap();
+            Propulsion::new(&en, &dir, Gen::new(PERIOD_US), MachineConfig::DEFAULT).unwrap();
         p.enable().unwrap();
         p.move_to(50_000, 1_200);
         for _ in 0..100 {
