@@ -73,8 +73,7 @@ pub struct AxisModel {
 
 impl AxisModel {
     /// Move the carriage to where the pulses since the last update put it. Several
-    /// lines are read at one instant each control step: only the first moves the model,
-    /// and that is decided inline.
+    /// lines are read at one instant each control step: only the first moves the model.
     fn update(&self, now: u64) {
         if now > self.last_ns.get() {
             self.advance(now);
