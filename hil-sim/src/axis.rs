@@ -11,6 +11,14 @@
 //!
 //! The axis keeps a motion log (driver enable edges with time and position) so tests
 //! can prove that nothing moved after a trip except the commanded back-off.
+//!
+//! Two ways to drive it, one model: the host rig gives a pulse *rate* through
+//! [`AxisPulses`] (the board's step generator, abstracted); the virtual board drives
+//! the **STEP pin** ([`SimAxis::step`]): every rising edge is one pulse, in the direction
+//! DIR has at that edge, like a DM542/TB6600-class driver. On the pin path the model
+//! also checks what such a driver's opto-coupled inputs need ([`StepTiming`]): DIR and
+//! EN settled at least [`DIR_EN_SETUP_NS`] before a STEP rising edge, STEP high at least
+//! [`STEP_HIGH_MIN_NS`] and low at least [`STEP_LOW_MIN_NS`].
 
 use std::cell::{Cell, RefCell};
 use std::rc::Rc;
@@ -44,6 +52,32 @@ pub struct EnableEdge {
     pub pos_um: f64,
 }
 
+/// DIR and EN must be stable this long before a STEP rising edge, ns (DM542: 5 µs).
+pub const DIR_EN_SETUP_NS: u64 = 5_000;
+/// Shortest STEP high time the driver registers, ns (DM542: 2.5 µs).
+pub const STEP_HIGH_MIN_NS: u64 = 2_500;
+/// Shortest STEP low time the driver registers, ns (DM542: 2.5 µs).
+pub const STEP_LOW_MIN_NS: u64 = 2_500;
+
+/// What the STEP/DIR/EN pins did, as a DM542-class driver sees it (pin path only).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StepTiming {
+    /// STEP rising edges while enabled with DIR high (+).
+    pub pulses_pos: u64,
+    /// STEP rising edges while enabled with DIR low (−).
+    pub pulses_neg: u64,
+    /// STEP rising edges while the driver was off (ignored by the driver).
+    pub pulses_disabled: u64,
+    /// Rising edges whose DIR or EN changed less than [`DIR_EN_SETUP_NS`] before.
+    pub setup_violations: u64,
+    /// Pulses whose high or low phase was shorter than the minimum.
+    pub width_violations: u64,
+    /// Shortest DIR/EN-change-to-STEP-edge time seen, ns (`u64::MAX`: none).
+    pub min_setup_ns: u64,
+    /// Shortest STEP high time seen, ns (`u64::MAX`: none).
+    pub min_high_ns: u64,
+}
+
 /// Shared model. The state every pin touches each control step is in `Cell`s (all
 /// `Copy`): a `Cell` needs no borrow bookkeeping, and the controller reads or drives the
 /// axis several times per step.
@@ -69,6 +103,11 @@ pub struct AxisModel {
     lo_steps: i64,
     hi_steps: i64,
     end_steps: i64,
+    /// STEP pin level, the time of its last edge, and the last DIR/EN change (pin path).
+    step_high: Cell<bool>,
+    step_edge_ns: Cell<Option<u64>>,
+    dir_en_change_ns: Cell<Option<u64>>,
+    timing: Cell<StepTiming>,
 }
 
 impl AxisModel {
@@ -96,6 +135,12 @@ impl AxisModel {
         self.frac.set(acc % 1_000_000_000);
         self.pending_pulses
             .set(self.pending_pulses.get().saturating_add(n as u32));
+        self.move_steps(n);
+    }
+
+    /// `n` pulses reach the driver: the carriage moves in the DIR direction if the driver
+    /// is on and nothing stalls it, up to the hard stops. Both drive paths end here.
+    fn move_steps(&self, n: u64) {
         if self.enabled.get() && self.fault.get() != AxisFault::Stalled {
             let before = self.pos_steps.get();
             let step = if self.dir_positive.get() {
@@ -108,6 +153,50 @@ impl AxisModel {
             let moved = (after - before).unsigned_abs();
             self.travel_steps.set(self.travel_steps.get() + moved);
         }
+    }
+
+    /// The STEP pin goes to `high` at `now` (pin path).
+    fn step_pin(&self, high: bool, now: u64) {
+        if high == self.step_high.get() {
+            return;
+        }
+        let mut t = self.timing.get();
+        // The first edge has no previous phase to measure.
+        let since = self
+            .step_edge_ns
+            .get()
+            .map_or(u64::MAX, |t| now.saturating_sub(t));
+        self.step_high.set(high);
+        self.step_edge_ns.set(Some(now));
+        if !high {
+            t.min_high_ns = t.min_high_ns.min(since);
+            if since < STEP_HIGH_MIN_NS {
+                t.width_violations += 1;
+            }
+            self.timing.set(t);
+            return;
+        }
+        if since < STEP_LOW_MIN_NS {
+            t.width_violations += 1;
+        }
+        if !self.enabled.get() {
+            t.pulses_disabled += 1;
+        } else {
+            if let Some(c) = self.dir_en_change_ns.get() {
+                let setup = now.saturating_sub(c);
+                t.min_setup_ns = t.min_setup_ns.min(setup);
+                if setup < DIR_EN_SETUP_NS {
+                    t.setup_violations += 1;
+                }
+            }
+            if self.dir_positive.get() {
+                t.pulses_pos += 1;
+            } else {
+                t.pulses_neg += 1;
+            }
+        }
+        self.timing.set(t);
+        self.move_steps(1);
     }
 
     fn pos_um(&self) -> f64 {
@@ -141,6 +230,14 @@ impl SimAxis {
             lo_steps: cfg.um_to_steps(-2_000) as i64,
             hi_steps: cfg.um_to_steps(cfg.end_switch_um + 2_000) as i64,
             end_steps: cfg.um_to_steps(cfg.end_switch_um) as i64,
+            step_high: Cell::new(false),
+            step_edge_ns: Cell::new(None),
+            dir_en_change_ns: Cell::new(None),
+            timing: Cell::new(StepTiming {
+                min_setup_ns: u64::MAX,
+                min_high_ns: u64::MAX,
+                ..StepTiming::default()
+            }),
         };
         Self {
             model: Rc::new(m),
@@ -185,6 +282,16 @@ impl SimAxis {
         m.travel_steps.get() as f64 * 1000.0 / m.cfg.steps_per_mm as f64
     }
 
+    /// What the STEP/DIR/EN pins did so far (pin path).
+    pub fn step_timing(&self) -> StepTiming {
+        self.model.timing.get()
+    }
+
+    /// The STEP pin (rising edge = one pulse), for a board that drives it directly.
+    pub fn step(&self) -> AxisPin {
+        AxisPin(self.clone(), PinRole::Step)
+    }
+
     /// The step-pulse generator (for the propulsion driver).
     pub fn pulses(&self) -> AxisPulses {
         AxisPulses(self.clone())
@@ -222,6 +329,7 @@ impl StepPulses for AxisPulses {
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum PinRole {
+    Step,
     EnableN,
     Dir,
     Home,
@@ -255,6 +363,7 @@ impl AxisPin {
                 let enabled = !high;
                 if enabled != m.enabled.get() {
                     m.enabled.set(enabled);
+                    m.dir_en_change_ns.set(Some(now));
                     m.edges.borrow_mut().push(EnableEdge {
                         t_ns: now,
                         enabled,
@@ -262,7 +371,13 @@ impl AxisPin {
                     });
                 }
             }
-            PinRole::Dir => m.dir_positive.set(high),
+            PinRole::Dir => {
+                if high != m.dir_positive.get() {
+                    m.dir_positive.set(high);
+                    m.dir_en_change_ns.set(Some(now));
+                }
+            }
+            PinRole::Step => m.step_pin(high, now),
             PinRole::Home | PinRole::End => {}
         }
     }
@@ -277,6 +392,7 @@ impl embedded_hal::digital::InputPin for AxisPin {
             PinRole::End => !(m.fault.get() != AxisFault::EndSwitchDead && pos >= m.end_steps),
             PinRole::EnableN => !m.enabled.get(),
             PinRole::Dir => m.dir_positive.get(),
+            PinRole::Step => m.step_high.get(),
         })
     }
     fn is_low(&mut self) -> Result<bool, Self::Error> {
@@ -309,6 +425,38 @@ mod tests {
         clk.advance_ns(1_000_000_000);
         assert_eq!(ax.pos_um(), 1_200.0);
         assert_eq!(ax.enable_edges().len(), 1);
+    }
+
+    #[test]
+    fn step_pin_moves_one_step_per_rising_edge_and_checks_driver_timing() {
+        let clk = SimClock::new();
+        let ax = SimAxis::new(MachineConfig::DEFAULT, clk.clone(), 0);
+        let (mut step, mut en, mut dir) = (ax.step(), ax.enable_n(), ax.dir());
+        let pulse = |step: &mut AxisPin, high_ns: u64| {
+            step.set_high().unwrap();
+            clk.advance_ns(high_ns);
+            step.set_low().unwrap();
+            clk.advance_ns(10_000);
+        };
+        pulse(&mut step, 3_000); // driver off: ignored
+        dir.set_high().unwrap();
+        en.set_low().unwrap();
+        clk.advance_ns(6_000);
+        pulse(&mut step, 3_000);
+        pulse(&mut step, 3_000);
+        assert_eq!(ax.pos_steps(), 2);
+        dir.set_low().unwrap();
+        clk.advance_ns(1_000); // DIR changed only 1 µs before the edge: a violation
+        pulse(&mut step, 1_000); // and a 1 µs high phase: another
+        assert_eq!(
+            ax.pos_steps(),
+            1,
+            "counted in the direction DIR had at the edge"
+        );
+        let t = ax.step_timing();
+        assert_eq!((t.pulses_pos, t.pulses_neg, t.pulses_disabled), (2, 1, 1));
+        assert_eq!((t.setup_violations, t.width_violations), (1, 1));
+        assert_eq!((t.min_setup_ns, t.min_high_ns), (1_000, 1_000));
     }
 
     #[test]

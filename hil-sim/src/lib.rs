@@ -8,7 +8,12 @@
 //! * [`axis`]: the step/dir propulsion axis with home and end switches;
 //! * [`lock`]: the adaptive-lock actuator with locked/released switches;
 //! * [`flash`]: NOR flash with STM32F4 semantics and power-cut injection;
+//! * [`line`]: a digital line driven from outside (dock request, PLC signals);
 //! * [`clock`]: virtual time (nothing sleeps).
+//!
+//! [`rig::Machine`] is all of them on one clock, without a controller: the host rig
+//! wires it to the library's controller, the virtual board (`vboard/`) to the pins of
+//! the emulated STM32F407 running the firmware image. One model of each device.
 //!
 //! [`cli`] is the `hil-sim` command line.
 //!
@@ -25,6 +30,8 @@ pub mod console;
 pub mod flash;
 pub mod hx711;
 pub mod life;
+pub mod line;
+pub mod link;
 pub mod lock;
 pub mod profile_cmd;
 pub mod rig;

@@ -15,6 +15,7 @@ use crate::clock::SimClock;
 use crate::console::SimConsole;
 use crate::flash::{SharedFlash, SimFlash};
 use crate::hx711::{ForceSource, Hx711Config, Hx711Dout, Hx711Sck, SimHx711};
+use crate::line::SimLine;
 use crate::lock::{LockPin, SimLock};
 use docking_controller::console::service::{Console, ConsolePoll};
 
@@ -188,6 +189,66 @@ impl ForceSource for ProfileForce {
     }
 }
 
+/// The simulated machine: every device on one virtual clock, without a controller.
+/// The host rig ([`Rig`]) wires it to the library's controller; the virtual board wires
+/// it to the pins of the emulated MCU.
+pub struct Machine {
+    /// Virtual time shared by every device.
+    pub clock: SimClock,
+    /// Propulsion axis (parked at home, driver off).
+    pub axis: SimAxis,
+    /// Lock actuator (parked locked).
+    pub lock: SimLock,
+    /// Load cell, powered up at t = 0.
+    pub hx: SimHx711<ProfileForce>,
+    /// Scene force additions.
+    pub script: Rc<RefCell<ForceScript>>,
+    /// Conversions so far (the force source's call count).
+    pub conversions: Rc<Cell<u64>>,
+    /// The vehicle's dock-request line (active low; released = high).
+    pub dock_request: SimLine,
+    /// The load cell's front end.
+    pub hx_config: Hx711Config,
+}
+
+impl Machine {
+    /// The devices a scene disturbs.
+    pub fn devices(&self) -> crate::scene::Devices<'_> {
+        crate::scene::Devices {
+            script: &self.script,
+            hx: &self.hx,
+            axis: &self.axis,
+            lock: &self.lock,
+        }
+    }
+
+    /// A machine at t = 0, parked at home and locked, with the load cell of `opts`.
+    pub fn new(opts: &RigOptions) -> Self {
+        let machine = MachineConfig::DEFAULT;
+        let clock = SimClock::new();
+        let axis = SimAxis::new(machine, clock.clone(), 0);
+        let lock = SimLock::new_locked(clock.clone());
+        let script = Rc::new(RefCell::new(ForceScript::default()));
+        let conversions = Rc::new(Cell::new(0u64));
+        let source = ProfileForce::new(machine, axis.clone(), script.clone(), conversions.clone());
+        let mut hx_config = Hx711Config::default_for_rate(opts.rate_sps);
+        if let Some(n) = opts.noise_counts {
+            hx_config.noise_counts = n;
+        }
+        let hx = SimHx711::with_source(hx_config, clock.clone(), source, opts.seed);
+        Self {
+            clock,
+            axis,
+            lock,
+            hx,
+            script,
+            conversions,
+            dock_request: SimLine::new(true),
+            hx_config,
+        }
+    }
+}
+
 /// Rig options.
 #[derive(Clone, Copy, Debug)]
 pub struct RigOptions {
@@ -276,18 +337,16 @@ impl Rig {
 
     /// The machine booting on an existing odometer flash (a reboot: parked at home).
     pub fn with_flash(opts: RigOptions, flash: SharedFlash) -> Self {
-        let machine = MachineConfig::DEFAULT;
-        let clock = SimClock::new();
-        let axis = SimAxis::new(machine, clock.clone(), 0);
-        let lock = SimLock::new_locked(clock.clone());
-        let script = Rc::new(RefCell::new(ForceScript::default()));
-        let conversions = Rc::new(Cell::new(0u64));
-        let source = ProfileForce::new(machine, axis.clone(), script.clone(), conversions.clone());
-        let mut hx_cfg = Hx711Config::default_for_rate(opts.rate_sps);
-        if let Some(n) = opts.noise_counts {
-            hx_cfg.noise_counts = n;
-        }
-        let hx = SimHx711::with_source(hx_cfg, clock.clone(), source, opts.seed);
+        let Machine {
+            clock,
+            axis,
+            lock,
+            hx,
+            script,
+            conversions,
+            hx_config: hx_cfg,
+            ..
+        } = Machine::new(&opts);
         let wdg = SimWatchdog::new(clock.clone());
         let parts = Parts::<SimBsp> {
             en_n: axis.enable_n(),
@@ -360,6 +419,16 @@ impl Rig {
             self.last_console = c;
         }
         r
+    }
+
+    /// The devices a scene disturbs.
+    pub fn devices(&self) -> crate::scene::Devices<'_> {
+        crate::scene::Devices {
+            script: &self.script,
+            hx: &self.hx,
+            axis: &self.axis,
+            lock: &self.lock,
+        }
     }
 
     /// Type `line` on the terminal, run the machine until the reply is complete (or

@@ -19,10 +19,12 @@ use docking_controller::controller::{Event, Status};
 use docking_controller::profile::ContactPhase;
 use docking_controller::sequencer::{Request, SeqEvent, State, BACK_OFF_UM};
 
-use crate::axis::AxisFault;
-use crate::hx711::Hx711Fault;
-use crate::lock::LockFault;
-use crate::rig::{AdcMode, Rig, RigOptions};
+use std::cell::RefCell;
+
+use crate::axis::{AxisFault, SimAxis};
+use crate::hx711::{Hx711Fault, SimHx711};
+use crate::lock::{LockFault, SimLock};
+use crate::rig::{AdcMode, ForceScript, ProfileForce, Rig, RigOptions};
 use crate::rng::Rng;
 
 /// Scene names.
@@ -133,9 +135,9 @@ impl SceneDriver {
         })
     }
 
-    /// Prepare the rig before the first tick (spike schedule, shifted bridge); returns
-    /// the spikes scheduled. `horizon_cycles` bounds the spike schedule.
-    pub fn setup(&self, rig: &mut Rig, seed: u64, rate_sps: u32, horizon_cycles: u32) -> u32 {
+    /// Prepare the machine before the first tick (spike schedule, shifted bridge);
+    /// returns the spikes scheduled. `horizon_cycles` bounds the spike schedule.
+    pub fn setup(&self, dev: Devices<'_>, seed: u64, rate_sps: u32, horizon_cycles: u32) -> u32 {
         match self.name {
             "spike" => {
                 // Isolated spikes: about every 40 samples, never two within 3 samples.
@@ -148,53 +150,122 @@ impl SceneDriver {
                     at.push(n);
                 }
                 let count = at.len() as u32;
-                let mut s = rig.script.borrow_mut();
+                let mut s = dev.script.borrow_mut();
                 s.spikes_at = at;
                 s.spike_n = 350.0;
                 count
             }
             "bad-tare" => {
-                rig.script.borrow_mut().offset_n = 50.0;
+                dev.script.borrow_mut().offset_n = 50.0;
                 0
             }
             _ => 0,
         }
     }
 
-    /// Inject the disturbance if this is its moment.
+    /// Inject the disturbance on the host rig if this is its moment.
     pub fn on_tick(&mut self, rig: &mut Rig, st: &Status) {
+        let p = Progress::of_status(st, rig.ctrl.config().machine.engage_um);
+        self.on_progress(rig.devices(), &p);
+    }
+
+    /// Inject the disturbance if this is its moment, whoever observed the progress (the
+    /// host rig from the controller's status, the virtual board from the pins and log).
+    pub fn on_progress(&mut self, dev: Devices<'_>, p: &Progress) {
         if self.injected {
             return;
         }
-        let depth = st.pos_um - rig.ctrl.config().machine.engage_um;
-        let in_cycle = st.cycles_completed + 1 >= self.in_cycle;
-        let inserting = matches!(st.state, State::Inserting { .. });
+        let in_cycle = p.cycles_completed + 1 >= self.in_cycle;
+        let inserting = p.stage == Stage::Inserting;
         self.injected = match self.name {
             "overload" if in_cycle && inserting => {
-                let mut s = rig.script.borrow_mut();
+                let mut s = dev.script.borrow_mut();
                 s.jam_from_um = Some(10_000.0);
                 s.jam_n_per_mm = 60.0;
                 true
             }
-            "disconnect" | "saturation" | "stuck" if in_cycle && inserting && depth >= 5_000 => {
-                rig.hx.set_fault(match self.name {
+            "disconnect" | "saturation" | "stuck"
+                if in_cycle && inserting && p.depth_um >= 5_000 =>
+            {
+                dev.hx.set_fault(match self.name {
                     "disconnect" => Hx711Fault::Disconnected,
                     "saturation" => Hx711Fault::Saturated,
                     _ => Hx711Fault::Stuck,
                 });
                 true
             }
-            "stall" if in_cycle && matches!(st.state, State::Returning { .. }) => {
-                rig.axis.set_fault(AxisFault::Stalled);
+            "stall" if in_cycle && p.stage == Stage::Returning => {
+                dev.axis.set_fault(AxisFault::Stalled);
                 true
             }
-            "lock-stuck" if in_cycle && matches!(st.state, State::PreAlign { .. }) => {
-                rig.lock.set_fault(LockFault::Stuck);
+            "lock-stuck" if in_cycle && p.stage == Stage::PreAlign => {
+                dev.lock.set_fault(LockFault::Stuck);
                 true
             }
             _ => false,
         };
     }
+
+    /// Whether the disturbance has been injected.
+    pub fn injected(&self) -> bool {
+        self.injected
+    }
+}
+
+/// Where the machine is in its docking cycle, as far as a disturbance cares.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// At rest (idle, faulted, powering up).
+    Idle,
+    /// Locked, moving fast to the engagement point.
+    PreAlign,
+    /// Compliant insertion.
+    Inserting,
+    /// Back from the engagement point to home.
+    Returning,
+    /// Anything else (release, hold, extraction, locking, recovery).
+    Other,
+}
+
+/// A scene's view of the machine's progress.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Progress {
+    /// Docking cycles completed.
+    pub cycles_completed: u32,
+    /// Stage of the current cycle.
+    pub stage: Stage,
+    /// Insertion depth (position − engagement point), µm.
+    pub depth_um: i32,
+}
+
+impl Progress {
+    /// From the controller's status (host rig).
+    pub fn of_status(st: &Status, engage_um: i32) -> Self {
+        Self {
+            cycles_completed: st.cycles_completed,
+            stage: match st.state {
+                State::PreAlign { .. } => Stage::PreAlign,
+                State::Inserting { .. } => Stage::Inserting,
+                State::Returning { .. } => Stage::Returning,
+                State::Idle | State::Faulted { .. } | State::PowerUp => Stage::Idle,
+                _ => Stage::Other,
+            },
+            depth_um: st.pos_um - engage_um,
+        }
+    }
+}
+
+/// The devices a scene disturbs.
+#[derive(Clone, Copy)]
+pub struct Devices<'a> {
+    /// Force additions.
+    pub script: &'a RefCell<ForceScript>,
+    /// Load cell.
+    pub hx: &'a SimHx711<ProfileForce>,
+    /// Axis.
+    pub axis: &'a SimAxis,
+    /// Lock.
+    pub lock: &'a SimLock,
 }
 
 /// A scene run while the console is flooded.
@@ -258,7 +329,7 @@ fn run_inner(
         ..RigOptions::new(opts.rate_sps)
     });
     let cycles = opts.cycles.max(1);
-    let spikes_injected = driver.setup(&mut rig, opts.seed, opts.rate_sps, cycles);
+    let spikes_injected = driver.setup(rig.devices(), opts.seed, opts.rate_sps, cycles);
 
     let mut insertion_phases: Vec<Vec<u8>> = Vec::new();
     let mut faults = Vec::new();

@@ -1,0 +1,171 @@
+//! The bridge between a simulated serial port and the outside: a new pseudo-terminal
+//! (for picocom or screen) or a loopback TCP port (for nc or a script), as a
+//! serial-to-Ethernet gateway would carry it. Shared by `hil-sim serve` and the virtual
+//! board's `vboard serve`.
+
+use std::io::{self, Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::os::fd::{FromRawFd, OwnedFd};
+
+use crate::serve::Link;
+
+/// A pty master opened non-blocking, with its slave configured raw (no echo, no line
+/// editing: the console does its own) and kept open so the master never sees a hangup.
+pub struct Pty {
+    master: std::fs::File,
+    _slave: OwnedFd,
+    path: String,
+}
+
+fn os_err(what: &str) -> String {
+    format!("{what}: {}", io::Error::last_os_error())
+}
+
+impl Pty {
+    /// Open a new pty.
+    pub fn open() -> Result<Self, String> {
+        // SAFETY: plain libc calls on fds we own; every return value is checked, and
+        // ptsname_r writes into a buffer whose length we pass.
+        unsafe {
+            let m = libc::posix_openpt(libc::O_RDWR | libc::O_NOCTTY);
+            if m < 0 {
+                return Err(os_err("posix_openpt"));
+            }
+            let master = std::fs::File::from_raw_fd(m);
+            if libc::grantpt(m) != 0 || libc::unlockpt(m) != 0 {
+                return Err(os_err("grantpt/unlockpt"));
+            }
+            let mut buf = [0 as libc::c_char; 128];
+            if libc::ptsname_r(m, buf.as_mut_ptr(), buf.len()) != 0 {
+                return Err(os_err("ptsname_r"));
+            }
+            let path = std::ffi::CStr::from_ptr(buf.as_ptr())
+                .to_string_lossy()
+                .into_owned();
+            let s = libc::open(buf.as_ptr(), libc::O_RDWR | libc::O_NOCTTY);
+            if s < 0 {
+                return Err(os_err("open slave"));
+            }
+            let slave = OwnedFd::from_raw_fd(s);
+            let mut t: libc::termios = std::mem::zeroed();
+            if libc::tcgetattr(s, &mut t) != 0 {
+                return Err(os_err("tcgetattr"));
+            }
+            libc::cfmakeraw(&mut t);
+            libc::cfsetspeed(&mut t, libc::B115200);
+            if libc::tcsetattr(s, libc::TCSANOW, &t) != 0 {
+                return Err(os_err("tcsetattr"));
+            }
+            let flags = libc::fcntl(m, libc::F_GETFL);
+            if flags < 0 || libc::fcntl(m, libc::F_SETFL, flags | libc::O_NONBLOCK) != 0 {
+                return Err(os_err("fcntl"));
+            }
+            Ok(Self {
+                master,
+                _slave: slave,
+                path,
+            })
+        }
+    }
+}
+
+/// An open link: a pty or a TCP listener with at most one client.
+pub enum Bridge {
+    /// A pseudo-terminal.
+    Pty(Pty),
+    /// A TCP listener.
+    Tcp {
+        /// The listener.
+        listener: TcpListener,
+        /// The connected client.
+        client: Option<TcpStream>,
+    },
+}
+
+impl Bridge {
+    /// Read up to `max` bytes from the link (empty: nothing waiting).
+    pub fn read(&mut self, max: usize) -> Vec<u8> {
+        let mut buf = vec![0u8; max];
+        let n = match self {
+            Bridge::Pty(p) => p.master.read(&mut buf).unwrap_or(0),
+            Bridge::Tcp { listener, client } => {
+                if client.is_none() {
+                    if let Ok((s, _)) = listener.accept() {
+                        let _ = s.set_nonblocking(true);
+                        let _ = s.set_nodelay(true);
+                        *client = Some(s);
+                    }
+                }
+                match client.as_mut().map(|c| c.read(&mut buf)) {
+                    Some(Ok(0)) => {
+                        *client = None; // the client left; wait for the next one
+                        0
+                    }
+                    Some(Ok(n)) => n,
+                    _ => 0,
+                }
+            }
+        };
+        buf.truncate(n);
+        buf
+    }
+
+    /// Write to the link (dropped when no client is connected).
+    pub fn write(&mut self, bytes: &[u8]) {
+        if bytes.is_empty() {
+            return;
+        }
+        let _ = match self {
+            Bridge::Pty(p) => p.master.write_all(bytes),
+            Bridge::Tcp {
+                client: Some(c), ..
+            } => c.write_all(bytes),
+            Bridge::Tcp { client: None, .. } => Ok(()),
+        };
+    }
+}
+
+impl Bridge {
+    /// Open `link` and print its address (the pty's path or the bound TCP address) as
+    /// one line on `out`. A TCP address must be on loopback.
+    pub fn open(link: &Link, out: &mut dyn Write) -> Result<Self, String> {
+        match link {
+            Link::Pty => {
+                let p = Pty::open()?;
+                let _ = writeln!(out, "{}", p.path);
+                Ok(Bridge::Pty(p))
+            }
+            Link::Tcp(addr) => {
+                let (l, bound) = listen(*addr)?;
+                let _ = writeln!(out, "{bound}");
+                Ok(Bridge::Tcp {
+                    listener: l,
+                    client: None,
+                })
+            }
+        }
+    }
+
+    /// The pty's path or the bound address.
+    pub fn address(&self) -> String {
+        match self {
+            Bridge::Pty(p) => p.path.clone(),
+            Bridge::Tcp { listener, .. } => listener
+                .local_addr()
+                .map_or_else(|e| e.to_string(), |a| a.to_string()),
+        }
+    }
+}
+
+/// Bind a non-blocking listener on a loopback address; returns it and its bound address.
+pub fn listen(addr: std::net::SocketAddr) -> Result<(TcpListener, std::net::SocketAddr), String> {
+    if !addr.ip().is_loopback() {
+        return Err(format!(
+            "--tcp must be a loopback address (127.0.0.1:PORT), got {addr}"
+        ));
+    }
+    let l = TcpListener::bind(addr).map_err(|e| format!("bind {addr}: {e}"))?;
+    l.set_nonblocking(true).map_err(|e| e.to_string())?;
+    let bound = l.local_addr().map_err(|e| e.to_string())?;
+    Ok((l, bound))
+}
