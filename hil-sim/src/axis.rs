@@ -261,6 +261,11 @@ impl SimAxis {
         self.now().pos_steps.get()
     }
 
+    /// Whether DIR points toward the male panel (+) now.
+    pub fn forward(&self) -> bool {
+        self.model.dir_positive.get()
+    }
+
     /// Whether the driver is enabled now.
     pub fn enabled(&self) -> bool {
         self.now().enabled.get()

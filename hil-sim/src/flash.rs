@@ -109,6 +109,56 @@ impl SimFlash {
         &self.mem
     }
 
+    /// Program `bytes` at `offset` as the flash controller does, with no alignment rule of
+    /// its own (the controller enforces its PSIZE): every bit can only be cleared, each
+    /// byte spends one unit of an armed power-cut budget.
+    pub fn program(&mut self, offset: u32, bytes: &[u8]) -> Result<(), SimFlashError> {
+        self.check(offset, bytes.len(), 1)?;
+        for (i, b) in bytes.iter().enumerate() {
+            let o = offset as usize + i;
+            if !self.spend() {
+                // The byte in flight is half-programmed: only its low nibble's zeros land.
+                self.mem[o] &= b | 0xF0;
+                return Err(SimFlashError::PowerLost);
+            }
+            self.mem[o] &= b;
+            self.bytes_written += 1;
+        }
+        Ok(())
+    }
+
+    /// Erase sector `index` (counts one unit of an armed power-cut budget; a cut leaves
+    /// the first half erased and the rest as it was).
+    pub fn erase_sector(&mut self, index: usize) -> Result<(), SimFlashError> {
+        let from = index * self.sector_size;
+        self.check(from as u32, self.sector_size, self.sector_size)?;
+        let range = from..from + self.sector_size;
+        if !self.spend() {
+            let half = range.start + self.sector_size / 2;
+            self.mem[range.start..half].fill(0xFF);
+            return Err(SimFlashError::PowerLost);
+        }
+        self.mem[range].fill(0xFF);
+        self.erase_counts[index] += 1;
+        Ok(())
+    }
+
+    /// An erase of sector `index` stopped by a reset when `done_permille` of its time had
+    /// passed: that fraction of the sector (from its start) reads erased, the rest keeps
+    /// its old data. Not counted as an erase.
+    pub fn abort_erase(&mut self, index: usize, done_permille: u32) {
+        let from = index * self.sector_size;
+        let n = self.sector_size * done_permille.min(1000) as usize / 1000;
+        if let Some(part) = self.mem.get_mut(from..from + n) {
+            part.fill(0xFF);
+        }
+    }
+
+    /// Sector size, bytes.
+    pub fn sector_size(&self) -> usize {
+        self.sector_size
+    }
+
     fn check(&self, offset: u32, len: usize, align: usize) -> Result<(), SimFlashError> {
         if !self.powered {
             return Err(SimFlashError::PowerLost);
@@ -167,31 +217,14 @@ impl NorFlash for SimFlash {
         }
         self.check(from, (to - from) as usize, self.sector_size)?;
         for s in (from as usize / self.sector_size)..(to as usize / self.sector_size) {
-            let range = s * self.sector_size..(s + 1) * self.sector_size;
-            if !self.spend() {
-                let half = range.start + self.sector_size / 2;
-                self.mem[range.start..half].fill(0xFF);
-                return Err(SimFlashError::PowerLost);
-            }
-            self.mem[range].fill(0xFF);
-            self.erase_counts[s] += 1;
+            self.erase_sector(s)?;
         }
         Ok(())
     }
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
         self.check(offset, bytes.len(), Self::WRITE_SIZE)?;
-        for (i, b) in bytes.iter().enumerate() {
-            let o = offset as usize + i;
-            if !self.spend() {
-                // The byte in flight is half-programmed: only its low nibble's zeros land.
-                self.mem[o] &= b | 0xF0;
-                return Err(SimFlashError::PowerLost);
-            }
-            self.mem[o] &= b;
-            self.bytes_written += 1;
-        }
-        Ok(())
+        self.program(offset, bytes)
     }
 }
 

@@ -135,7 +135,12 @@ pub struct Hx711Model<S = BoxedSource> {
     /// Ready time of the conversion now being read (for latency measurements).
     reading_ready_ns: u64,
     last_read: Option<(i32, u64)>,
+    /// The last [`RECENT`] conversions: (completion time ns, code, read out).
+    recent: std::collections::VecDeque<(u64, i32, bool)>,
 }
+
+/// Conversions kept in [`SimHx711::recent_conversions`].
+pub const RECENT: usize = 64;
 
 impl<S: ForceSource> Hx711Model<S> {
     fn settle_ns(&self) -> u64 {
@@ -179,6 +184,10 @@ impl<S: ForceSource> Hx711Model<S> {
         }
         self.stats.conversions += 1;
         self.ready = Some((code, t));
+        if self.recent.len() == RECENT {
+            self.recent.pop_front();
+        }
+        self.recent.push_back((t, code, false));
         self.pulses = 0;
     }
 
@@ -203,6 +212,12 @@ impl<S: ForceSource> Hx711Model<S> {
         };
         self.last_code = code;
         code
+    }
+
+    fn mark_read(&mut self, t: u64) {
+        if let Some(c) = self.recent.iter_mut().rev().find(|c| c.0 == t) {
+            c.2 = true;
+        }
     }
 
     fn dout_high(&mut self, now: u64) -> bool {
@@ -241,6 +256,7 @@ impl<S: ForceSource> Hx711Model<S> {
                 self.stats.samples_read += 1;
                 let code = (self.shift << 8) >> 8;
                 self.last_read = Some((code, self.reading_ready_ns));
+                self.mark_read(self.reading_ready_ns);
             }
         }
     }
@@ -310,6 +326,7 @@ impl<S: ForceSource> SimHx711<S> {
             stats: Hx711Stats::default(),
             reading_ready_ns: 0,
             last_read: None,
+            recent: std::collections::VecDeque::with_capacity(RECENT),
         };
         m.next_conv_ns = now + m.settle_ns();
         Self {
@@ -337,6 +354,19 @@ impl<S: ForceSource> SimHx711<S> {
     /// Inject or clear a fault.
     pub fn set_fault(&self, fault: Hx711Fault) {
         self.model.borrow_mut().fault = fault;
+    }
+
+    /// The injected fault.
+    pub fn fault(&self) -> Hx711Fault {
+        self.model.borrow().fault
+    }
+
+    /// The last conversions, oldest first: (completion time ns, code, read out).
+    pub fn recent_conversions(&self) -> Vec<(u64, i32, bool)> {
+        let now = self.clock.now_ns();
+        let mut m = self.model.borrow_mut();
+        m.catch_up(now);
+        m.recent.iter().copied().collect()
     }
 
     /// Counters so far.
@@ -381,6 +411,7 @@ impl<S: ForceSource> SimHx711<S> {
         m.gain_pulses = 25;
         m.pulses = 25;
         m.last_read = Some((code, t));
+        m.mark_read(t);
         drop(m);
         self.clock.advance_ns(50_000);
         Some(code)

@@ -438,7 +438,8 @@ fn run_inner(
     })
 }
 
-fn num(x: f64) -> String {
+/// A number for JSON: up to 6 decimals, trailing zeros trimmed; `null` if not finite.
+pub fn num(x: f64) -> String {
     if x.is_finite() {
         let s = format!("{x:.6}");
         let s = s.trim_end_matches('0').trim_end_matches('.');

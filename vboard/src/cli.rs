@@ -1,0 +1,155 @@
+//! The `vboard` command line. Output on stdout; bad arguments: one line on stderr, exit
+//! code 2; a board that cannot go on (an unmodelled access): one line on stderr, exit 1.
+
+use std::io::Write;
+
+use hil_sim::cli::{Opts, UsageError};
+
+use crate::cpu::BoardConfig;
+use crate::periph::flash::FlashTiming;
+use crate::scene::{Options, SceneOptions, SCENES};
+
+/// One-line usage summary.
+pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--firmware ELF] [--rate 10|80] [--cpi X] [--speed X] [--for SECONDS]";
+
+/// How the command failed.
+#[derive(Debug)]
+pub enum Failure {
+    /// Bad arguments (exit 2).
+    Usage(String),
+    /// The run could not complete (exit 1).
+    Run(String),
+}
+
+fn usage<T>(msg: impl Into<String>) -> Result<T, Failure> {
+    Err(Failure::Usage(msg.into()))
+}
+
+impl From<UsageError> for Failure {
+    fn from(e: UsageError) -> Self {
+        Failure::Usage(e.0)
+    }
+}
+
+/// Session options from the common flags.
+fn session(o: &Opts) -> Result<Options, Failure> {
+    let mut s = Options::new();
+    if let Some(f) = o.get("firmware") {
+        s.firmware = f.to_string();
+    }
+    s.rate_sps = o.num("rate", 80u32, 1, u32::MAX)?;
+    if !matches!(s.rate_sps, 10 | 80) {
+        return usage(format!(
+            "--rate must be 10 or 80 (the HX711's RATE pin), got '{}'",
+            s.rate_sps
+        ));
+    }
+    s.seed = o.num("seed", 1u64, 0, u64::MAX)?;
+    let cpi = o.num("cpi", 1.0f64, 0.5, 10.0)?;
+    let lsi = o.num("lsi-hz", 32_000u64, 17_000, 47_000)?;
+    let timing = match o.get("flash-timing") {
+        None | Some("max") => FlashTiming::Max,
+        Some("typical") => FlashTiming::Typical,
+        Some(x) => {
+            return usage(format!(
+                "--flash-timing must be 'max' or 'typical', got '{x}'"
+            ))
+        }
+    };
+    s.board = BoardConfig {
+        cpi_milli: (cpi * 1000.0).round() as u64,
+        lsi_hz: lsi,
+        flash_timing: timing,
+    };
+    Ok(s)
+}
+
+fn scene(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
+    let Some((name, rest)) = args.split_first() else {
+        return usage(format!("scene needs a name ({})", SCENES.join(", ")));
+    };
+    if !SCENES.contains(&name.as_str()) {
+        return usage(format!(
+            "unknown scene '{name}' (scenes: {})",
+            SCENES.join(", ")
+        ));
+    }
+    let o = Opts::parse(
+        rest,
+        &[
+            "firmware",
+            "cycles",
+            "rate",
+            "cpi",
+            "lsi-hz",
+            "flash-timing",
+            "seed",
+        ],
+        &["json"],
+    )?;
+    let opts = SceneOptions {
+        session: session(&o)?,
+        cycles: o.num("cycles", 1u32, 1, 1_000)?,
+    };
+    let r = crate::scene::run(name, &opts).map_err(Failure::Run)?;
+    let text = if o.flag("json") {
+        r.to_json()
+    } else {
+        r.to_text()
+    };
+    let _ = writeln!(out, "{text}");
+    Ok(())
+}
+
+fn serve(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
+    let o = Opts::parse(
+        args,
+        &[
+            "tcp",
+            "firmware",
+            "rate",
+            "cpi",
+            "speed",
+            "for",
+            "lsi-hz",
+            "flash-timing",
+            "seed",
+        ],
+        &["pty"],
+    )?;
+    let link = match (o.flag("pty"), o.get("tcp")) {
+        (true, Some(_)) => return usage("give --pty or --tcp, not both"),
+        (_, Some(a)) => hil_sim::serve::Link::Tcp(a.parse().map_err(|_| {
+            Failure::Usage(format!(
+                "--tcp must be an address like 127.0.0.1:7000, got '{a}'"
+            ))
+        })?),
+        _ => hil_sim::serve::Link::Pty,
+    };
+    let opts = crate::serve::ServeOptions {
+        link,
+        session: session(&o)?,
+        speed: o.num("speed", 1.0f64, 1e-3, 1e3)?,
+        duration_s: match o.get("for") {
+            None => None,
+            Some(_) => Some(o.num("for", 0.0f64, 0.0, 1e7)?),
+        },
+    };
+    crate::serve::run(&opts, out).map_err(Failure::Run)
+}
+
+/// Run the command line `args` (without the program name).
+pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
+    let Some((cmd, rest)) = args.split_first() else {
+        return usage(USAGE);
+    };
+    match cmd.as_str() {
+        "scene" => scene(rest, out),
+        "serve" => serve(rest, out),
+        "help" | "--help" | "-h" => {
+            let _ = writeln!(out, "{USAGE}");
+            Ok(())
+        }
+        other => usage(format!("unknown command '{other}'; {USAGE}")),
+    }
+}

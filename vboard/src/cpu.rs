@@ -1,0 +1,951 @@
+//! The Cortex-M4 core on the unicorn engine, and what unicorn does not do for a
+//! Cortex-M: time, exception entry and return, sleep, lockup, reset.
+//!
+//! * The engine is opened `THUMB` with the CPU model set to Cortex-M4 (opening it
+//!   `THUMB | MCLASS` makes a Cortex-M33 whatever the model says).
+//! * **Time**: a block hook counts each translated block's instructions (decoded once,
+//!   cached) into the clock and stops the engine when the next event is due, when an
+//!   interrupt that was masked may now be taken, or when a fetch from flash must wait
+//!   for a flash operation. Interrupts are therefore taken at block boundaries.
+//!   Peripheral callbacks never stop the engine themselves (a stop inside an access
+//!   makes unicorn execute the instruction again on restart); they raise a flag that
+//!   the next block hook acts on.
+//! * **Exception entry** (`enter`): the 8-word frame (26 words with the FP context when
+//!   `CONTROL.FPCA` is set) is stacked on the current stack with the 8-byte alignment
+//!   bit, `LR` = EXC_RETURN, `IPSR` and `PC` = the vector from `VTOR`; the engine's
+//!   cached mode flags are rebuilt afterwards (a write to a coprocessor register does
+//!   that in unicorn 2.1).
+//! * **Exception return**: the engine reports a branch to EXC_RETURN in handler mode as
+//!   interrupt 8; the hook tail-chains to a pending exception that may preempt the
+//!   context being returned to, or unstacks.
+//! * **Faults**: an undefined instruction, a `bkpt` without a debugger, an access to
+//!   unmapped (reserved) memory are faults, escalated to HardFault (the image enables
+//!   no configurable fault); a fault in HardFault is a **lockup**: the core stops, and
+//!   only a reset (the watchdog's, for instance) restarts it.
+//! * **Sleep**: `wfi` ends the engine's run; the board jumps time to the next event that
+//!   wakes the core.
+//! * **Reset**: peripherals to reset values (RCC keeps the reset flags), SRAM kept,
+//!   `SP` and `PC` from the vector table.
+
+use unicorn_engine::{
+    Arch, ArmCpuModel, HookType, MemType, Mode, Prot, RegisterARM, RegisterARMCP, Unicorn,
+};
+
+use crate::image::Image;
+use crate::periph::flash::{FlashTiming, FLASH_BASE, ODOMETER_BASE};
+use crate::periph::nvic::{exc, Masks};
+use crate::periph::rcc::ResetCause;
+use crate::rtt::{LogLine, Rtt, POLL_PS};
+use crate::soc::{Soc, ICACHE_FLASH};
+use crate::world::World;
+
+/// Board configuration.
+#[derive(Clone, Copy, Debug)]
+pub struct BoardConfig {
+    /// Core cycles per instruction, thousandths (1000 = 1.0).
+    pub cpi_milli: u64,
+    /// LSI frequency (clocks the IWDG), Hz: 17 000–47 000 on real parts.
+    pub lsi_hz: u64,
+    /// Flash program/erase timing.
+    pub flash_timing: FlashTiming,
+}
+
+impl Default for BoardConfig {
+    fn default() -> Self {
+        Self {
+            cpi_milli: 1_000,
+            lsi_hz: 32_000,
+            flash_timing: FlashTiming::Max,
+        }
+    }
+}
+
+const SRAM: u32 = 0x2000_0000;
+const SRAM_SIZE: u32 = 128 * 1024;
+const CODE_LEN: u32 = ODOMETER_BASE - FLASH_BASE;
+const WFI: u16 = 0xBF30;
+
+/// Why a run stopped before its end time.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Halt {
+    /// An access to a peripheral register the board does not model.
+    Unmodelled {
+        /// Address.
+        addr: u32,
+        /// Write or read.
+        write: bool,
+        /// Program counter.
+        pc: u32,
+    },
+    /// The emulator failed in a way that is not a fault of the image.
+    Engine(String),
+}
+
+impl std::fmt::Display for Halt {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Unmodelled { addr, write, pc } => write!(
+                f,
+                "unmodelled peripheral {} at {addr:#010x} (pc {pc:#010x})",
+                if *write { "write" } else { "read" }
+            ),
+            Self::Engine(e) => write!(f, "emulator: {e}"),
+        }
+    }
+}
+
+/// A fault the core took, for reports.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CoreFault {
+    /// Virtual time, ps.
+    pub t_ps: u64,
+    /// What.
+    pub what: String,
+    /// Where (pc).
+    pub pc: u32,
+    /// The function there, if the image's symbols tell.
+    pub function: Option<String>,
+}
+
+/// The board: core, SoC, image.
+pub struct Board {
+    uc: Unicorn<'static, Soc>,
+    /// The image running.
+    pub image: Image,
+    rtt: Option<Rtt>,
+    /// The defmt log, decoded.
+    pub log: Vec<LogLine>,
+    next_rtt_ps: u64,
+    sleeping: bool,
+    /// Resets so far, with their time, ps (the power-on included).
+    pub resets: Vec<(u64, ResetCause)>,
+}
+
+fn reg(uc: &Unicorn<'_, Soc>, r: RegisterARM) -> u32 {
+    uc.reg_read(r).unwrap_or(0) as u32
+}
+
+fn set(uc: &mut Unicorn<'_, Soc>, r: RegisterARM, v: u32) {
+    let _ = uc.reg_write(r, v as u64);
+}
+
+/// Rebuild the engine's cached mode flags after a change of IPSR/CONTROL from outside.
+fn rebuild_hflags(uc: &mut Unicorn<'_, Soc>) {
+    let cp = RegisterARMCP {
+        cp: 15,
+        is64: 0,
+        sec: 0,
+        crn: 15,
+        crm: 15,
+        opc1: 7,
+        opc2: 7,
+        val: 0,
+    };
+    // No such register on an M profile: the write fails, but unicorn rebuilds the flags
+    // after any coprocessor-register write.
+    let _ = uc.reg_write_arm_coproc(&cp);
+}
+
+fn masks(uc: &Unicorn<'_, Soc>) -> Masks {
+    Masks {
+        primask: reg(uc, RegisterARM::PRIMASK) & 1 != 0,
+        faultmask: reg(uc, RegisterARM::FAULTMASK) & 1 != 0,
+        basepri: reg(uc, RegisterARM::BASEPRI) as u8,
+    }
+}
+
+fn read_u32(uc: &Unicorn<'_, Soc>, addr: u32) -> Option<u32> {
+    let mut b = [0u8; 4];
+    uc.mem_read(addr as u64, &mut b).ok()?;
+    Some(u32::from_le_bytes(b))
+}
+
+/// Thumb instructions in `bytes` (a 32-bit instruction starts with 0b11101, 0b11110 or
+/// 0b11111).
+pub fn count_insns(bytes: &[u8]) -> u32 {
+    let mut i = 0;
+    let mut n = 0;
+    while i + 1 < bytes.len() {
+        let hw = u16::from_le_bytes([bytes[i], bytes[i + 1]]);
+        i += if hw >> 11 >= 0b11101 { 4 } else { 2 };
+        n += 1;
+    }
+    n
+}
+
+fn icache_index(addr: u64) -> Option<usize> {
+    let a = addr as u32;
+    if (FLASH_BASE..FLASH_BASE + CODE_LEN).contains(&a) {
+        Some(((a - FLASH_BASE) / 2) as usize)
+    } else if (SRAM..SRAM + SRAM_SIZE).contains(&a) {
+        Some(ICACHE_FLASH + ((a - SRAM) / 2) as usize)
+    } else {
+        None
+    }
+}
+
+fn block_insns(uc: &mut Unicorn<'_, Soc>, addr: u64, size: u32) -> u64 {
+    let idx = icache_index(addr);
+    if let Some(i) = idx {
+        let c = uc.get_data().icache[i];
+        if c != 0 && c >> 12 == size {
+            return (c & 0xFFF) as u64;
+        }
+    }
+    let mut buf = vec![0u8; size as usize];
+    let n = if uc.mem_read(addr, &mut buf).is_ok() {
+        count_insns(&buf)
+    } else {
+        size / 2
+    };
+    if let Some(i) = idx {
+        if size < (1 << 20) && n < 0x1000 {
+            uc.get_data_mut().icache[i] = (size << 12) | n;
+        }
+    }
+    n as u64
+}
+
+impl Board {
+    /// A board with `image` loaded into flash and `world` outside it, powered off.
+    pub fn new(image: Image, world: World, cfg: BoardConfig) -> Result<Self, String> {
+        // The hflags rebuild (below) goes through a coprocessor-register write that an M
+        // profile does not have; unicorn 2.1 warns about it on stderr unless told not to.
+        static QUIET: std::sync::Once = std::sync::Once::new();
+        QUIET.call_once(|| {
+            if std::env::var_os("UC_IGNORE_REG_BREAK").is_none() {
+                std::env::set_var("UC_IGNORE_REG_BREAK", "1");
+            }
+        });
+        let soc = Soc::new(world, cfg.cpi_milli, cfg.lsi_hz, cfg.flash_timing);
+        let e = |w: &str, err: unicorn_engine::uc_error| format!("unicorn {w}: {err:?}");
+        let mut uc =
+            Unicorn::new_with_data(Arch::ARM, Mode::THUMB, soc).map_err(|x| e("open", x))?;
+        uc.ctl_set_cpu_model(ArmCpuModel::CORTEX_M4 as i32)
+            .map_err(|x| e("cpu model", x))?;
+        // Flash: the boot alias at 0 and the code sectors, read/execute only.
+        for base in [0u64, FLASH_BASE as u64] {
+            uc.mem_map(base, CODE_LEN as u64, Prot::READ | Prot::EXEC)
+                .map_err(|x| e("map flash", x))?;
+            uc.mem_write(base, &image.flash).map_err(|x| e("load", x))?;
+        }
+        // The odometer sectors go through the flash interface model.
+        uc.mmio_map(
+            ODOMETER_BASE as u64,
+            (flash_len() - CODE_LEN) as u64,
+            Some(|uc: &mut Unicorn<'_, Soc>, off: u64, size: usize| -> u64 {
+                let (v, done) = uc.get_data_mut().odometer_read(off as u32, size);
+                if let Some(d) = done {
+                    apply_done(uc, d);
+                }
+                v as u64
+            }),
+            Some(|uc: &mut Unicorn<'_, Soc>, off: u64, size: usize, v: u64| {
+                if let Some(d) = uc.get_data_mut().odometer_write(off as u32, size, v as u32) {
+                    apply_done(uc, d);
+                }
+            }),
+        )
+        .map_err(|x| e("map odometer", x))?;
+        // CCM RAM (data only), system memory with the unique ID and flash size, option
+        // bytes, SRAM.
+        uc.mem_map(0x1000_0000, 0x1_0000, Prot::READ | Prot::WRITE)
+            .map_err(|x| e("map ccm", x))?;
+        uc.mem_map(0x1FFF_0000, 0x8000, Prot::READ)
+            .map_err(|x| e("map system memory", x))?;
+        let uid: [u8; 12] = [
+            0x33, 0x00, 0x2F, 0x00, 0x0A, 0x51, 0x35, 0x31, 0x38, 0x33, 0x36, 0x37,
+        ];
+        uc.mem_write(0x1FFF_7A10, &uid).map_err(|x| e("uid", x))?;
+        uc.mem_write(0x1FFF_7A22, &1024u16.to_le_bytes())
+            .map_err(|x| e("flash size", x))?;
+        uc.mem_map(0x1FFF_C000, 0x1000, Prot::READ)
+            .map_err(|x| e("map option bytes", x))?;
+        uc.mem_map(SRAM as u64, SRAM_SIZE as u64, Prot::ALL)
+            .map_err(|x| e("map sram", x))?;
+        // SRAM bit-band alias (0x2200_0000: 32 bytes per SRAM byte).
+        uc.mmio_map(
+            0x2200_0000,
+            (SRAM_SIZE * 32) as u64,
+            Some(|uc: &mut Unicorn<'_, Soc>, off: u64, _size: usize| -> u64 {
+                let (addr, bit) = bitband(SRAM, off as u32);
+                let mut b = [0u8; 4];
+                let _ = uc.mem_read(addr as u64, &mut b);
+                ((u32::from_le_bytes(b) >> bit) & 1) as u64
+            }),
+            Some(
+                |uc: &mut Unicorn<'_, Soc>, off: u64, _size: usize, v: u64| {
+                    let (addr, bit) = bitband(SRAM, off as u32);
+                    let mut b = [0u8; 4];
+                    let _ = uc.mem_read(addr as u64, &mut b);
+                    let w = u32::from_le_bytes(b) & !(1 << bit) | (((v & 1) as u32) << bit);
+                    let _ = uc.mem_write(addr as u64, &w.to_le_bytes());
+                },
+            ),
+        )
+        .map_err(|x| e("map sram bit-band", x))?;
+        // Peripherals: APB1, APB2, AHB1; their bit-band alias; AHB2 (nothing modelled).
+        for (base, size) in [(0x4000_0000u64, 0x8_0000u64), (0x5000_0000, 0x6_1000)] {
+            uc.mmio_map(
+                base,
+                size,
+                Some(
+                    move |uc: &mut Unicorn<'_, Soc>, off: u64, size: usize| -> u64 {
+                        let s = uc.get_data_mut();
+                        let v = s.bus_read((base + off) as u32, size);
+                        if let Some(d) = s.flash.take_done() {
+                            apply_done(uc, d);
+                        }
+                        v as u64
+                    },
+                ),
+                Some(
+                    move |uc: &mut Unicorn<'_, Soc>, off: u64, size: usize, v: u64| {
+                        let s = uc.get_data_mut();
+                        s.bus_write((base + off) as u32, size, v as u32);
+                    },
+                ),
+            )
+            .map_err(|x| e("map peripherals", x))?;
+        }
+        uc.mmio_map(
+            0x4200_0000,
+            0x8_0000 * 32,
+            Some(|uc: &mut Unicorn<'_, Soc>, off: u64, _size: usize| -> u64 {
+                let (addr, bit) = bitband(0x4000_0000, off as u32);
+                let s = uc.get_data_mut();
+                let v = (s.bus_read(addr, 4) >> bit) & 1;
+                v as u64
+            }),
+            Some(
+                |uc: &mut Unicorn<'_, Soc>, off: u64, _size: usize, v: u64| {
+                    let (addr, bit) = bitband(0x4000_0000, off as u32);
+                    let s = uc.get_data_mut();
+                    let w = s.bus_read(addr, 4) & !(1 << bit) | (((v & 1) as u32) << bit);
+                    s.bus_write(addr, 4, w);
+                },
+            ),
+        )
+        .map_err(|x| e("map peripheral bit-band", x))?;
+        uc.mmio_map(
+            0xE000_0000,
+            0x10_0000,
+            Some(|uc: &mut Unicorn<'_, Soc>, off: u64, size: usize| -> u64 {
+                let s = uc.get_data_mut();
+                let v = s.ppb_read(0xE000_0000 + off as u32, size);
+                v as u64
+            }),
+            Some(|uc: &mut Unicorn<'_, Soc>, off: u64, size: usize, v: u64| {
+                let s = uc.get_data_mut();
+                s.ppb_write(0xE000_0000 + off as u32, size, v as u32);
+            }),
+        )
+        .map_err(|x| e("map private peripheral bus", x))?;
+
+        // Time, stalls, events: at every block. A block whose hook stops the engine is
+        // not executed (unicorn stops before it and runs it again on restart), so it is
+        // counted only when it runs: the stop decision comes first.
+        uc.add_block_hook(1, 0, |uc: &mut Unicorn<'_, Soc>, addr: u64, size: u32| {
+            let s = uc.get_data();
+            let mut stop = s.stop || s.clock.mc() >= s.next_event_mc;
+            if !stop && s.irq_waiting {
+                let m = masks(uc);
+                stop = uc.get_data().nvic.to_take(m).is_some();
+            }
+            if stop {
+                uc.get_data_mut().stop = true;
+                let _ = uc.emu_stop();
+                return;
+            }
+            let a = addr as u32;
+            let in_flash = a.wrapping_sub(FLASH_BASE) < CODE_LEN || a < CODE_LEN;
+            if in_flash && uc.get_data().flash.busy_until().is_some() {
+                // The fetch waits for the flash operation, or for the next event if that
+                // comes first (a watchdog reset cuts the operation short).
+                let s = uc.get_data_mut();
+                let end = s.flash.busy_until().unwrap_or(0);
+                if s.next_event_ps < end {
+                    let t = s.next_event_ps;
+                    s.stall_to(t);
+                    s.stop = true;
+                    let _ = uc.emu_stop();
+                    return;
+                }
+                if let Some(d) = s.stall_for_flash() {
+                    apply_done(uc, d);
+                }
+            }
+            let n = block_insns(uc, addr, size);
+            uc.get_data_mut().clock.execute(n);
+        })
+        .map_err(|x| e("block hook", x))?;
+        uc.add_intr_hook(|uc: &mut Unicorn<'_, Soc>, intno: u32| {
+            on_interrupt(uc, intno);
+        })
+        .map_err(|x| e("intr hook", x))?;
+        uc.add_insn_invalid_hook(|uc: &mut Unicorn<'_, Soc>| {
+            // Undefined instruction (`udf`, a panic's end): UsageFault → HardFault.
+            let pc = reg(uc, RegisterARM::PC);
+            fault(uc, exc::USAGE_FAULT, 1 << 16, pc, "undefined instruction");
+            true
+        })
+        .map_err(|x| e("invalid-insn hook", x))?;
+        uc.add_mem_hook(
+            HookType::MEM_INVALID,
+            1,
+            0,
+            |uc: &mut Unicorn<'_, Soc>, t: MemType, addr: u64, _size: usize, _v: i64| {
+                uc.get_data_mut().mem_fault = Some((addr as u32, t));
+                false
+            },
+        )
+        .map_err(|x| e("memory hook", x))?;
+
+        let rtt = match image.rtt {
+            Some(cb) => Rtt::new(&image.elf, cb)?,
+            None => None,
+        };
+        Ok(Self {
+            uc,
+            image,
+            rtt,
+            log: Vec::new(),
+            next_rtt_ps: 0,
+            sleeping: false,
+            resets: Vec::new(),
+        })
+    }
+}
+
+fn flash_len() -> u32 {
+    crate::periph::flash::FLASH_SIZE
+}
+
+/// The word address and bit of a bit-band alias offset over `region`.
+fn bitband(region: u32, off: u32) -> (u32, u32) {
+    let byte = off / 32;
+    let bit = (off % 32) / 4;
+    let addr = region + (byte & !3);
+    (addr, (byte & 3) * 8 + bit)
+}
+
+/// Apply a finished flash operation; erased code sectors are erased in emulator memory
+/// too (the image would be destroyed, as on the part).
+fn apply_done(uc: &mut Unicorn<'_, Soc>, d: crate::periph::flash::Done) {
+    if let Some((addr, len)) = uc.get_data_mut().apply_flash(d) {
+        let ff = vec![0xFFu8; len as usize];
+        let _ = uc.mem_write(addr as u64, &ff);
+        let _ = uc.mem_write((addr - FLASH_BASE) as u64, &ff);
+        let _ = uc.ctl_remove_cache(addr as u64, (addr + len) as u64);
+    }
+}
+
+const S_REGS: [RegisterARM; 16] = [
+    RegisterARM::S0,
+    RegisterARM::S1,
+    RegisterARM::S2,
+    RegisterARM::S3,
+    RegisterARM::S4,
+    RegisterARM::S5,
+    RegisterARM::S6,
+    RegisterARM::S7,
+    RegisterARM::S8,
+    RegisterARM::S9,
+    RegisterARM::S10,
+    RegisterARM::S11,
+    RegisterARM::S12,
+    RegisterARM::S13,
+    RegisterARM::S14,
+    RegisterARM::S15,
+];
+const FRAME_REGS: [RegisterARM; 6] = [
+    RegisterARM::R0,
+    RegisterARM::R1,
+    RegisterARM::R2,
+    RegisterARM::R3,
+    RegisterARM::R12,
+    RegisterARM::LR,
+];
+
+/// Exception entry: stack the frame on the current stack and continue at the vector of
+/// `e` in handler mode; `ret` is the return address. `Err` when the frame cannot be
+/// stacked (the stack points outside RAM).
+fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
+    let xpsr = reg(uc, RegisterARM::XPSR);
+    let control = reg(uc, RegisterARM::CONTROL);
+    let handler = xpsr & 0x1FF != 0;
+    let use_psp = !handler && control & 2 != 0;
+    let fpca = control & 4 != 0;
+    let sp = reg(
+        uc,
+        if use_psp {
+            RegisterARM::PSP
+        } else {
+            RegisterARM::MSP
+        },
+    );
+    let size = if fpca { 0x68 } else { 0x20 };
+    let unaligned = sp.wrapping_sub(size);
+    let frame = unaligned & !7;
+    let realign = frame != unaligned;
+    let mut words: Vec<u32> = FRAME_REGS.iter().map(|&r| reg(uc, r)).collect();
+    words.push(ret & !1);
+    words.push((xpsr & !(1 << 9)) | (u32::from(realign) << 9));
+    if fpca {
+        words.extend(S_REGS.iter().map(|&r| reg(uc, r)));
+        words.push(reg(uc, RegisterARM::FPSCR));
+        words.push(0);
+    }
+    let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+    uc.mem_write(frame as u64, &bytes).map_err(|_| ())?;
+    if use_psp {
+        set(uc, RegisterARM::PSP, frame);
+        set(uc, RegisterARM::CONTROL, control & !(2 | 4));
+    } else {
+        set(uc, RegisterARM::MSP, frame);
+        if fpca {
+            set(uc, RegisterARM::CONTROL, control & !4);
+        }
+    }
+    let exc_return = 0xFFFF_FFE1
+        | if fpca { 0 } else { 0x10 }
+        | if handler {
+            0
+        } else if use_psp {
+            0xC
+        } else {
+            0x8
+        };
+    set(uc, RegisterARM::LR, exc_return);
+    let vtor = uc.get_data().nvic.vtor();
+    let vector = read_u32(uc, vtor + 4 * e).ok_or(())?;
+    set(uc, RegisterARM::XPSR, (xpsr & 0xF800_0000) | (1 << 24) | e);
+    rebuild_hflags(uc);
+    set(uc, RegisterARM::PC, vector | 1);
+    let s = uc.get_data_mut();
+    s.nvic.activate(e);
+    s.exceptions += 1;
+    Ok(())
+}
+
+/// Exception return through EXC_RETURN (the engine's interrupt 8): tail-chain or
+/// unstack.
+fn exception_return(uc: &mut Unicorn<'_, Soc>) {
+    let exc_return = reg(uc, RegisterARM::PC) | 1;
+    let ipsr = reg(uc, RegisterARM::IPSR) & 0x1FF;
+    uc.get_data_mut().nvic.deactivate(ipsr);
+    uc.get_data_mut().update_lines();
+    let m = masks(uc);
+    if let Some(n) = uc.get_data().nvic.to_take(m) {
+        // Tail-chain: the frame stays; the next handler returns through it.
+        let vtor = uc.get_data().nvic.vtor();
+        if let Some(vector) = read_u32(uc, vtor + 4 * n) {
+            let xpsr = reg(uc, RegisterARM::XPSR);
+            set(uc, RegisterARM::XPSR, (xpsr & 0xF800_0000) | (1 << 24) | n);
+            set(uc, RegisterARM::LR, exc_return);
+            rebuild_hflags(uc);
+            set(uc, RegisterARM::PC, vector | 1);
+            let s = uc.get_data_mut();
+            s.nvic.activate(n);
+            s.exceptions += 1;
+            return;
+        }
+    }
+    let to_thread = exc_return & 8 != 0;
+    let use_psp = to_thread && exc_return & 4 != 0;
+    let std_frame = exc_return & 0x10 != 0;
+    let sp = reg(
+        uc,
+        if use_psp {
+            RegisterARM::PSP
+        } else {
+            RegisterARM::MSP
+        },
+    );
+    let n = if std_frame { 8 } else { 26 };
+    let mut buf = vec![0u8; 4 * n];
+    if uc.mem_read(sp as u64, &mut buf).is_err() {
+        let pc = exc_return;
+        fault(
+            uc,
+            exc::HARD_FAULT,
+            0,
+            pc,
+            "exception return: stack unreadable",
+        );
+        return;
+    }
+    let w: Vec<u32> = buf
+        .chunks_exact(4)
+        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    for (i, &r) in FRAME_REGS.iter().enumerate() {
+        set(uc, r, w[i]);
+    }
+    let ret = w[6];
+    let xpsr = w[7];
+    if !std_frame {
+        for (i, &r) in S_REGS.iter().enumerate() {
+            set(uc, r, w[8 + i]);
+        }
+        set(uc, RegisterARM::FPSCR, w[24]);
+    }
+    let new_sp = sp + 4 * n as u32 + if xpsr & (1 << 9) != 0 { 4 } else { 0 };
+    set(
+        uc,
+        RegisterARM::XPSR,
+        (xpsr & !(1 << 9) & !0x1FF) | if to_thread { 0 } else { xpsr & 0x1FF },
+    );
+    let control = reg(uc, RegisterARM::CONTROL);
+    if use_psp {
+        // Thread mode again: selecting the process stack swaps it in.
+        set(uc, RegisterARM::CONTROL, control | 2);
+        set(uc, RegisterARM::PSP, new_sp);
+    } else {
+        set(uc, RegisterARM::MSP, new_sp);
+    }
+    if !std_frame {
+        let c = reg(uc, RegisterARM::CONTROL);
+        set(uc, RegisterARM::CONTROL, c | 4);
+    }
+    rebuild_hflags(uc);
+    set(uc, RegisterARM::PC, ret | 1);
+}
+
+/// A synchronous fault of kind `kind` (MemManage, BusFault, UsageFault or HardFault)
+/// at `pc`: taken as itself if enabled and allowed, else escalated to HardFault; a
+/// fault that HardFault cannot take is a lockup.
+fn fault(uc: &mut Unicorn<'_, Soc>, kind: u32, cfsr: u32, pc: u32, what: &str) {
+    let m = masks(uc);
+    let (target, exec) = {
+        let n = &uc.get_data().nvic;
+        let exec = n.execution_priority(m, false);
+        (n.fault_target(kind, exec), exec)
+    };
+    let t_ps = uc.get_data().now();
+    let s = uc.get_data_mut();
+    s.core_faults.push(CoreFault {
+        t_ps,
+        what: what.to_string(),
+        pc,
+        function: None,
+    });
+    s.nvic.fault_status(
+        cfsr,
+        target == exc::HARD_FAULT && kind != exc::HARD_FAULT,
+        None,
+    );
+    if target == exc::HARD_FAULT && exec <= -1 {
+        s.locked_up = true;
+        s.stop = true;
+        let _ = uc.emu_stop();
+        return;
+    }
+    if enter(uc, target, pc).is_err() {
+        let s = uc.get_data_mut();
+        s.locked_up = true;
+        s.stop = true;
+        let _ = uc.emu_stop();
+    }
+}
+
+fn on_interrupt(uc: &mut Unicorn<'_, Soc>, intno: u32) {
+    let pc = reg(uc, RegisterARM::PC);
+    match intno {
+        8 => exception_return(uc),
+        2 => {
+            if enter(uc, exc::SVCALL, pc).is_err() {
+                fault(uc, exc::HARD_FAULT, 0, pc, "svc: stacking failed");
+            }
+        }
+        // No debugger attached: a breakpoint is a HardFault (HFSR.DEBUGEVT).
+        7 => fault(uc, exc::HARD_FAULT, 0, pc, "bkpt without a debugger"),
+        17 => fault(
+            uc,
+            exc::USAGE_FAULT,
+            1 << 19,
+            pc,
+            "coprocessor access (NOCP)",
+        ),
+        18 => fault(
+            uc,
+            exc::USAGE_FAULT,
+            1 << 17,
+            pc,
+            "invalid state (INVSTATE)",
+        ),
+        22 => fault(uc, exc::USAGE_FAULT, 1 << 24, pc, "unaligned access"),
+        other => {
+            let s = uc.get_data_mut();
+            s.engine_error = Some(format!("unexpected exception {other} at pc {pc:#x}"));
+            s.stop = true;
+            let _ = uc.emu_stop();
+        }
+    }
+}
+
+/// What a run can report.
+impl Board {
+    /// The SoC.
+    pub fn soc(&self) -> &Soc {
+        self.uc.get_data()
+    }
+
+    /// The SoC, mutably (scenes drive the world through it).
+    pub fn soc_mut(&mut self) -> &mut Soc {
+        self.uc.get_data_mut()
+    }
+
+    /// Now, ps.
+    pub fn now(&self) -> u64 {
+        self.soc().now()
+    }
+
+    /// Apply power (a power-on reset).
+    pub fn power_on(&mut self) {
+        self.reset(ResetCause::PowerOn);
+    }
+
+    /// Pull NRST low (a pin reset, at the next instant the board runs).
+    pub fn reset_pin(&mut self) {
+        self.soc_mut().reset_due = Some(ResetCause::Pin);
+    }
+
+    /// Whether the core sleeps (`wfi`).
+    pub fn sleeping(&self) -> bool {
+        self.sleeping
+    }
+
+    fn reset(&mut self, cause: ResetCause) {
+        let cut = self.uc.get_data_mut().reset_peripherals(cause);
+        if let Some(d) = cut {
+            apply_done(&mut self.uc, d);
+        }
+        let uc = &mut self.uc;
+        let sp = read_u32(uc, 0).unwrap_or(0);
+        let pc = read_u32(uc, 4).unwrap_or(0);
+        for r in [
+            RegisterARM::R0,
+            RegisterARM::R1,
+            RegisterARM::R2,
+            RegisterARM::R3,
+            RegisterARM::R4,
+            RegisterARM::R5,
+            RegisterARM::R6,
+            RegisterARM::R7,
+            RegisterARM::R8,
+            RegisterARM::R9,
+            RegisterARM::R10,
+            RegisterARM::R11,
+            RegisterARM::R12,
+        ] {
+            set(uc, r, 0);
+        }
+        set(uc, RegisterARM::XPSR, 1 << 24);
+        set(uc, RegisterARM::PRIMASK, 0);
+        set(uc, RegisterARM::BASEPRI, 0);
+        set(uc, RegisterARM::FAULTMASK, 0);
+        set(uc, RegisterARM::CONTROL, 0);
+        rebuild_hflags(uc);
+        set(uc, RegisterARM::MSP, sp & !3);
+        set(uc, RegisterARM::PSP, 0);
+        set(uc, RegisterARM::LR, 0xFFFF_FFFF);
+        for &r in &S_REGS {
+            set(uc, r, 0);
+        }
+        set(uc, RegisterARM::FPSCR, 0);
+        set(uc, RegisterARM::PC, pc | 1);
+        let s = uc.get_data_mut();
+        s.locked_up = false;
+        s.reset_due = None;
+        s.nvic.reset_requested = false;
+        let now = s.now();
+        self.sleeping = false;
+        self.resets.push((now, cause));
+    }
+
+    /// Drain the RTT buffer into the log.
+    pub fn poll_rtt(&mut self) {
+        let Some(rtt) = self.rtt.as_mut() else {
+            return;
+        };
+        let [buf_a, size_a, write_a, read_a] = rtt.fields();
+        let uc = &mut self.uc;
+        let (Some(buf), Some(size), Some(write), Some(read)) = (
+            read_u32(uc, buf_a),
+            read_u32(uc, size_a),
+            read_u32(uc, write_a),
+            read_u32(uc, read_a),
+        ) else {
+            return;
+        };
+        if size == 0 || write >= size || read >= size || write == read {
+            return;
+        }
+        let mut bytes = Vec::new();
+        let mut r = read;
+        while r != write {
+            let end = if write > r { write } else { size };
+            let mut chunk = vec![0u8; (end - r) as usize];
+            if uc.mem_read((buf + r) as u64, &mut chunk).is_err() {
+                return;
+            }
+            bytes.extend(chunk);
+            r = if end == size { 0 } else { end };
+        }
+        let _ = uc.mem_write(read_a as u64, &write.to_le_bytes());
+        let t = uc.get_data().now();
+        rtt.feed(&bytes, t, &mut self.log);
+    }
+
+    /// Run until virtual time `until_ps`. `Err` when the board cannot go on (an
+    /// unmodelled peripheral access, an engine failure); faults of the image are not
+    /// errors: they are taken as the core would.
+    pub fn run_until(&mut self, until_ps: u64) -> Result<(), Halt> {
+        loop {
+            let done = self.uc.get_data_mut().process();
+            if let Some(d) = done {
+                apply_done(&mut self.uc, d);
+            }
+            let reset = {
+                let s = self.uc.get_data_mut();
+                if s.nvic.reset_requested {
+                    Some(ResetCause::Software)
+                } else {
+                    s.reset_due
+                }
+            };
+            if let Some(c) = reset {
+                self.reset(c);
+                continue;
+            }
+            let now = self.now();
+            if now >= self.next_rtt_ps {
+                self.poll_rtt();
+                self.next_rtt_ps = now + POLL_PS;
+            }
+            self.check_halt()?;
+            let m = masks(&self.uc);
+            let (locked, wakes) = {
+                let s = self.uc.get_data();
+                (s.locked_up, s.nvic.wakes(m))
+            };
+            if locked || (self.sleeping && !wakes) {
+                let t = self
+                    .uc
+                    .get_data()
+                    .next_event()
+                    .min(self.next_rtt_ps)
+                    .min(until_ps);
+                if now >= until_ps {
+                    return Ok(());
+                }
+                self.uc.get_data_mut().clock.sleep_until(t.max(now + 1));
+                continue;
+            }
+            self.sleeping = false;
+            if let Some(e) = self.uc.get_data().nvic.to_take(m) {
+                let pc = reg(&self.uc, RegisterARM::PC);
+                if enter(&mut self.uc, e, pc).is_err() {
+                    fault(
+                        &mut self.uc,
+                        exc::HARD_FAULT,
+                        0,
+                        pc,
+                        "exception entry: stack outside RAM",
+                    );
+                }
+                continue;
+            }
+            if now >= until_ps {
+                return Ok(());
+            }
+            {
+                let t = self
+                    .uc
+                    .get_data()
+                    .next_event()
+                    .min(self.next_rtt_ps)
+                    .min(until_ps);
+                let s = self.uc.get_data_mut();
+                s.next_event_mc = s.clock.mc_at(t);
+                s.next_event_ps = t;
+                s.irq_waiting = s.nvic.anything_pending();
+                s.stop = false;
+            }
+            let pc = reg(&self.uc, RegisterARM::PC);
+            self.uc.get_data_mut().runs += 1;
+            let r = self.uc.emu_start((pc | 1) as u64, 0, 0, 0);
+            let stopped = self.uc.get_data().stop;
+            match r {
+                Err(err) => {
+                    let pc = reg(&self.uc, RegisterARM::PC);
+                    match self.uc.get_data_mut().mem_fault.take() {
+                        Some((addr, t)) => {
+                            let what = format!("bus fault: {t:?} at {addr:#010x}");
+                            self.uc
+                                .get_data_mut()
+                                .nvic
+                                .fault_status(1 << 9, false, Some(addr));
+                            fault(&mut self.uc, exc::BUS_FAULT, 1 << 9, pc, &what);
+                        }
+                        None => {
+                            self.check_halt()?;
+                            return Err(Halt::Engine(format!("{err:?} at pc {pc:#010x}")));
+                        }
+                    }
+                }
+                Ok(()) if stopped => {}
+                Ok(()) => {
+                    // The engine ends a run by itself only at `wfi`.
+                    let pc = reg(&self.uc, RegisterARM::PC);
+                    let mut hw = [0u8; 2];
+                    let is_wfi = self.uc.mem_read((pc - 2) as u64, &mut hw).is_ok()
+                        && u16::from_le_bytes(hw) == WFI;
+                    let is_wfi_w = read_u32(&self.uc, pc - 4) == Some(0x8003_F3AF);
+                    if is_wfi || is_wfi_w {
+                        self.sleeping = true;
+                    } else {
+                        return Err(Halt::Engine(format!(
+                            "the core stopped at pc {pc:#010x} for no reason"
+                        )));
+                    }
+                }
+            }
+        }
+    }
+
+    fn check_halt(&mut self) -> Result<(), Halt> {
+        let pc = reg(&self.uc, RegisterARM::PC);
+        let s = self.uc.get_data_mut();
+        if let Some((addr, write)) = s.unmodelled {
+            return Err(Halt::Unmodelled { addr, write, pc });
+        }
+        if let Some(e) = s.engine_error.take() {
+            return Err(Halt::Engine(e));
+        }
+        Ok(())
+    }
+
+    /// Read a word of memory (RAM, flash) as a probe would.
+    pub fn peek(&self, addr: u32) -> Option<u32> {
+        read_u32(&self.uc, addr)
+    }
+
+    /// The core's program counter.
+    pub fn pc(&self) -> u32 {
+        reg(&self.uc, RegisterARM::PC)
+    }
+
+    /// Name a fault's location from the image's symbols.
+    pub fn faults(&self) -> Vec<CoreFault> {
+        self.soc()
+            .core_faults
+            .iter()
+            .map(|f| CoreFault {
+                function: self.image.function_at(f.pc).map(str::to_string),
+                ..f.clone()
+            })
+            .collect()
+    }
+}

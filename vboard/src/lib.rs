@@ -1,0 +1,25 @@
+//! # vboard — the virtual board
+//!
+//! Runs the **unmodified release image** of the docking controller on an emulated
+//! STM32F407 (the unicorn engine for the Cortex-M4 core, register-level models of the
+//! peripherals the image uses), its pins wired to the simulated machine of `hil-sim`.
+//!
+//! * [`cpu`]: the core, time, exceptions, sleep, reset;
+//! * [`soc`]: the bus map, events, interrupt lines, pins;
+//! * [`periph`]: one model per peripheral;
+//! * [`world`]: the board's wiring to hil-sim's devices;
+//! * [`rtt`]: the defmt log, read over RTT as a probe would;
+//! * [`scene`]: the scenes of `vboard scene`.
+//!
+//! GPL-2.0 (it links unicorn); nothing of the firmware depends on it.
+
+pub mod cli;
+pub mod cpu;
+pub mod image;
+pub mod periph;
+pub mod rtt;
+pub mod scene;
+pub mod serve;
+pub mod soc;
+pub mod time;
+pub mod world;

@@ -1,0 +1,835 @@
+//! Scenes on the virtual board: the image docks against the simulated machine, with the
+//! disturbances of `hil-sim scene` (one definition: [`hil_sim::scene::SceneDriver`]).
+//!
+//! The board sees the firmware only from outside, as a test bench would: the pins (the
+//! axis and lock models record what they were driven to do), the defmt log over RTT, and
+//! the console on USART2. The vehicle asks for each cycle on the dock-request pin (PC4
+//! held low for 30 ms, longer than the firmware's 20 ms debounce).
+//!
+//! | scene | what happens |
+//! |---|---|
+//! | `boot` | power-on → home → idle, no request |
+//! | the scenes of `hil-sim scene` | the same disturbance at the same moment |
+//! | `sector-move` | the odometer log is filled (through the firmware's own record format) until the next record write makes the firmware erase a sector, with the watchdog running |
+//! | `power-cut-write` | a pin reset at a random instruction during a record write, then a reboot on the same flash |
+
+use std::time::Instant;
+
+use docking_controller::storage::RecordLog;
+use hil_sim::flash::{SharedFlash, SimFlash};
+use hil_sim::rig::{Machine, RigOptions};
+use hil_sim::scene::{num, FaultSeen, Progress, SceneDriver, SceneReport, Stage};
+
+use crate::cpu::{Board, BoardConfig, Halt};
+use crate::image::Image;
+use crate::periph::flash::FlashTiming;
+use crate::periph::rcc::ResetCause;
+use crate::rtt::LogLine;
+use crate::time::PS_PER_S;
+use crate::world::World;
+
+/// Picoseconds per millisecond.
+pub const PS_PER_MS: u64 = 1_000_000_000;
+
+/// Options of a session.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// Firmware image (ELF).
+    pub firmware: String,
+    /// HX711 rate, SPS (the board's RATE pin: 10 or 80; 320 is not an HX711 rate).
+    pub rate_sps: u32,
+    /// Noise seed.
+    pub seed: u64,
+    /// Board configuration (CPI, LSI, flash timing).
+    pub board: BoardConfig,
+}
+
+impl Options {
+    /// The release image at 80 SPS, seed 1, CPI 1, LSI 32 kHz, maximum flash times.
+    pub fn new() -> Self {
+        Self {
+            firmware: crate::image::default_path(),
+            rate_sps: 80,
+            seed: 1,
+            board: BoardConfig::default(),
+        }
+    }
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// What the log says so far.
+#[derive(Clone, Debug, Default)]
+pub struct Observed {
+    /// Cycles the firmware logged as completed.
+    pub cycles_completed: u32,
+    /// Cycles it logged as started.
+    pub cycles_started: u32,
+    /// Faults it logged.
+    pub faults: Vec<FaultSeen>,
+    /// Contact phases entered on each insertion.
+    pub insertion_phases: Vec<Vec<u8>>,
+    /// The firmware logged that it booted, this many times.
+    pub boots: u32,
+    /// Lines read so far.
+    cursor: usize,
+    /// The current insertion is over (a phase went down: extraction).
+    extracting: bool,
+}
+
+/// A board with the image running, and the machine around it.
+pub struct Session {
+    /// The board.
+    pub board: Board,
+    /// Options.
+    pub opts: Options,
+    /// The log, interpreted.
+    pub seen: Observed,
+    engage_um: i32,
+    last_press_ps: Option<u64>,
+    press_release_ps: Option<u64>,
+}
+
+/// Load `path` (once per process: the table of a loaded image is kept).
+fn image(path: &str) -> Result<Image, String> {
+    Image::load(path)
+}
+
+impl Session {
+    /// Power on a board with a fresh odometer flash.
+    pub fn new(opts: Options) -> Result<Self, String> {
+        Self::with_flash(opts, SharedFlash::new(SimFlash::stm32f407_odometer()))
+    }
+
+    /// Power on a board whose odometer sectors hold `flash`.
+    pub fn with_flash(opts: Options, flash: SharedFlash) -> Result<Self, String> {
+        let img = image(&opts.firmware)?;
+        let machine = Machine::new(&RigOptions {
+            seed: opts.seed,
+            ..RigOptions::new(opts.rate_sps)
+        });
+        let world = World::new(machine, flash);
+        let mut board = Board::new(img, world, opts.board)?;
+        board.power_on();
+        Ok(Self {
+            board,
+            engage_um: docking_controller::config::MachineConfig::DEFAULT.engage_um,
+            opts,
+            seen: Observed::default(),
+            last_press_ps: None,
+            press_release_ps: None,
+        })
+    }
+
+    /// Now, ps.
+    pub fn now(&self) -> u64 {
+        self.board.now()
+    }
+
+    /// The simulated machine.
+    pub fn machine(&self) -> &Machine {
+        &self.board.soc().world.machine
+    }
+
+    /// Run `dt_ps` more, in 1 ms steps, reading the log as it comes.
+    pub fn run_for(&mut self, dt_ps: u64) -> Result<(), Halt> {
+        let end = self.now() + dt_ps;
+        self.run_until(end, |_| false).map(|_| ())
+    }
+
+    /// Run until `pred` holds (checked every millisecond) or until `deadline_ps`;
+    /// returns whether `pred` held.
+    pub fn run_until(
+        &mut self,
+        deadline_ps: u64,
+        mut pred: impl FnMut(&Session) -> bool,
+    ) -> Result<bool, Halt> {
+        loop {
+            if pred(self) {
+                return Ok(true);
+            }
+            let now = self.now();
+            if now >= deadline_ps {
+                return Ok(false);
+            }
+            let step_end = (now + PS_PER_MS).min(deadline_ps);
+            self.board.run_until(step_end)?;
+            self.tick();
+        }
+    }
+
+    /// Housekeeping every millisecond: release a dock-request press, read the log.
+    fn tick(&mut self) {
+        if self.press_release_ps.is_some_and(|t| self.now() >= t) {
+            self.press_release_ps = None;
+            self.machine().dock_request.set(true);
+        }
+        self.board.poll_rtt();
+        self.observe();
+    }
+
+    /// Press the dock-request button for 30 ms (the firmware debounces 20 ms).
+    pub fn press_dock(&mut self) {
+        let now = self.now();
+        self.machine().dock_request.set(false);
+        self.press_release_ps = Some(now + 30 * PS_PER_MS);
+        self.last_press_ps = Some(now);
+    }
+
+    /// Whether the machine is at rest: idle by the log, home, locked, driver off.
+    pub fn at_rest(&self) -> bool {
+        let m = self.machine();
+        self.progress().stage == Stage::Idle
+            && m.axis.pos_um() <= 0.0
+            && m.lock.fraction_locked() >= 1.0
+            && !m.axis.enabled()
+    }
+
+    /// Ask for the next docking cycle when the machine is at rest, has no fault, and has
+    /// done fewer than `cycles` (at most one press per 200 ms).
+    pub fn auto_dock(&mut self, cycles: u32) {
+        let now = self.now();
+        if self.at_rest()
+            && self.seen.faults.is_empty()
+            && self.seen.cycles_completed < cycles
+            && self.seen.cycles_started == self.seen.cycles_completed
+            && self.last_press_ps.is_none_or(|t| now > t + 200 * PS_PER_MS)
+        {
+            self.press_dock();
+        }
+    }
+
+    /// Interpret new log lines.
+    fn observe(&mut self) {
+        let lines: Vec<LogLine> = self.board.log[self.seen.cursor..].to_vec();
+        self.seen.cursor = self.board.log.len();
+        for l in lines {
+            let m = l.msg.as_str();
+            let words: Vec<&str> = m.split_whitespace().collect();
+            match words.as_slice() {
+                ["cycle", n, "started"] => {
+                    self.seen.cycles_started = n.parse().unwrap_or(self.seen.cycles_started);
+                    self.seen.insertion_phases.push(Vec::new());
+                    self.seen.extracting = false;
+                }
+                ["cycle", n, "completed:", ..] => {
+                    self.seen.cycles_completed = n.parse().unwrap_or(self.seen.cycles_completed);
+                }
+                ["contact", "phase", p] => {
+                    if let (Ok(p), Some(v)) =
+                        (p.parse::<u8>(), self.seen.insertion_phases.last_mut())
+                    {
+                        if v.last().is_some_and(|&l| p < l) {
+                            self.seen.extracting = true;
+                        }
+                        if !self.seen.extracting {
+                            v.push(p);
+                        }
+                    }
+                }
+                ["fault", kind, "in", "cycle", c, "at", t, "ms,", "force", f, "mN"] => {
+                    let kind: &'static str = docking_controller_fault_name(kind);
+                    self.seen.faults.push(FaultSeen {
+                        kind,
+                        cycle: c.parse().unwrap_or(0),
+                        phase: None,
+                        t_s: t.parse::<f64>().unwrap_or(0.0) / 1000.0,
+                        peak_force_n: f.parse::<f64>().unwrap_or(0.0) / 1000.0,
+                    });
+                }
+                ["docking-controller", _, "booted;", ..] => self.seen.boots += 1,
+                _ => {}
+            }
+        }
+    }
+
+    /// The machine's progress as the pins and the log show it.
+    pub fn progress(&self) -> Progress {
+        let m = self.machine();
+        let pos_um = m.axis.pos_um();
+        let depth_um = pos_um as i32 - self.engage_um;
+        let in_cycle =
+            self.seen.cycles_started > self.seen.cycles_completed && self.seen.faults.is_empty();
+        let moving = m.axis.enabled();
+        let locked = m.lock.fraction_locked() >= 1.0;
+        let released = m.lock.fraction_locked() <= 0.0;
+        let stage = if !in_cycle {
+            Stage::Idle
+        } else if moving && locked && m.axis.forward() && depth_um < 0 {
+            Stage::PreAlign
+        } else if moving && released && m.axis.forward() && !self.seen.extracting {
+            Stage::Inserting
+        } else if moving && locked && !m.axis.forward() && self.seen.extracting {
+            Stage::Returning
+        } else {
+            Stage::Other
+        };
+        Progress {
+            cycles_completed: self.seen.cycles_completed,
+            stage,
+            depth_um,
+        }
+    }
+
+    /// Type `line` on the console and wait for the reply (ends with CR LF and nothing
+    /// more for 20 ms), at most `timeout_ps`.
+    pub fn console(&mut self, line: &str, timeout_ps: u64) -> Result<String, Halt> {
+        let start = self.board.soc().console_out.len();
+        let mut bytes = line.as_bytes().to_vec();
+        bytes.extend_from_slice(b"\r\n");
+        self.board.soc_mut().console_send(&bytes);
+        let deadline = self.now() + timeout_ps;
+        let mut quiet_since: Option<(usize, u64)> = None;
+        self.run_until(deadline, |s| {
+            let out = &s.board.soc().console_out;
+            let n = out.len();
+            let done = n > start && out.last().is_some_and(|&(_, b)| b == b'\n');
+            if !done || s.board.soc().usart2.far_pending() > 0 {
+                return false;
+            }
+            match quiet_since {
+                Some((m, t)) if m == n => s.now() >= t + 20 * PS_PER_MS,
+                _ => {
+                    quiet_since = Some((n, s.now()));
+                    false
+                }
+            }
+        })?;
+        let out: Vec<u8> = self.board.soc().console_out[start..]
+            .iter()
+            .map(|&(_, b)| b)
+            .collect();
+        Ok(String::from_utf8_lossy(&out).into_owned())
+    }
+
+    /// The reset causes so far (the power-on included), by name.
+    pub fn reset_causes(&self) -> Vec<&'static str> {
+        self.board.resets.iter().map(|(_, c)| c.name()).collect()
+    }
+
+    /// Watchdog resets so far.
+    pub fn watchdog_resets(&self) -> usize {
+        self.board
+            .resets
+            .iter()
+            .filter(|(_, c)| *c == ResetCause::Watchdog)
+            .count()
+    }
+}
+
+/// The firmware's fault names, as `'static` strings.
+fn docking_controller_fault_name(s: &str) -> &'static str {
+    use docking_controller::sequencer::FaultKind;
+    (0..=255u8)
+        .filter_map(FaultKind::from_code)
+        .map(FaultKind::name)
+        .find(|n| *n == s)
+        .unwrap_or("unknown")
+}
+
+/// The scenes of `vboard scene`.
+pub const SCENES: [&str; 12] = [
+    "boot",
+    "nominal",
+    "overload",
+    "spike",
+    "disconnect",
+    "saturation",
+    "stuck",
+    "bad-tare",
+    "stall",
+    "lock-stuck",
+    "sector-move",
+    "power-cut-write",
+];
+
+/// Options of a scene run.
+#[derive(Clone, Debug)]
+pub struct SceneOptions {
+    /// Session options.
+    pub session: Options,
+    /// Docking cycles (the disturbance comes in the last).
+    pub cycles: u32,
+}
+
+/// What a scene produced: the fields of `hil-sim scene --json`, and what only a board
+/// shows.
+#[derive(Clone, Debug)]
+pub struct Report {
+    /// The host rig's fields.
+    pub scene: SceneReport,
+    /// Resets, the power-on included.
+    pub reset_count: usize,
+    /// Their causes.
+    pub reset_causes: Vec<&'static str>,
+    /// All instructions executed / control steps (a busy-polling core counts its
+    /// polling: that is what the step costs it).
+    pub instructions_per_control_step: f64,
+    /// Share of time the core was awake, %.
+    pub cpu_load_pct: f64,
+    /// From DOUT falling for the first over-limit sample to EN high, on the pins, µs.
+    pub stop_latency_pins_us: Option<f64>,
+    /// Samples read out of the HX711.
+    pub samples_read: u64,
+    /// Conversions the firmware did not read before the next one.
+    pub samples_missed: u64,
+    /// HX711 power-downs (PD_SCK high > 60 µs), the firmware's boot power-cycle included.
+    pub hx711_power_downs: u64,
+    /// Cycles per instruction used.
+    pub cpi: f64,
+    /// LSI frequency used, Hz.
+    pub lsi_hz: u64,
+    /// Flash timing column.
+    pub flash_timing: &'static str,
+    /// Instructions executed.
+    pub instructions: u64,
+    /// Emulation speed, million instructions per wall second.
+    pub mips: f64,
+    /// Virtual seconds per wall second.
+    pub realtime_factor: f64,
+    /// Flash erases per odometer sector.
+    pub erase_counts: Vec<u32>,
+    /// Faults the core took (HardFault, lockup).
+    pub core_faults: Vec<String>,
+    /// What the board noticed.
+    pub diagnostics: Vec<String>,
+    /// Scene-specific checks (name, passed, detail).
+    pub checks: Vec<(String, bool, String)>,
+}
+
+impl Report {
+    /// One JSON object on one line.
+    pub fn to_json(&self) -> String {
+        let base = self.scene.to_json();
+        let base = base.strip_suffix('}').unwrap_or(&base);
+        let strs = |v: &[String]| {
+            v.iter()
+                .map(|s| format!("\"{}\"", json_escape(s)))
+                .collect::<Vec<_>>()
+                .join(",")
+        };
+        let causes: Vec<String> = self.reset_causes.iter().map(|s| s.to_string()).collect();
+        let checks: Vec<String> = self
+            .checks
+            .iter()
+            .map(|(n, ok, d)| {
+                format!(
+                    "{{\"name\":\"{}\",\"passed\":{ok},\"detail\":\"{}\"}}",
+                    json_escape(n),
+                    json_escape(d)
+                )
+            })
+            .collect();
+        format!(
+            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"samples_missed\":{},\"hx711_power_downs\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}]}}",
+            self.reset_count,
+            strs(&causes),
+            num(self.instructions_per_control_step),
+            num(self.cpu_load_pct),
+            self.stop_latency_pins_us.map_or("null".into(), num),
+            self.samples_read,
+            self.samples_missed,
+            self.hx711_power_downs,
+            num(self.cpi),
+            self.lsi_hz,
+            self.flash_timing,
+            self.instructions,
+            num(self.mips),
+            num(self.realtime_factor),
+            self.erase_counts,
+            strs(&self.core_faults),
+            strs(&self.diagnostics),
+            checks.join(",")
+        )
+    }
+
+    /// A short human summary.
+    pub fn to_text(&self) -> String {
+        let mut s = self.scene.to_text();
+        s += &format!(
+            "\n  board: {} reset(s) [{}], {} samples read ({} missed, {} HX711 power-downs), CPU load {:.1} %, {:.0} instructions per control step",
+            self.reset_count,
+            self.reset_causes.join(", "),
+            self.samples_read,
+            self.samples_missed,
+            self.hx711_power_downs,
+            self.cpu_load_pct,
+            self.instructions_per_control_step
+        );
+        if let Some(l) = self.stop_latency_pins_us {
+            s += &format!("\n  stop latency at the pins (DOUT falling → EN high): {l:.1} µs");
+        }
+        s += &format!(
+            "\n  emulation: {} instructions at CPI {}, {:.1} MIPS, {:.3}× real time (LSI {} Hz, flash timing {})",
+            self.instructions, self.cpi, self.mips, self.realtime_factor, self.lsi_hz, self.flash_timing
+        );
+        for f in &self.core_faults {
+            s += &format!("\n  core fault: {f}");
+        }
+        for d in &self.diagnostics {
+            s += &format!("\n  noticed: {d}");
+        }
+        for (n, ok, d) in &self.checks {
+            s += &format!("\n  check {n}: {} ({d})", if *ok { "ok" } else { "FAILED" });
+        }
+        s
+    }
+
+    /// Whether every scene-specific check passed.
+    pub fn passed(&self) -> bool {
+        self.checks.iter().all(|(_, ok, _)| *ok)
+    }
+}
+
+fn json_escape(s: &str) -> String {
+    s.chars()
+        .flat_map(|c| match c {
+            '"' => vec!['\\', '"'],
+            '\\' => vec!['\\', '\\'],
+            c if (c as u32) < 0x20 => format!("\\u{:04x}", c as u32).chars().collect(),
+            c => vec![c],
+        })
+        .collect()
+}
+
+/// Stop latency on the pins: from the ready time (DOUT falling) of the sample that made
+/// the firmware disable the propulsion — counted from the first conversion after the
+/// last one it had read before, if it missed any — to the EN rising edge at `edge_ns`.
+fn latency_us(conv: &[(u64, i32, bool)], edge_ns: u64) -> Option<f64> {
+    let before: Vec<&(u64, i32, bool)> = conv.iter().filter(|c| c.0 <= edge_ns).collect();
+    let k = before.iter().rposition(|c| c.2)?;
+    let mut first = k;
+    while first > 0 && !before[first - 1].2 {
+        first -= 1;
+    }
+    Some((edge_ns - before[first].0) as f64 / 1e3)
+}
+
+/// Run scene `name`. `Err`: unknown scene, unloadable image, or a board that could not
+/// go on (an unmodelled access, an engine failure).
+pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
+    if !SCENES.contains(&name) {
+        return Err(format!(
+            "unknown scene '{name}' (scenes: {})",
+            SCENES.join(", ")
+        ));
+    }
+    let started = Instant::now();
+    let cycles = opts.cycles.max(1);
+    let mut checks = Vec::new();
+    let flash = SharedFlash::new(SimFlash::stm32f407_odometer());
+    let mut prefill = None;
+    if name == "sector-move" {
+        prefill = Some(prefill_log(&flash)?);
+    }
+    let mut s =
+        Session::with_flash(opts.session.clone(), flash.clone()).map_err(|e| e.to_string())?;
+    let host_scene = !matches!(name, "boot" | "sector-move" | "power-cut-write");
+    let mut driver = if host_scene {
+        Some(SceneDriver::new(name, cycles)?)
+    } else {
+        None
+    };
+    let spikes_injected = driver.as_ref().map_or(0, |d| {
+        d.setup(
+            s.machine().devices(),
+            opts.session.seed,
+            opts.session.rate_sps,
+            cycles,
+        )
+    });
+    let mut trip: Option<(u64, f64)> = None;
+    let (mut max_after, mut min_after) = (f64::MIN, f64::MAX);
+    let max_ps = (cycles as u64 * 150 + 60) * PS_PER_S;
+    let mut settle_until: Option<u64> = None;
+
+    match name {
+        "boot" => {
+            s.run_for(2 * PS_PER_S).map_err(|e| e.to_string())?;
+        }
+        "sector-move" => {
+            // Boot: the log is past its maintenance mark, so the firmware erases the next
+            // sector as soon as it is idle with every motor off.
+            let before = prefill.unwrap_or_default();
+            s.run_for(8 * PS_PER_S).map_err(|e| e.to_string())?;
+            let erases: u32 = flash.with(|f| f.erase_counts().iter().sum());
+            checks.push((
+                "sector erased".into(),
+                erases > before.erases,
+                format!("{} erase(s) before, {erases} after", before.erases),
+            ));
+            // Reboot on the same flash and compare every kind's newest record.
+            let after = read_newest(&flash)?;
+            let lost_records = before
+                .newest
+                .iter()
+                .zip(&after)
+                .filter(|(b, a)| {
+                    b.is_some()
+                        && a != b
+                        && !a
+                            .as_ref()
+                            .is_some_and(|a| a.0 > b.as_ref().map_or(0, |b| b.0))
+                })
+                .count();
+            checks.push((
+                "no record lost".into(),
+                lost_records == 0,
+                format!("{lost_records} kind(s) lost their newest record"),
+            ));
+        }
+        "power-cut-write" => {
+            power_cut_write(&mut s, &mut checks, opts).map_err(|e| e.to_string())?;
+        }
+        _ => loop {
+            s.run_for(PS_PER_MS).map_err(|e| e.to_string())?;
+            let p = s.progress();
+            if let Some(d) = driver.as_mut() {
+                d.on_progress(s.machine().devices(), &p);
+            }
+            let now = s.now();
+            // Trip: the first EN rising edge after an overload fault was logged.
+            if trip.is_none() && s.seen.faults.iter().any(|f| f.kind == "overload") {
+                let edges = s.machine().axis.enable_edges();
+                if let Some(e) = edges.iter().rev().find(|e| !e.enabled) {
+                    trip = Some((e.t_ns, e.pos_um));
+                }
+            }
+            if let Some((_, p0)) = trip {
+                let pos = s.machine().axis.pos_um();
+                max_after = max_after.max(pos - p0);
+                min_after = min_after.min(pos - p0);
+            }
+            let at_rest = s.at_rest();
+            let faulted = !s.seen.faults.is_empty();
+            s.auto_dock(cycles);
+            if faulted {
+                settle_until.get_or_insert(now + 2 * PS_PER_S);
+            }
+            let done = at_rest && s.seen.cycles_completed >= cycles;
+            if done || settle_until.is_some_and(|t| now >= t) || now > max_ps {
+                break;
+            }
+        },
+    }
+
+    // The end state, as the console reports it.
+    let status = s
+        .console("status --json", 2 * PS_PER_S)
+        .map_err(|e| e.to_string())?;
+    let final_state = json_field(&status, "state").unwrap_or_else(|| "unknown".into());
+    let wear = s
+        .console("wear --json", 2 * PS_PER_S)
+        .map_err(|e| e.to_string())?;
+    let peak_force_n = json_field(&wear, "peak_force_n")
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0.0);
+    s.board.poll_rtt();
+
+    let m = s.machine();
+    let hx = m.hx.stats();
+    let stop_latency_pins_us = trip.and_then(|(t, _)| latency_us(&m.hx.recent_conversions(), t));
+    let wall = started.elapsed().as_secs_f64();
+    let soc = s.board.soc();
+    let sim_s = s.now() as f64 / PS_PER_S as f64;
+    let insns = soc.clock.insns();
+    let awake = 1.0 - soc.clock.sleep_ps() as f64 / s.now().max(1) as f64;
+    let scene = SceneReport {
+        scene: name.to_string(),
+        rate_sps: opts.session.rate_sps,
+        seed: opts.session.seed,
+        cycles_completed: s.seen.cycles_completed,
+        faults: s.seen.faults.clone(),
+        peak_force_n,
+        stop_latency_s: stop_latency_pins_us.map(|u| u * 1e-6),
+        final_state: leak(final_state),
+        insertion_phases: s.seen.insertion_phases.clone(),
+        motors_disabled: !m.axis.enabled() && !m.lock.driven(),
+        forward_after_trip_um: trip.map(|_| max_after.max(0.0)),
+        backed_off_um: trip.map(|_| (-min_after).max(0.0)),
+        spikes_rejected: 0,
+        spikes_injected,
+        control_steps: hx.samples_read,
+        sim_time_s: sim_s,
+        wall_time_s: wall,
+        watchdog_bit: s.watchdog_resets() > 0,
+    };
+    Ok(Report {
+        scene,
+        reset_count: s.board.resets.len(),
+        reset_causes: s.reset_causes(),
+        instructions_per_control_step: insns as f64 / hx.samples_read.max(1) as f64,
+        cpu_load_pct: 100.0 * awake,
+        stop_latency_pins_us,
+        samples_read: hx.samples_read,
+        samples_missed: hx.samples_missed,
+        hx711_power_downs: hx.power_downs,
+        cpi: soc.clock.cpi_milli() as f64 / 1000.0,
+        lsi_hz: soc.iwdg.lsi_hz,
+        flash_timing: match soc.flash.timing {
+            FlashTiming::Max => "max",
+            FlashTiming::Typical => "typical",
+        },
+        instructions: insns,
+        mips: insns as f64 / wall.max(1e-9) / 1e6,
+        realtime_factor: sim_s / wall.max(1e-9),
+        erase_counts: soc.world.flash.with(|f| f.erase_counts().to_vec()),
+        core_faults: s
+            .board
+            .faults()
+            .iter()
+            .map(|f| {
+                format!(
+                    "{} at {:#010x} ({})",
+                    f.what,
+                    f.pc,
+                    f.function.as_deref().unwrap_or("?")
+                )
+            })
+            .collect(),
+        diagnostics: soc.diagnostics.iter().map(|d| d.what.clone()).collect(),
+        checks,
+    })
+}
+
+fn leak(s: String) -> &'static str {
+    Box::leak(s.into_boxed_str())
+}
+
+/// The value of `"key":` in a one-line JSON object (a string's contents, or the raw
+/// number / literal).
+pub fn json_field(json: &str, key: &str) -> Option<String> {
+    let pat = format!("\"{key}\":");
+    let at = json.find(&pat)? + pat.len();
+    let rest = &json[at..];
+    if let Some(r) = rest.strip_prefix('"') {
+        Some(r[..r.find('"')?].to_string())
+    } else {
+        let end = rest.find([',', '}']).unwrap_or(rest.len());
+        Some(rest[..end].trim().to_string())
+    }
+}
+
+/// What the log held before the board ran.
+#[derive(Clone, Debug, Default)]
+pub struct Prefill {
+    /// Erases done so far.
+    pub erases: u32,
+    /// The newest record of every kind: (seq, payload).
+    pub newest: Vec<Option<(u32, Vec<u8>)>>,
+}
+
+fn read_newest(flash: &SharedFlash) -> Result<Vec<Option<(u32, Vec<u8>)>>, String> {
+    let (mut log, _) = RecordLog::open(flash.clone()).map_err(|e| format!("open: {e}"))?;
+    Ok((0..docking_controller::storage::MAX_KINDS)
+        .map(|k| {
+            log.latest(k)
+                .ok()
+                .flatten()
+                .map(|r| (r.seq, r.data().to_vec()))
+        })
+        .collect())
+}
+
+/// Fill the odometer log, with the firmware's own format (the library's `RecordLog`),
+/// until the current sector is past its maintenance mark and the next sector holds old
+/// records: the next idle moment of the firmware erases it.
+fn prefill_log(flash: &SharedFlash) -> Result<Prefill, String> {
+    use docking_controller::odometer::{self, kind, StateRecord};
+    let (mut log, _) = RecordLog::open(flash.clone()).map_err(|e| format!("open: {e}"))?;
+    let wear = docking_controller::odometer::WearConfig::DEFAULT;
+    let cone = odometer::Cone::new(
+        1,
+        docking_controller::material::Material::ZQSn5_2,
+        "SN-1",
+        0,
+    );
+    log.append(kind::CONE, &odometer::cone_to_bytes(&cone))
+        .map_err(|e| format!("append: {e}"))?;
+    let mut odo = odometer::restore(wear, Some(cone), None, cone.material);
+    let per_sector = log.slots_per_sector();
+    // One full sector, then 95 % of the next: the one after (the first) is not blank.
+    let total = per_sector + per_sector * 95 / 100;
+    let mut n = 0;
+    while n < total {
+        odo.on_contact_sample(0, 100_000);
+        odo.on_contact_sample(30_000, 100_000);
+        odo.end_contact();
+        let _ = odo.complete_cycle();
+        let rec = StateRecord::of(&odo, true).to_bytes();
+        log.append(kind::STATE, &rec)
+            .map_err(|e| format!("append: {e}"))?;
+        n += 1;
+    }
+    if !log.needs_maintenance() {
+        return Err("prefill did not reach the maintenance mark".into());
+    }
+    drop(log);
+    Ok(Prefill {
+        erases: flash.with(|f| f.erase_counts().iter().sum()),
+        newest: read_newest(flash)?,
+    })
+}
+
+/// Boot, make the firmware write a record (a latched fault writes a counter snapshot),
+/// pull NRST at a random instruction inside that write, reboot on the same flash, and
+/// check that the counters came back, old or new, never older.
+fn power_cut_write(
+    s: &mut Session,
+    checks: &mut Vec<(String, bool, String)>,
+    opts: &SceneOptions,
+) -> Result<(), Halt> {
+    s.run_for(PS_PER_S)?;
+    let before = s.console("wear --json", 2 * PS_PER_S)?;
+    let faults_before: u64 = json_field(&before, "faults")
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
+    // A disconnected load cell latches a fault within 3 sample periods; the fault
+    // writes a counter snapshot.
+    s.machine()
+        .hx
+        .set_fault(hil_sim::hx711::Hx711Fault::Disconnected);
+    let ops0 = s.board.soc().flash.ops_started;
+    let deadline = s.now() + 2 * PS_PER_S;
+    let started = s.run_until(deadline, |x| x.board.soc().flash.ops_started > ops0)?;
+    // A record is 2 writes of up to 60 bytes: reset somewhere within the next 64 word
+    // programs' worth of instructions.
+    let mut rng = hil_sim::rng::Rng::new(opts.session.seed ^ 0xC07);
+    let insns0 = s.board.soc().clock.insns();
+    let at = insns0 + 1 + (rng.uniform() * 20_000.0) as u64;
+    let end = s.now() + PS_PER_S;
+    while s.board.soc().clock.insns() < at && s.now() < end {
+        let t = s.now() + 1_000_000; // 1 µs steps
+        s.board.run_until(t)?;
+    }
+    let writes = s.board.soc().flash.ops_started - ops0;
+    s.board.reset_pin();
+    s.machine().hx.set_fault(hil_sim::hx711::Hx711Fault::None);
+    s.run_for(2 * PS_PER_S)?;
+    let after = s.console("wear --json", 2 * PS_PER_S)?;
+    let faults_after: u64 = json_field(&after, "faults")
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
+    let lifetime = |j: &str| json_field(j, "lifetime_cycles").and_then(|v| v.parse::<u64>().ok());
+    checks.push((
+        "record write cut".into(),
+        started && writes > 0,
+        format!(
+            "reset after {writes} flash operation(s) of the write, {} instructions in",
+            s.board.soc().clock.insns().saturating_sub(insns0)
+        ),
+    ));
+    checks.push((
+        "counters intact".into(),
+        faults_after >= faults_before
+            && faults_after <= faults_before + 1
+            && lifetime(&after) == lifetime(&before)
+            && lifetime(&after).is_some(),
+        format!("faults {faults_before} before, {faults_after} after; {before} / {after}"),
+    ));
+    Ok(())
+}

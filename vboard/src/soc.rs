@@ -1,0 +1,780 @@
+//! The STM32F407 around the core: the bus map (which model answers which address), the
+//! clock, the interrupt lines, the events that happen on their own in time, the pins.
+//!
+//! Everything here is plain Rust with no emulator in it; `cpu.rs` runs the core and
+//! calls in here for every peripheral access and at every event.
+
+use crate::periph::dwt::Dwt;
+use crate::periph::exti::Exti;
+use crate::periph::flash::{self, Done, FlashCtl, FlashTiming, Op, ODOMETER_BASE};
+use crate::periph::gpio::{Gpio, Mode, Pull};
+use crate::periph::iwdg::Iwdg;
+use crate::periph::nvic::{exc, Nvic};
+use crate::periph::pwr::Pwr;
+use crate::periph::rcc::{Bus, Rcc, ResetCause};
+use crate::periph::systick::SysTick;
+use crate::periph::tim::Tim;
+use crate::periph::usart::Usart;
+use crate::periph::Unmodelled;
+use crate::time::Clock;
+use crate::world::{wire_at, wire_of, Ext, Signal, World, WIRING};
+
+/// Console baud rate of the far end (the technician's terminal).
+pub const CONSOLE_BAUD: u32 = 115_200;
+
+/// A peripheral of the bus map.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Periph {
+    /// A general-purpose timer (index into `Soc::tims`).
+    Tim(usize),
+    /// Independent watchdog.
+    Iwdg,
+    /// USART2.
+    Usart2,
+    /// Power controller.
+    Pwr,
+    /// SYSCFG.
+    Syscfg,
+    /// EXTI.
+    Exti,
+    /// GPIO port (0 = A).
+    Gpio(u8),
+    /// Reset and clock control.
+    Rcc,
+    /// Flash interface.
+    Flash,
+}
+
+/// The bus map: base, size, peripheral, and its clock enable (bus, bit).
+pub const BUS_MAP: &[(u32, u32, Periph, Option<(Bus, u32)>)] = &[
+    (0x4000_0000, 0x400, Periph::Tim(0), Some((Bus::Apb1, 0))),
+    (0x4000_0400, 0x400, Periph::Tim(1), Some((Bus::Apb1, 1))),
+    (0x4000_0800, 0x400, Periph::Tim(2), Some((Bus::Apb1, 2))),
+    (0x4000_0C00, 0x400, Periph::Tim(3), Some((Bus::Apb1, 3))),
+    (0x4000_3000, 0x400, Periph::Iwdg, None),
+    (0x4000_4400, 0x400, Periph::Usart2, Some((Bus::Apb1, 17))),
+    (0x4000_7000, 0x400, Periph::Pwr, Some((Bus::Apb1, 28))),
+    (0x4001_3800, 0x400, Periph::Syscfg, Some((Bus::Apb2, 14))),
+    (0x4001_3C00, 0x400, Periph::Exti, None),
+    (0x4002_0000, 0x400, Periph::Gpio(0), Some((Bus::Ahb1, 0))),
+    (0x4002_0400, 0x400, Periph::Gpio(1), Some((Bus::Ahb1, 1))),
+    (0x4002_0800, 0x400, Periph::Gpio(2), Some((Bus::Ahb1, 2))),
+    (0x4002_0C00, 0x400, Periph::Gpio(3), Some((Bus::Ahb1, 3))),
+    (0x4002_1000, 0x400, Periph::Gpio(4), Some((Bus::Ahb1, 4))),
+    (0x4002_3800, 0x400, Periph::Rcc, None),
+    (0x4002_3C00, 0x400, Periph::Flash, None),
+];
+
+/// Interrupt numbers wired to the models.
+pub mod irq {
+    /// Flash interface.
+    pub const FLASH: u32 = 4;
+    /// TIM2–TIM5.
+    pub const TIM: [u32; 4] = [28, 29, 30, 50];
+    /// USART2.
+    pub const USART2: u32 = 38;
+}
+
+/// Something the board noticed that software should not have done, but that the
+/// hardware would have let pass (reported, the run continues).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Diagnostic {
+    /// Virtual time, ps.
+    pub t_ps: u64,
+    /// What.
+    pub what: String,
+}
+
+/// A pin edge, as seen on the board.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Edge {
+    /// Virtual time, ps.
+    pub t_ps: u64,
+    /// Signal.
+    pub signal: Signal,
+    /// Level after the edge.
+    pub high: bool,
+}
+
+/// The SoC.
+pub struct Soc {
+    /// Virtual time.
+    pub clock: Clock,
+    /// RCC.
+    pub rcc: Rcc,
+    /// Flash interface.
+    pub flash: FlashCtl,
+    /// GPIO A–E.
+    pub gpio: [Gpio; 5],
+    /// TIM2, TIM3, TIM4, TIM5.
+    pub tims: [Tim; 4],
+    /// SysTick.
+    pub systick: SysTick,
+    /// NVIC and SCB.
+    pub nvic: Nvic,
+    /// DWT and DCB.
+    pub dwt: Dwt,
+    /// USART2 (console).
+    pub usart2: Usart,
+    /// IWDG.
+    pub iwdg: Iwdg,
+    /// EXTI and SYSCFG.
+    pub exti: Exti,
+    /// PWR.
+    pub pwr: Pwr,
+    /// The machine outside.
+    pub world: World,
+    /// Level last delivered to each MCU→device line.
+    out_levels: Vec<(Signal, Option<bool>)>,
+    /// Edges of the motor and sensor lines (STEP excluded: counted by the axis).
+    pub edges: Vec<Edge>,
+    /// What the board noticed.
+    pub diagnostics: Vec<Diagnostic>,
+    /// An unmodelled access (fatal): address, write, pc.
+    pub unmodelled: Option<(u32, bool)>,
+    /// A reset is due (cause).
+    pub reset_due: Option<ResetCause>,
+    /// The emulation must stop after the current block.
+    pub stop: bool,
+    /// Milli-cycle count at which the next event is due (the block hook's compare).
+    pub next_event_mc: u64,
+    /// The same, ps.
+    pub next_event_ps: u64,
+    /// An interrupt is pending but masked: re-check at every block.
+    pub irq_waiting: bool,
+    /// Instruction counts of translated blocks, by address (code flash and SRAM).
+    pub icache: Vec<u32>,
+    /// Flash stalls so far, ps.
+    pub stall_ps: u64,
+    /// Console bytes the far end received, with their time.
+    pub console_out: Vec<(u64, u8)>,
+    /// Console bytes lost because PA2/PA3 were not in their alternate function.
+    pub console_pin_losses: u64,
+    /// The core locked up (a fault it could not take).
+    pub locked_up: bool,
+    /// Faults the core took.
+    pub core_faults: Vec<crate::cpu::CoreFault>,
+    /// Exceptions taken.
+    pub exceptions: u64,
+    /// A memory access the engine refused (address, kind), for a bus fault.
+    pub mem_fault: Option<(u32, unicorn_engine::MemType)>,
+    /// The engine failed.
+    pub engine_error: Option<String>,
+    /// Engine runs (between two stops), for the figures.
+    pub runs: u64,
+    /// Peripheral accesses (reads, writes), for the figures.
+    pub accesses: (u64, u64),
+}
+
+/// Size of the instruction-count cache's code-flash part (sectors 0–9), halfwords.
+pub const ICACHE_FLASH: usize = ((ODOMETER_BASE - flash::FLASH_BASE) / 2) as usize;
+/// Size of its SRAM part, halfwords.
+pub const ICACHE_SRAM: usize = (128 * 1024 / 2) as usize;
+
+impl Soc {
+    /// A powered-off board with `world` outside, the core at `cpi_milli`, the IWDG's LSI
+    /// at `lsi_hz`, flash timing `timing`.
+    pub fn new(world: World, cpi_milli: u64, lsi_hz: u64, timing: FlashTiming) -> Self {
+        Self {
+            clock: Clock::new(crate::periph::rcc::HSI_HZ, cpi_milli),
+            rcc: Rcc::new(),
+            flash: FlashCtl::new(timing),
+            gpio: [0, 1, 2, 3, 4].map(Gpio::new),
+            tims: [
+                Tim::new("TIM2", true),
+                Tim::new("TIM3", false),
+                Tim::new("TIM4", false),
+                Tim::new("TIM5", true),
+            ],
+            systick: SysTick::default(),
+            nvic: Nvic::default(),
+            dwt: {
+                let mut d = Dwt::default();
+                d.reset();
+                d
+            },
+            usart2: Usart::new("USART2", CONSOLE_BAUD),
+            iwdg: Iwdg::new(lsi_hz),
+            exti: Exti::default(),
+            pwr: Pwr::default(),
+            world,
+            out_levels: WIRING
+                .iter()
+                .filter(|w| w.signal.is_output())
+                .map(|w| (w.signal, None))
+                .collect(),
+            edges: Vec::new(),
+            diagnostics: Vec::new(),
+            unmodelled: None,
+            reset_due: None,
+            stop: false,
+            next_event_mc: 0,
+            next_event_ps: 0,
+            irq_waiting: false,
+            icache: vec![0; ICACHE_FLASH + ICACHE_SRAM],
+            stall_ps: 0,
+            console_out: Vec::new(),
+            console_pin_losses: 0,
+            locked_up: false,
+            core_faults: Vec::new(),
+            exceptions: 0,
+            mem_fault: None,
+            engine_error: None,
+            runs: 0,
+            accesses: (0, 0),
+        }
+    }
+
+    /// Now, ps.
+    #[inline]
+    pub fn now(&self) -> u64 {
+        self.clock.now_ps()
+    }
+
+    fn diag(&mut self, what: String) {
+        if self.diagnostics.len() < 1_000 && !self.diagnostics.iter().any(|d| d.what == what) {
+            let t_ps = self.now();
+            self.diagnostics.push(Diagnostic { t_ps, what });
+        }
+    }
+
+    /// Reset every peripheral (a system reset for `cause`); returns a flash operation
+    /// the reset cut short, for the board to apply.
+    pub fn reset_peripherals(&mut self, cause: ResetCause) -> Option<Done> {
+        let now = self.now();
+        let cut = self.flash.reset(now);
+        self.rcc.reset(cause, now);
+        for g in &mut self.gpio {
+            g.reset();
+        }
+        for t in &mut self.tims {
+            t.reset();
+        }
+        self.systick.reset();
+        self.nvic.reset();
+        self.dwt.reset();
+        self.usart2.sync(now, self.rcc.clocks().pclk1);
+        self.usart2.reset();
+        self.iwdg.reset();
+        self.exti.reset();
+        self.pwr.reset();
+        self.apply_clocks();
+        self.update_outputs();
+        cut
+    }
+
+    /// The clock tree changed: the core clock follows HCLK.
+    pub fn apply_clocks(&mut self) {
+        let hclk = self.rcc.clocks().hclk;
+        let old = self.clock.hclk_hz();
+        if hclk != old {
+            let now = self.now();
+            self.systick.clock_change(now, old);
+            self.clock.set_hclk(hclk);
+            // 3.3 V: one wait state per 30 MHz (RM0090 Table 10).
+            let need = ((hclk.saturating_sub(1)) / 30_000_000) as u32;
+            if self.flash.latency() < need {
+                self.diag(format!(
+                    "HCLK {hclk} Hz with {} flash wait states (needs {need}): a real part reads garbage",
+                    self.flash.latency()
+                ));
+                self.unmodelled = Some((0x4002_3C00, false));
+                self.stop = true;
+            }
+        }
+    }
+
+    /// Timer clock of timer `i` (TIM2–5 on APB1).
+    fn tim_clk(&self, _i: usize) -> u64 {
+        self.rcc.clocks().tim1clk
+    }
+
+    // --- pins ---------------------------------------------------------------------
+
+    /// The level of pin `pin` of port `port` as IDR reads it.
+    fn pin_level(&mut self, port: u8, pin: u8) -> bool {
+        let g = &self.gpio[port as usize];
+        let mode = g.mode(pin);
+        if mode == Mode::Analog {
+            return false;
+        }
+        if let Some(d) = g.driven(pin) {
+            return d;
+        }
+        let pull = g.pull(pin);
+        let wire = wire_at(port, pin);
+        let now_ns = self.now() / 1_000;
+        let device = match wire {
+            Some(w) if !w.signal.is_output() => self.world.sense(w.signal, now_ns),
+            _ => None,
+        };
+        if let Some(l) = device {
+            return l;
+        }
+        match (wire.map(|w| w.ext), pull) {
+            (Some(Ext::Up), _) | (_, Pull::Up) => true,
+            (Some(Ext::Down), _) | (_, Pull::Down) => false,
+            _ => {
+                if mode == Mode::Input && wire.is_some() {
+                    self.diag(format!(
+                        "P{}{pin} read while floating (no pull-up, nothing driving it): reads 0 here, anything on a board",
+                        (b'A' + port) as char
+                    ));
+                }
+                false
+            }
+        }
+    }
+
+    fn port_levels(&mut self, port: u8) -> u16 {
+        (0..16u8).fold(0u16, |acc, p| {
+            acc | (u16::from(self.pin_level(port, p)) << p)
+        })
+    }
+
+    /// Deliver the MCU's output levels to the devices (after a GPIO write or a reset).
+    pub fn update_outputs(&mut self) {
+        self.update_port_outputs(None);
+    }
+
+    /// Deliver the output levels of port `port` (all ports: `None`).
+    fn update_port_outputs(&mut self, port: Option<u8>) {
+        let now = self.now();
+        for i in 0..self.out_levels.len() {
+            let (signal, last) = self.out_levels[i];
+            let Some(w) = wire_of(signal) else { continue };
+            if port.is_some_and(|p| p != w.port) {
+                continue;
+            }
+            let g = &self.gpio[w.port as usize];
+            let level = g.driven(w.pin).unwrap_or(match (w.ext, g.pull(w.pin)) {
+                (Ext::Up, _) | (_, Pull::Up) => true,
+                _ => false,
+            });
+            if last != Some(level) {
+                self.out_levels[i].1 = Some(level);
+                self.world.drive(signal, level, now / 1_000);
+                if signal != Signal::Step {
+                    self.edges.push(Edge {
+                        t_ps: now,
+                        signal,
+                        high: level,
+                    });
+                }
+            }
+        }
+        if port.is_none() {
+            self.sample_exti();
+        }
+    }
+
+    /// Sample the EXTI lines that watch an edge.
+    pub fn sample_exti(&mut self) {
+        let armed = self.exti.armed();
+        if armed == 0 {
+            return;
+        }
+        for line in 0..16u8 {
+            if armed & (1 << line) != 0 {
+                let port = self.exti.port_of(line);
+                if (port as usize) < self.gpio.len() {
+                    let l = self.pin_level(port, line);
+                    self.exti.sample(line, l);
+                }
+            }
+        }
+    }
+
+    // --- events -------------------------------------------------------------------
+
+    /// The next time something happens on its own, ps (`u64::MAX`: nothing).
+    pub fn next_event(&self) -> u64 {
+        let c = self.rcc.clocks();
+        let mut t = u64::MAX;
+        let mut at = |x: Option<u64>| {
+            if let Some(x) = x {
+                t = t.min(x);
+            }
+        };
+        at(self.systick.next_event(c.hclk));
+        for (i, tim) in self.tims.iter().enumerate() {
+            at(tim.next_event(self.tim_clk(i)));
+        }
+        at(self.usart2.next_event());
+        at(self.iwdg.next_event());
+        at(self.flash.busy_until());
+        if self.exti.armed() != 0 {
+            at(Some(self.world.next_change_ns().saturating_mul(1_000)));
+        }
+        t
+    }
+
+    /// Bring every model up to now: pend what is due, apply what ended, set the
+    /// interrupt lines. A flash operation that ended is returned for the board to apply
+    /// to the array.
+    pub fn process(&mut self) -> Option<Done> {
+        let now = self.now();
+        let c = self.rcc.clocks();
+        if self.systick.sync(now, c.hclk) > 0 && self.systick.tickint() {
+            self.nvic.pend(exc::SYSTICK);
+        }
+        for i in 0..self.tims.len() {
+            let clk = self.tim_clk(i);
+            self.tims[i].sync(now, clk);
+        }
+        self.usart2.sync(now, c.pclk1);
+        self.collect_console();
+        if self.iwdg.running() {
+            self.rcc.force_lsi(now);
+        }
+        if self.iwdg.sync(now) && self.reset_due.is_none() {
+            self.reset_due = Some(ResetCause::Watchdog);
+        }
+        let done = self.flash.complete(now).or_else(|| self.flash.take_done());
+        self.sample_exti();
+        self.update_lines();
+        done
+    }
+
+    /// Move the bytes USART2 sent to the far end (if PA2 is its alternate function).
+    fn collect_console(&mut self) {
+        let sent = self.usart2.take_sent();
+        if sent.is_empty() {
+            return;
+        }
+        if self.af_ok(Signal::ConsoleTx, 7) {
+            self.console_out.extend(sent);
+        } else {
+            self.console_pin_losses += sent.len() as u64;
+            self.diag("USART2 sent bytes but PA2 is not in alternate function 7".into());
+        }
+    }
+
+    fn af_ok(&self, signal: Signal, af: u32) -> bool {
+        let Some(w) = wire_of(signal) else {
+            return false;
+        };
+        let g = &self.gpio[w.port as usize];
+        let afr = g
+            .read(if w.pin < 8 { 0x20 } else { 0x24 }, 4, 0)
+            .unwrap_or(0);
+        g.mode(w.pin) == Mode::Alternate && (afr >> (4 * (w.pin % 8))) & 0xF == af
+    }
+
+    /// The far end of the console sends `bytes` (they arrive at the line rate).
+    pub fn console_send(&mut self, bytes: &[u8]) {
+        let now = self.now();
+        if !self.af_ok(Signal::ConsoleRx, 7) {
+            self.console_pin_losses += bytes.len() as u64;
+            return;
+        }
+        self.usart2.far_send(bytes, now);
+    }
+
+    /// Set the NVIC's interrupt lines from the models.
+    pub fn update_lines(&mut self) {
+        self.nvic.set_line(irq::USART2, self.usart2.irq());
+        self.nvic.set_line(irq::FLASH, self.flash.irq());
+        for (i, t) in self.tims.iter().enumerate() {
+            self.nvic.set_line(irq::TIM[i], t.irq());
+        }
+        let mut exti = [false; 7];
+        for irq in self.exti.irqs() {
+            if let Some(i) = [6u32, 7, 8, 9, 10, 23, 40].iter().position(|&l| l == irq) {
+                exti[i] = true;
+            }
+        }
+        for (i, l) in [6u32, 7, 8, 9, 10, 23, 40].into_iter().enumerate() {
+            self.nvic.set_line(l, exti[i]);
+        }
+    }
+
+    // --- the bus ------------------------------------------------------------------
+
+    fn lookup(addr: u32) -> Option<(u32, Periph, Option<(Bus, u32)>)> {
+        BUS_MAP
+            .iter()
+            .find(|(b, s, _, _)| addr >= *b && addr < b + s)
+            .map(|&(b, _, p, en)| (b, p, en))
+    }
+
+    fn clock_on(&mut self, name: Periph, en: Option<(Bus, u32)>) -> bool {
+        match en {
+            Some((bus, bit)) if !self.rcc.enabled(bus, bit) => {
+                self.diag(format!(
+                    "{name:?} accessed with its clock disabled: reads 0, writes are lost"
+                ));
+                false
+            }
+            _ => true,
+        }
+    }
+
+    fn unmodelled_at(&mut self, addr: u32, write: bool) {
+        if self.unmodelled.is_none() {
+            self.unmodelled = Some((addr, write));
+        }
+        self.stop = true;
+    }
+
+    /// A peripheral read (0x4000_0000–0x5FFF_FFFF).
+    pub fn bus_read(&mut self, addr: u32, size: usize) -> u32 {
+        self.accesses.0 += 1;
+        let Some((base, p, en)) = Self::lookup(addr) else {
+            self.unmodelled_at(addr, false);
+            return 0;
+        };
+        if !self.clock_on(p, en) {
+            return 0;
+        }
+        let off = addr - base;
+        let now = self.now();
+        let c = self.rcc.clocks();
+        let r = match p {
+            Periph::Tim(i) => {
+                let clk = self.tim_clk(i);
+                self.tims[i].read(off, size, now, clk)
+            }
+            Periph::Iwdg => self.iwdg.read(off, size, now),
+            Periph::Usart2 => {
+                let r = self.usart2.read(off, size, now, c.pclk1);
+                self.collect_console();
+                r
+            }
+            Periph::Pwr => self.pwr.read(off, size),
+            Periph::Syscfg => self.exti.read_syscfg(off, size),
+            Periph::Exti => self.exti.read(off, size),
+            Periph::Gpio(n) => {
+                let levels = if off & !3 == 0x10 {
+                    self.port_levels(n)
+                } else {
+                    0
+                };
+                self.gpio[n as usize].read(off, size, levels)
+            }
+            Periph::Rcc => self.rcc.read(off, size, now),
+            Periph::Flash => self.flash.read(off, size, now),
+        };
+        // A read can only clear flags (lower lines) or notice what time already brought:
+        // no new event to schedule, no new interrupt to take.
+        self.update_lines();
+        r.unwrap_or_else(|Unmodelled { .. }| {
+            self.unmodelled_at(addr, false);
+            0
+        })
+    }
+
+    /// A peripheral write.
+    pub fn bus_write(&mut self, addr: u32, size: usize, value: u32) {
+        self.accesses.1 += 1;
+        let Some((base, p, en)) = Self::lookup(addr) else {
+            self.unmodelled_at(addr, true);
+            return;
+        };
+        if !self.clock_on(p, en) {
+            return;
+        }
+        let off = addr - base;
+        let now = self.now();
+        let c = self.rcc.clocks();
+        let r = match p {
+            Periph::Tim(i) => {
+                let clk = self.tim_clk(i);
+                self.tims[i].write(off, size, value, now, clk)
+            }
+            Periph::Iwdg => self.iwdg.write(off, value, now).map(|started| {
+                if started {
+                    self.rcc.force_lsi(now);
+                }
+            }),
+            Periph::Usart2 => self.usart2.write(off, size, value, now, c.pclk1),
+            Periph::Pwr => self.pwr.write(off, size, value),
+            Periph::Syscfg => self.exti.write_syscfg(off, size, value),
+            Periph::Exti => self.exti.write(off, size, value),
+            Periph::Gpio(n) => {
+                let r = self.gpio[n as usize].write(off, size, value);
+                self.update_port_outputs(Some(n));
+                self.sample_exti();
+                r
+            }
+            Periph::Rcc => self.rcc.write(off, size, value, now).map(|changed| {
+                if changed {
+                    self.apply_clocks();
+                }
+            }),
+            Periph::Flash => self.flash.write(off, size, value, now),
+        };
+        if let Err(Unmodelled { .. }) = r {
+            self.unmodelled_at(addr, true);
+        }
+        self.after_access();
+    }
+
+    /// After a register access: new lines, maybe an interrupt, new event times.
+    fn after_access(&mut self) {
+        self.update_lines();
+        if self.nvic.anything_pending() || self.nvic.reset_requested {
+            self.stop = true;
+        }
+        let t = self.next_event().min(self.next_event_ps);
+        self.next_event_mc = self.clock.mc_at(t);
+        self.next_event_ps = t;
+    }
+
+    /// A read of the private peripheral bus (0xE000_0000–0xE00F_FFFF).
+    pub fn ppb_read(&mut self, addr: u32, size: usize) -> u32 {
+        let now = self.now();
+        let hclk = self.clock.hclk_hz();
+        let cycles = self.clock.cycles();
+        let r = match addr {
+            0xE000_1000..=0xE000_1FFF => self.dwt.read(addr - 0xE000_1000, size, cycles),
+            0xE000_E010..=0xE000_E01F => self.systick.read(addr - 0xE000_E010, size, now, hclk),
+            0xE000_EDF0..=0xE000_EDFF => self.dwt.read_dcb(addr - 0xE000_EDF0, size),
+            0xE000_E000..=0xE000_EFFF => self.nvic.read(addr - 0xE000_E000, size),
+            _ => Err(Unmodelled {
+                offset: addr,
+                write: false,
+            }),
+        };
+        r.unwrap_or_else(|_| {
+            self.unmodelled_at(addr, false);
+            0
+        })
+    }
+
+    /// A write of the private peripheral bus.
+    pub fn ppb_write(&mut self, addr: u32, size: usize, value: u32) {
+        let now = self.now();
+        let hclk = self.clock.hclk_hz();
+        let cycles = self.clock.cycles();
+        let r = match addr {
+            0xE000_1000..=0xE000_1FFF => self.dwt.write(addr - 0xE000_1000, size, value, cycles),
+            0xE000_E010..=0xE000_E01F => {
+                self.systick
+                    .write(addr - 0xE000_E010, size, value, now, hclk)
+            }
+            0xE000_EDF0..=0xE000_EDFF => {
+                self.dwt.write_dcb(addr - 0xE000_EDF0, size, value, cycles)
+            }
+            0xE000_E000..=0xE000_EFFF => self.nvic.write(addr - 0xE000_E000, size, value),
+            _ => Err(Unmodelled {
+                offset: addr,
+                write: true,
+            }),
+        };
+        if r.is_err() {
+            self.unmodelled_at(addr, true);
+        }
+        self.after_access();
+    }
+
+    // --- flash array --------------------------------------------------------------
+
+    /// The core waits (stalled) until `t`.
+    pub fn stall_to(&mut self, t: u64) {
+        let now = self.now();
+        if t > now {
+            self.stall_ps += t - now;
+            self.clock.stall_until(t);
+        }
+    }
+
+    /// The core waits for a flash operation in progress (a fetch or read from flash).
+    /// Returns the operation that ended, for the board to apply.
+    pub fn stall_for_flash(&mut self) -> Option<Done> {
+        let end = self.flash.busy_until()?;
+        self.stall_to(end);
+        let d = self.flash.complete(self.now());
+        let t = self.next_event().min(self.next_event_ps);
+        self.next_event_mc = self.clock.mc_at(t);
+        self.next_event_ps = t;
+        d
+    }
+
+    /// Apply a finished (or cut) operation to the odometer sectors; code-sector effects
+    /// are returned for the board to apply to emulator memory (address, length, erased).
+    pub fn apply_flash(&mut self, d: Done) -> Option<(u32, u32)> {
+        match d.op {
+            Op::Program { addr, size, value } => {
+                if addr >= ODOMETER_BASE {
+                    let bytes = value.to_le_bytes();
+                    let n = if d.permille >= 1000 {
+                        size
+                    } else {
+                        size * d.permille as usize / 1000
+                    };
+                    if let Some(b) = bytes.get(..n) {
+                        let _ = self
+                            .world
+                            .flash
+                            .with(|f| f.program(addr - ODOMETER_BASE, b));
+                    }
+                    None
+                } else {
+                    self.diag(format!("program of code flash at {addr:#x}"));
+                    None
+                }
+            }
+            Op::Erase { sector } => {
+                if sector >= 10 {
+                    let i = (sector - 10) as usize;
+                    self.world.flash.with(|f| {
+                        if d.permille >= 1000 {
+                            let _ = f.erase_sector(i);
+                        } else {
+                            f.abort_erase(i, d.permille);
+                        }
+                    });
+                    None
+                } else {
+                    let len = flash::sector_kib(sector) * 1024;
+                    Some((
+                        flash::sector_base(sector),
+                        len * d.permille.min(1000) / 1000,
+                    ))
+                }
+            }
+            Op::MassErase => {
+                self.world.flash.with(|f| {
+                    let _ = f.erase_sector(0);
+                    let _ = f.erase_sector(1);
+                });
+                Some((flash::FLASH_BASE, ODOMETER_BASE - flash::FLASH_BASE))
+            }
+            Op::Options { .. } => None,
+        }
+    }
+
+    /// A CPU read from the odometer sectors.
+    pub fn odometer_read(&mut self, off: u32, size: usize) -> (u32, Option<Done>) {
+        let done = if self.flash.busy_until().is_some() {
+            self.stall_for_flash()
+        } else {
+            None
+        };
+        let mut b = [0u8; 4];
+        let n = size.min(4);
+        let ok = self
+            .world
+            .flash
+            .with(|f| embedded_storage::nor_flash::ReadNorFlash::read(f, off, &mut b[..n]));
+        if ok.is_err() {
+            self.diag(format!("odometer flash read at {off:#x} failed"));
+        }
+        (u32::from_le_bytes(b), done)
+    }
+
+    /// A CPU store to the odometer sectors (a program, if the interface allows it).
+    pub fn odometer_write(&mut self, off: u32, size: usize, value: u32) -> Option<Done> {
+        let done = if self.flash.busy_until().is_some() {
+            self.stall_for_flash()
+        } else {
+            None
+        };
+        let now = self.now();
+        self.flash
+            .store(ODOMETER_BASE + off, size, value as u64, now);
+        self.after_access();
+        done
+    }
+}

@@ -1,0 +1,180 @@
+//! Virtual time of the board.
+//!
+//! Time advances three ways, never from the host's clock:
+//! * **execution**: every instruction costs `cpi` core cycles (configurable, stated in
+//!   every report) at the current HCLK;
+//! * **stalls**: a fetch from flash during a program or erase waits for its end; the core
+//!   clock keeps running (DWT CYCCNT counts the stall);
+//! * **sleep**: `wfi` (or a lockup) jumps to the next event; the core clock is gated, so
+//!   CYCCNT does not count (SysTick and the peripherals do: they run on time, not on
+//!   executed cycles).
+//!
+//! Master time is in picoseconds (`u64`: 213 days). Cycles are counted in milli-cycles
+//! so that a fractional CPI accumulates exactly.
+
+/// Picoseconds per second.
+pub const PS_PER_S: u64 = 1_000_000_000_000;
+
+/// The board's clock.
+#[derive(Clone, Debug)]
+pub struct Clock {
+    hclk_hz: u64,
+    cpi_milli: u64,
+    /// Time at `base_mc`, ps.
+    base_ps: u64,
+    /// Milli-cycles at the last rebase.
+    base_mc: u64,
+    /// Core milli-cycles so far (execution and stalls, not sleep).
+    mc: u64,
+    /// Instructions executed.
+    insns: u64,
+    /// Time spent asleep, ps.
+    sleep_ps: u64,
+}
+
+impl Clock {
+    /// A clock at t = 0 with the core at `hclk_hz`, `cpi_milli` thousandths of a cycle
+    /// per instruction.
+    pub fn new(hclk_hz: u64, cpi_milli: u64) -> Self {
+        Self {
+            hclk_hz: hclk_hz.max(1),
+            cpi_milli: cpi_milli.max(1),
+            base_ps: 0,
+            base_mc: 0,
+            mc: 0,
+            insns: 0,
+            sleep_ps: 0,
+        }
+    }
+
+    /// Now, ps since power-on.
+    #[inline]
+    pub fn now_ps(&self) -> u64 {
+        self.base_ps
+            + ((self.mc - self.base_mc) as u128 * 1_000_000_000 / self.hclk_hz as u128) as u64
+    }
+
+    /// Now, ns since power-on.
+    pub fn now_ns(&self) -> u64 {
+        self.now_ps() / 1_000
+    }
+
+    /// Core cycles so far (execution and stalls; the basis of DWT CYCCNT).
+    pub fn cycles(&self) -> u64 {
+        self.mc / 1_000
+    }
+
+    /// Instructions executed so far.
+    pub fn insns(&self) -> u64 {
+        self.insns
+    }
+
+    /// Time spent asleep so far, ps.
+    pub fn sleep_ps(&self) -> u64 {
+        self.sleep_ps
+    }
+
+    /// The core clock, Hz.
+    pub fn hclk_hz(&self) -> u64 {
+        self.hclk_hz
+    }
+
+    /// Cycles per instruction, thousandths.
+    pub fn cpi_milli(&self) -> u64 {
+        self.cpi_milli
+    }
+
+    /// Account `n` executed instructions.
+    #[inline]
+    pub fn execute(&mut self, n: u64) {
+        self.insns += n;
+        self.mc += n * self.cpi_milli;
+    }
+
+    /// The core waits (stalled, clock running) until `t_ps`.
+    pub fn stall_until(&mut self, t_ps: u64) {
+        let now = self.now_ps();
+        if t_ps > now {
+            let d = ((t_ps - now) as u128 * self.hclk_hz as u128).div_ceil(1_000_000_000);
+            self.mc += d as u64;
+        }
+    }
+
+    /// The core sleeps (clock gated) until `t_ps`.
+    pub fn sleep_until(&mut self, t_ps: u64) {
+        let now = self.now_ps();
+        if t_ps > now {
+            self.sleep_ps += t_ps - now;
+            self.base_ps = t_ps;
+            self.base_mc = self.mc;
+        }
+    }
+
+    /// The core clock changes to `hz` now.
+    pub fn set_hclk(&mut self, hz: u64) {
+        let now = self.now_ps();
+        self.base_ps = now;
+        self.base_mc = self.mc;
+        self.hclk_hz = hz.max(1);
+    }
+
+    /// The milli-cycle count at which time reaches `t_ps` (for the block hook's cheap
+    /// "is an event due" compare).
+    pub fn mc_at(&self, t_ps: u64) -> u64 {
+        if t_ps <= self.base_ps {
+            return self.base_mc;
+        }
+        let d = ((t_ps - self.base_ps) as u128 * self.hclk_hz as u128).div_ceil(1_000_000_000);
+        self.base_mc.saturating_add(d.min(u64::MAX as u128) as u64)
+    }
+
+    /// Milli-cycles so far.
+    #[inline]
+    pub fn mc(&self) -> u64 {
+        self.mc
+    }
+}
+
+/// Cycles of a clock at `hz` in `ps` picoseconds (rounded down).
+pub fn cycles_in(ps: u64, hz: u64) -> u64 {
+    (ps as u128 * hz as u128 / PS_PER_S as u128) as u64
+}
+
+/// Picoseconds of `n` cycles of a clock at `hz` (rounded up).
+pub fn ps_of_cycles(n: u64, hz: u64) -> u64 {
+    (n as u128 * PS_PER_S as u128).div_ceil(hz.max(1) as u128) as u64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn execution_stall_and_sleep_advance_time_and_cycles_differently() {
+        let mut c = Clock::new(168_000_000, 1_000);
+        c.execute(168);
+        assert_eq!(c.now_ps(), 1_000_000);
+        assert_eq!(c.cycles(), 168);
+        c.stall_until(2_000_000);
+        assert_eq!(c.now_ps(), 2_000_000);
+        assert_eq!(c.cycles(), 336, "a stall counts cycles");
+        c.sleep_until(5_000_000);
+        assert_eq!(c.now_ps(), 5_000_000);
+        assert_eq!(c.cycles(), 336, "sleep does not");
+        assert_eq!(c.sleep_ps(), 3_000_000);
+        c.set_hclk(16_000_000);
+        c.execute(16);
+        assert_eq!(c.now_ps(), 6_000_000);
+        assert!(c.mc_at(7_000_000) > c.mc());
+    }
+
+    #[test]
+    fn fractional_cpi_accumulates_exactly() {
+        let mut c = Clock::new(1_000_000, 1_250);
+        for _ in 0..4 {
+            c.execute(1);
+        }
+        assert_eq!(c.cycles(), 5);
+        assert_eq!(c.now_ps(), 5_000_000);
+    }
+}

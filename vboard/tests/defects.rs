@@ -1,0 +1,46 @@
+//! The board defects the virtual board exposed, each pinned by a test that fails on the
+//! image that had it. They run the release image at the repository root: build it first
+//! with `cargo build --release --target thumbv7em-none-eabihf` (CI does).
+
+use vboard::periph::flash::FlashTiming;
+use vboard::scene::{run, Options, SceneOptions};
+
+fn opts() -> SceneOptions {
+    SceneOptions {
+        session: Options::new(),
+        cycles: 1,
+    }
+}
+
+/// Defect 1: stm32f4xx-hal 0.23's timer `delay_ns` waits microseconds, so every PD_SCK
+/// high phase lasted 1 ms and powered the HX711 down (> 60 µs): no sample was ever read
+/// and the controller latched `sensor_disconnected` 100 ms after boot.
+#[test]
+fn hx711_clock_high_phase_stays_below_the_power_down_time() {
+    let r = run("boot", &opts()).expect("board runs");
+    assert!(
+        r.scene.faults.is_empty(),
+        "faults at boot: {:?}",
+        r.scene.faults
+    );
+    // 2 s at 80 SPS, after 50 ms of settling: about 150 samples.
+    assert!(r.samples_read >= 140, "{} samples read", r.samples_read);
+    assert_eq!(r.hx711_power_downs, 1, "only the boot power-cycle");
+    assert_eq!(r.scene.final_state, "idle");
+    assert_eq!(r.reset_causes, vec!["power_on"]);
+}
+
+/// Defect 2: an odometer sector erase (128 KiB: up to 2 s at x32, 4 s at x8) stalls
+/// every flash fetch, and the 500 ms IWDG (340 ms on a 47 kHz LSI) reset the chip in the
+/// middle of it, again after every reboot. With the datasheet's maximum erase time and
+/// the fastest LSI the erase must complete without a watchdog reset, and every kind's
+/// newest record must survive.
+#[test]
+fn odometer_sector_erase_never_starves_the_watchdog() {
+    let mut o = opts();
+    o.session.board.lsi_hz = 47_000;
+    o.session.board.flash_timing = FlashTiming::Max;
+    let r = run("sector-move", &o).expect("board runs");
+    assert_eq!(r.reset_causes, vec!["power_on"], "{}", r.to_text());
+    assert!(r.passed(), "{}", r.to_text());
+}
