@@ -19,6 +19,8 @@
 //! the step rates this machine needs are ≤ 4 kHz, SysTick needs no PAC-specific timer
 //! code, and the panic/fault path can stop it with one register write.
 
+mod delay;
+
 use core::cell::RefCell;
 use core::sync::atomic::{AtomicU32, Ordering};
 
@@ -43,7 +45,6 @@ use stm32f4xx_hal::{
     pac,
     prelude::*,
     rcc::Config,
-    timer::DelayUs,
     watchdog::IndependentWatchdog,
 };
 
@@ -374,10 +375,10 @@ impl Bsp for Board {
     type End = PC1<Input>;
     type Locked = PC2<Input>;
     type Released = PC3<Input>;
-    /// The HX711 on PB0/PB1, timed by TIM5 (a polled, busy-wait delay: the driver runs
-    /// each clock-high phase inside a critical section, so the delay must not need
-    /// interrupts).
-    type Adc = Hx711<PB0<Input>, PB1<Output>, DelayUs<pac::TIM5>>;
+    /// The HX711 on PB0/PB1, timed by the core's cycle counter (a busy-wait delay: the
+    /// driver runs each clock-high phase inside a critical section, so the delay must
+    /// not need interrupts; see [`delay::CycleDelay`] for why not the HAL's).
+    type Adc = Hx711<PB0<Input>, PB1<Output>, delay::CycleDelay>;
     type Wdg = BoardWatchdog;
     type Flash = OdometerFlash;
 }
@@ -438,8 +439,7 @@ fn main() -> ! {
 
     // The HX711 may have been mid-readout when the MCU reset: power-cycle it (settles in
     // 4 conversions, which the controller's disconnect timeout allows for).
-    let delay = dp.TIM5.delay_us(&mut rcc);
-    let Ok(mut adc) = Hx711::new(hx_dout, hx_sck, delay, Gain::A128) else {
+    let Ok(mut adc) = Hx711::new(hx_dout, hx_sck, delay::CycleDelay, Gain::A128) else {
         halt_safe()
     };
     if adc.power_down().and_then(|_| adc.power_up()).is_err() {
