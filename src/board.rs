@@ -20,6 +20,9 @@
 //! code, and the panic/fault path can stop it with one register write.
 
 mod delay;
+mod flash;
+
+use flash::OdometerFlash;
 
 use core::cell::RefCell;
 use core::sync::atomic::{AtomicU32, Ordering};
@@ -33,11 +36,7 @@ use docking_controller::controller::{Bsp, Controller, ControllerConfig, Parts};
 use docking_controller::hal::{ConsoleIo, Monotonic, StepPulses, Watchdog};
 use docking_controller::hx711::{Calibration, Gain, Hx711};
 use embedded_hal_nb::serial::{Read as _, Write as _};
-use embedded_storage::nor_flash::{
-    ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
-};
 use heapless::Deque;
-use stm32f4xx_hal::flash::{FlashExt, LockedFlash};
 use stm32f4xx_hal::interrupt;
 use stm32f4xx_hal::serial::{config::Config as SerialConfig, Rx, RxListen, Tx};
 use stm32f4xx_hal::{
@@ -198,78 +197,6 @@ pub struct BoardWatchdog(IndependentWatchdog);
 impl Watchdog for BoardWatchdog {
     fn feed(&mut self) {
         self.0.feed();
-    }
-}
-
-// --- Odometer flash: sectors 10 and 11 only ----------------------------------------
-
-/// Offset of the odometer sectors from the flash base (`_odometer_start` in memory.x).
-const ODOMETER_OFFSET: u32 = 0x000C_0000;
-/// Size of the odometer region (2 × 128 KiB sectors).
-const ODOMETER_LEN: u32 = 0x0004_0000;
-
-/// Errors of the odometer flash region.
-#[derive(Clone, Copy, Debug)]
-pub enum RegionError {
-    /// Outside the two odometer sectors.
-    OutOfBounds,
-    /// The flash controller reported an error.
-    Hal(stm32f4xx_hal::flash::Error),
-}
-
-impl NorFlashError for RegionError {
-    fn kind(&self) -> NorFlashErrorKind {
-        match self {
-            Self::OutOfBounds => NorFlashErrorKind::OutOfBounds,
-            Self::Hal(e) => e.kind(),
-        }
-    }
-}
-
-/// The HAL's whole-chip `NorFlash`, confined to the odometer sectors so the log can never
-/// touch code (and bounds-checked, since the HAL's read indexes a slice).
-pub struct OdometerFlash(LockedFlash);
-
-impl OdometerFlash {
-    fn check(from: u32, len: usize) -> Result<u32, RegionError> {
-        let end = from
-            .checked_add(len as u32)
-            .ok_or(RegionError::OutOfBounds)?;
-        if end > ODOMETER_LEN {
-            return Err(RegionError::OutOfBounds);
-        }
-        Ok(ODOMETER_OFFSET + from)
-    }
-}
-
-impl ErrorType for OdometerFlash {
-    type Error = RegionError;
-}
-
-impl ReadNorFlash for OdometerFlash {
-    const READ_SIZE: usize = 1;
-    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
-        let at = Self::check(offset, bytes.len())?;
-        ReadNorFlash::read(&mut self.0, at, bytes).map_err(RegionError::Hal)
-    }
-    fn capacity(&self) -> usize {
-        ODOMETER_LEN as usize
-    }
-}
-
-impl NorFlash for OdometerFlash {
-    const WRITE_SIZE: usize = 1;
-    const ERASE_SIZE: usize = 128 * 1024;
-    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
-        let len = to.checked_sub(from).ok_or(RegionError::OutOfBounds)?;
-        let at = Self::check(from, len as usize)?;
-        let mut u = self.0.unlocked();
-        NorFlash::erase(&mut u, at, at + len).map_err(RegionError::Hal)
-    }
-    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
-        let at = Self::check(offset, bytes.len())?;
-        let mut u = self.0.unlocked();
-        NorFlash::write(&mut u, at, bytes).map_err(RegionError::Hal)
     }
 }
 
@@ -451,7 +378,7 @@ fn main() -> ! {
     iwdg.start(WATCHDOG_MS.millis());
     let wdg = BoardWatchdog(iwdg);
 
-    let flash = OdometerFlash(LockedFlash::new(dp.FLASH));
+    let flash = OdometerFlash::new(dp.FLASH);
     let parts = Parts::<Board> {
         flash,
         en_n,

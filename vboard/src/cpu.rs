@@ -348,7 +348,9 @@ impl Board {
         uc.add_block_hook(1, 0, |uc: &mut Unicorn<'_, Soc>, addr: u64, size: u32| {
             let s = uc.get_data();
             let mut stop = s.stop || s.clock.mc() >= s.next_event_mc;
-            if !stop && s.irq_waiting {
+            // With PRIMASK set nothing but an NMI (none wired) can be taken: one register
+            // read instead of three while code runs with interrupts masked.
+            if !stop && s.irq_waiting && reg(uc, RegisterARM::PRIMASK) & 1 == 0 {
                 let m = masks(uc);
                 stop = uc.get_data().nvic.to_take(m).is_some();
             }

@@ -555,7 +555,12 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             // Boot: the log is past its maintenance mark, so the firmware erases the next
             // sector as soon as it is idle with every motor off.
             let before = prefill.unwrap_or_default();
-            s.run_for(8 * PS_PER_S).map_err(|e| e.to_string())?;
+            let deadline = s.now() + 8 * PS_PER_S;
+            s.run_until(deadline, |x| {
+                x.board.soc().world.flash.with(|f| f.erase_counts().iter().sum::<u32>()) > before.erases
+            })
+            .map_err(|e| e.to_string())?;
+            s.run_for(PS_PER_S).map_err(|e| e.to_string())?;
             let erases: u32 = flash.with(|f| f.erase_counts().iter().sum());
             checks.push((
                 "sector erased".into(),

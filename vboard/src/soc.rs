@@ -567,6 +567,7 @@ impl Soc {
     /// A peripheral write.
     pub fn bus_write(&mut self, addr: u32, size: usize, value: u32) {
         self.accesses.1 += 1;
+        let pending_before = self.nvic.pending_enabled();
         let Some((base, p, en)) = Self::lookup(addr) else {
             self.unmodelled_at(addr, true);
             return;
@@ -607,15 +608,19 @@ impl Soc {
         if let Err(Unmodelled { .. }) = r {
             self.unmodelled_at(addr, true);
         }
-        self.after_access();
+        self.after_access(pending_before);
     }
 
-    /// After a register access: new lines, maybe an interrupt, new event times.
-    fn after_access(&mut self) {
+    /// After a register write: new lines, maybe an interrupt, new event times. The engine
+    /// stops only for something new (an exception that became pending, a reset); one
+    /// already pending but masked is watched by the block hook (`irq_waiting`).
+    fn after_access(&mut self, pending_before: u128) {
         self.update_lines();
-        if self.nvic.anything_pending() || self.nvic.reset_requested {
+        let pending = self.nvic.pending_enabled();
+        if pending & !pending_before != 0 || self.nvic.reset_requested {
             self.stop = true;
         }
+        self.irq_waiting |= pending != 0;
         let t = self.next_event().min(self.next_event_ps);
         self.next_event_mc = self.clock.mc_at(t);
         self.next_event_ps = t;
@@ -644,6 +649,12 @@ impl Soc {
 
     /// A write of the private peripheral bus.
     pub fn ppb_write(&mut self, addr: u32, size: usize, value: u32) {
+        // Any write to the NVIC/SCB may change what can be taken (enables, priorities).
+        let pending_before = if (0xE000_E100..0xE000_EF00).contains(&addr) {
+            0
+        } else {
+            self.nvic.pending_enabled()
+        };
         let now = self.now();
         let hclk = self.clock.hclk_hz();
         let cycles = self.clock.cycles();
@@ -665,7 +676,7 @@ impl Soc {
         if r.is_err() {
             self.unmodelled_at(addr, true);
         }
-        self.after_access();
+        self.after_access(pending_before);
     }
 
     // --- flash array --------------------------------------------------------------
@@ -772,9 +783,10 @@ impl Soc {
             None
         };
         let now = self.now();
+        let pending_before = self.nvic.pending_enabled();
         self.flash
             .store(ODOMETER_BASE + off, size, value as u64, now);
-        self.after_access();
+        self.after_access(pending_before);
         done
     }
 }

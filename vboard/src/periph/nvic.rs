@@ -238,6 +238,14 @@ impl Nvic {
         self.preempting(self.execution_priority(m, true)).is_some()
     }
 
+    /// Pending and enabled exceptions, as a bit set (to notice new arrivals).
+    pub fn pending_enabled(&self) -> u128 {
+        let sys = bit(exc::NMI) | bit(exc::HARD_FAULT) | bit(exc::SVCALL) | bit(exc::PENDSV) | bit(exc::SYSTICK) | bit(12);
+        let faults = (bit(exc::MEM_MANAGE) | bit(exc::BUS_FAULT) | bit(exc::USAGE_FAULT))
+            & ((self.shcsr as u128 >> 16) << exc::MEM_MANAGE);
+        self.pending & (self.enabled | sys | faults)
+    }
+
     /// Whether anything is pending and enabled (masked or not).
     pub fn anything_pending(&self) -> bool {
         self.preempting(i16::MAX).is_some()

@@ -1,0 +1,258 @@
+//! The odometer's flash sectors (10 and 11), driven at register level (RM0090 §3.6).
+//!
+//! # Why not the HAL's flash driver
+//!
+//! stm32f4xx-hal 0.23's `LockedFlash` erases at PSIZE ×8 (2 s typical, **4 s maximum**
+//! for a 128 KiB sector, DS8626 Table 41) and waits for the end by polling `BSY` from
+//! code in flash. While an erase runs, every fetch from flash stalls the CPU, so
+//! nothing runs — not the loop that feeds the independent watchdog (500 ms; 340 ms on a
+//! fast LSI). The watchdog reset the chip in the middle of every sector erase, and the
+//! same erase was attempted again after the reboot: a reset loop (shown by the virtual
+//! board, `vboard/tests/defects.rs`; the host's simulated flash erased in zero time).
+//!
+//! # How this driver erases
+//!
+//! * PSIZE ×32 (the board runs at 3.3 V, within the 2.7–3.6 V that ×32 needs): 1 s
+//!   typical, 2 s maximum per sector.
+//! * The start of the erase and the wait for its end run **from SRAM**
+//!   ([`erase_from_ram`], placed in `.data` and copied to RAM at boot), with
+//!   interrupts masked (an interrupt's vector and handler are in flash: taking one
+//!   would stall until the end). The loop feeds the watchdog while `BSY` is set, but only
+//!   for [`ERASE_TIMEOUT_CYCLES`] (3 s, the datasheet's maximum plus half): a flash that
+//!   never finishes is still caught by the watchdog.
+//! * Everything else (unlock, clearing the sticky error flags before each operation,
+//!   word programming) runs from flash: a word program stalls the CPU for at most 100 µs.
+//!
+//! The controller erases only while every motor is off (`storage.rs`, `controller.rs`):
+//! during the erase (1–2 s) step pulses and console input stop; console bytes that
+//! arrive meanwhile are lost (the USART has a one-byte data register).
+
+use embedded_storage::nor_flash::{
+    ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
+};
+use stm32f4xx_hal::pac;
+
+use super::SYSCLK_HZ;
+
+/// Flash base address.
+const FLASH_BASE: u32 = 0x0800_0000;
+/// Offset of the odometer sectors from the flash base (`_odometer_start` in memory.x).
+const ODOMETER_OFFSET: u32 = 0x000C_0000;
+/// Size of the odometer region (2 × 128 KiB sectors).
+const ODOMETER_LEN: u32 = 0x0004_0000;
+/// First sector of the region.
+const FIRST_SECTOR: u32 = 10;
+/// Sector size, bytes.
+const SECTOR_LEN: u32 = 128 * 1024;
+
+// Registers (RM0090 §3.9).
+const FLASH_KEYR: *mut u32 = 0x4002_3C04 as *mut u32;
+const FLASH_SR: *mut u32 = 0x4002_3C0C as *mut u32;
+const FLASH_CR: *mut u32 = 0x4002_3C10 as *mut u32;
+const IWDG_KR: *mut u32 = 0x4000_3000 as *mut u32;
+const DWT_CYCCNT: *const u32 = 0xE000_1004 as *const u32;
+
+const KEY1: u32 = 0x4567_0123;
+const KEY2: u32 = 0xCDEF_89AB;
+const SR_BSY: u32 = 1 << 16;
+/// EOP and the sticky error flags (OPERR, WRPERR, PGAERR, PGPERR, PGSERR).
+const SR_ERRORS: u32 = 0xF2;
+const SR_CLEAR: u32 = SR_ERRORS | 1;
+const CR_PG: u32 = 1 << 0;
+const CR_SER: u32 = 1 << 1;
+const CR_PSIZE_X32: u32 = 0b10 << 8;
+const CR_STRT: u32 = 1 << 16;
+const CR_LOCK: u32 = 1 << 31;
+
+/// Longest wait for a sector erase: the datasheet's 2 s maximum at ×32, plus half.
+pub const ERASE_TIMEOUT_CYCLES: u32 = 3 * SYSCLK_HZ;
+
+/// Errors of the odometer flash.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OdoFlashError {
+    /// Outside the two odometer sectors.
+    OutOfBounds,
+    /// Not a whole number of 32-bit words, or not word-aligned.
+    NotAligned,
+    /// The unlock sequence did not clear `CR.LOCK` (locked until the next reset).
+    Locked,
+    /// The controller flagged an error (the `SR` error bits).
+    Status(u32),
+    /// An erase still ran after [`ERASE_TIMEOUT_CYCLES`].
+    Timeout,
+}
+
+impl NorFlashError for OdoFlashError {
+    fn kind(&self) -> NorFlashErrorKind {
+        match self {
+            Self::OutOfBounds => NorFlashErrorKind::OutOfBounds,
+            Self::NotAligned => NorFlashErrorKind::NotAligned,
+            _ => NorFlashErrorKind::Other,
+        }
+    }
+}
+
+/// Start the erase described by `cr` (SER, SNB, PSIZE) and wait for its end, from SRAM,
+/// feeding the watchdog for at most `max_cycles` core cycles. Returns `FLASH_SR` at the
+/// end (`BSY` still set: timed out).
+///
+/// It must not touch flash: no call (everything it uses is inlined), no literal in
+/// flash (it lives in `.data`, with its literals), and interrupts masked by the caller.
+#[inline(never)]
+#[link_section = ".data.odometer_erase_from_ram"]
+fn erase_from_ram(cr: u32, max_cycles: u32) -> u32 {
+    // SAFETY: fixed MMIO addresses of this chip (RM0090 §3.9, §21.4; ARMv7-M C1.8); the
+    // caller owns the flash interface and has masked interrupts.
+    unsafe {
+        core::ptr::write_volatile(FLASH_CR, cr);
+        core::ptr::write_volatile(FLASH_CR, cr | CR_STRT);
+        let start = core::ptr::read_volatile(DWT_CYCCNT);
+        loop {
+            let sr = core::ptr::read_volatile(FLASH_SR);
+            if sr & SR_BSY == 0
+                || core::ptr::read_volatile(DWT_CYCCNT).wrapping_sub(start) > max_cycles
+            {
+                return sr;
+            }
+            core::ptr::write_volatile(IWDG_KR, 0xAAAA);
+        }
+    }
+}
+
+/// The odometer sectors. Owns the flash interface: nothing else programs or erases.
+pub struct OdometerFlash {
+    _flash: pac::FLASH,
+}
+
+impl OdometerFlash {
+    /// Take the flash interface.
+    pub fn new(flash: pac::FLASH) -> Self {
+        Self { _flash: flash }
+    }
+
+    fn check(from: u32, len: usize) -> Result<u32, OdoFlashError> {
+        let end = u32::try_from(len)
+            .ok()
+            .and_then(|l| from.checked_add(l))
+            .ok_or(OdoFlashError::OutOfBounds)?;
+        if end > ODOMETER_LEN {
+            return Err(OdoFlashError::OutOfBounds);
+        }
+        Ok(FLASH_BASE + ODOMETER_OFFSET + from)
+    }
+
+    fn wait_idle() -> u32 {
+        loop {
+            // SAFETY: read of FLASH_SR, a fixed MMIO address.
+            let sr = unsafe { core::ptr::read_volatile(FLASH_SR) };
+            if sr & SR_BSY == 0 {
+                return sr;
+            }
+        }
+    }
+
+    /// Unlock `CR` and clear the sticky flags of an earlier failure: a set error flag
+    /// would make the next operation fail (RM0090 §3.6.2).
+    fn begin() -> Result<(), OdoFlashError> {
+        Self::wait_idle();
+        // SAFETY: the unlock key sequence and a write-1-to-clear of FLASH_SR (fixed MMIO).
+        unsafe {
+            if core::ptr::read_volatile(FLASH_CR) & CR_LOCK != 0 {
+                core::ptr::write_volatile(FLASH_KEYR, KEY1);
+                core::ptr::write_volatile(FLASH_KEYR, KEY2);
+            }
+            if core::ptr::read_volatile(FLASH_CR) & CR_LOCK != 0 {
+                return Err(OdoFlashError::Locked);
+            }
+            core::ptr::write_volatile(FLASH_SR, SR_CLEAR);
+        }
+        Ok(())
+    }
+
+    /// Clear PG/SER and lock `CR` again.
+    fn end() {
+        // SAFETY: FLASH_CR, a fixed MMIO address; writing LOCK is always allowed.
+        unsafe { core::ptr::write_volatile(FLASH_CR, CR_LOCK) };
+    }
+
+    fn status(sr: u32) -> Result<(), OdoFlashError> {
+        match sr & SR_ERRORS & !1 {
+            0 => Ok(()),
+            e => Err(OdoFlashError::Status(e)),
+        }
+    }
+
+    fn erase_sector(sector: u32) -> Result<(), OdoFlashError> {
+        Self::begin()?;
+        let cr = CR_PSIZE_X32 | CR_SER | (sector << 3);
+        let sr = cortex_m::interrupt::free(|_| erase_from_ram(cr, ERASE_TIMEOUT_CYCLES));
+        if sr & SR_BSY != 0 {
+            // Still erasing: CR cannot be written while busy; the next operation waits.
+            return Err(OdoFlashError::Timeout);
+        }
+        Self::end();
+        Self::status(sr)
+    }
+}
+
+impl ErrorType for OdometerFlash {
+    type Error = OdoFlashError;
+}
+
+impl ReadNorFlash for OdometerFlash {
+    const READ_SIZE: usize = 1;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        let at = Self::check(offset, bytes.len())?;
+        for (i, b) in (at..).zip(bytes.iter_mut()) {
+            // SAFETY: `check` keeps the range inside the odometer sectors, which are
+            // mapped, readable flash.
+            *b = unsafe { core::ptr::read_volatile(i as *const u8) };
+        }
+        Ok(())
+    }
+
+    fn capacity(&self) -> usize {
+        ODOMETER_LEN as usize
+    }
+}
+
+impl NorFlash for OdometerFlash {
+    const WRITE_SIZE: usize = 4;
+    const ERASE_SIZE: usize = SECTOR_LEN as usize;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        let len = to.checked_sub(from).ok_or(OdoFlashError::OutOfBounds)?;
+        Self::check(from, len as usize)?;
+        if from % SECTOR_LEN != 0 || len % SECTOR_LEN != 0 {
+            return Err(OdoFlashError::NotAligned);
+        }
+        for s in (from / SECTOR_LEN)..(to / SECTOR_LEN) {
+            Self::erase_sector(FIRST_SECTOR + s)?;
+        }
+        Ok(())
+    }
+
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        let at = Self::check(offset, bytes.len())?;
+        if at % 4 != 0 || bytes.len() % 4 != 0 {
+            return Err(OdoFlashError::NotAligned);
+        }
+        Self::begin()?;
+        // SAFETY: FLASH_CR (fixed MMIO): PG with ×32 parallelism.
+        unsafe { core::ptr::write_volatile(FLASH_CR, CR_PSIZE_X32 | CR_PG) };
+        let mut result = Ok(());
+        for (addr, w) in (at..).step_by(4).zip(bytes.chunks_exact(4)) {
+            let word = u32::from_le_bytes([w[0], w[1], w[2], w[3]]);
+            // SAFETY: a word-aligned address inside the odometer sectors, with PG set:
+            // this store programs the word (RM0090 §3.6.4).
+            unsafe { core::ptr::write_volatile(addr as *mut u32, word) };
+            result = Self::status(Self::wait_idle());
+            if result.is_err() {
+                break;
+            }
+        }
+        Self::end();
+        result
+    }
+}
