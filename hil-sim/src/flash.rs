@@ -322,3 +322,35 @@ impl NorFlash for SharedFlash {
 }
 
 impl MultiwriteNorFlash for SharedFlash {}
+
+/// Fill the odometer log in `flash` — with the firmware's own record format (the
+/// library's `RecordLog`) — with a cone record and cycle snapshots, until its current
+/// sector is past the maintenance mark and the next sector still holds older records:
+/// the controller's next idle moment erases that sector. For tests and scenes of the
+/// sector erase.
+pub fn fill_log_to_maintenance(flash: &SharedFlash) -> Result<(), String> {
+    use docking_controller::material::Material;
+    use docking_controller::odometer::{self, kind, StateRecord, WearConfig};
+    use docking_controller::storage::RecordLog;
+    let (mut log, _) = RecordLog::open(flash.clone()).map_err(|e| format!("open: {e}"))?;
+    let cone = odometer::Cone::new(1, Material::ZQSn5_2, "SN-1", 0);
+    log.append(kind::CONE, &odometer::cone_to_bytes(&cone))
+        .map_err(|e| format!("append: {e}"))?;
+    let mut odo = odometer::restore(WearConfig::DEFAULT, Some(cone), None, cone.material);
+    // One full sector, then 95 % of the next: the sector after that (the first) is not
+    // blank.
+    let per_sector = log.slots_per_sector();
+    for _ in 0..per_sector + per_sector * 95 / 100 {
+        odo.on_contact_sample(0, 100_000);
+        odo.on_contact_sample(30_000, 100_000);
+        odo.end_contact();
+        let _ = odo.complete_cycle();
+        log.append(kind::STATE, &StateRecord::of(&odo, true).to_bytes())
+            .map_err(|e| format!("append: {e}"))?;
+    }
+    if log.needs_maintenance() {
+        Ok(())
+    } else {
+        Err("the log did not reach its maintenance mark".into())
+    }
+}

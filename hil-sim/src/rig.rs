@@ -19,7 +19,13 @@ use crate::line::SimLine;
 use crate::lock::{LockPin, SimLock};
 use docking_controller::console::service::{Console, ConsolePoll};
 
-/// The simulated watchdog: records feeds; "bites" if not fed within its timeout.
+/// The shortest time the board's watchdog may bite after a feed, ns: the firmware sets a
+/// nominal 500 ms at the LSI's typical 32 kHz, and the LSI may run at up to 47 kHz
+/// (DS8626), so 500 × 32/47 = 340 ms.
+pub const WATCHDOG_WORST_NS: u64 = 500_000_000 * 32_000 / 47_000;
+
+/// The simulated watchdog: records feeds; "bites" if not fed within its shortest real
+/// timeout ([`WATCHDOG_WORST_NS`]).
 #[derive(Clone, Debug)]
 pub struct SimWatchdog {
     clock: SimClock,
@@ -30,12 +36,12 @@ pub struct SimWatchdog {
 }
 
 impl SimWatchdog {
-    /// A watchdog with the board's 500 ms period.
+    /// A watchdog with the board's period, on the fastest LSI.
     pub fn new(clock: SimClock) -> Self {
         let now = clock.now_ns();
         Self {
             clock,
-            timeout_ns: 500_000_000,
+            timeout_ns: WATCHDOG_WORST_NS,
             last_feed_ns: Rc::new(Cell::new(now)),
             feeds: Rc::default(),
             bitten: Rc::default(),
@@ -110,7 +116,85 @@ impl Bsp for SimBsp {
     type Released = LockPin;
     type Adc = SimAdc;
     type Wdg = SimWatchdog;
-    type Flash = SharedFlash;
+    type Flash = BoardFlash;
+}
+
+/// Flash operation times (DS8626 Table 41, PSIZE ×32 as the board's driver uses).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FlashTimes {
+    /// Word program, ns.
+    pub word_ns: u64,
+    /// 128 KiB sector erase, ns.
+    pub erase_ns: u64,
+}
+
+impl FlashTimes {
+    /// The datasheet's maximum: 100 µs per word, 2 s per sector.
+    pub const MAX: Self = Self {
+        word_ns: 100_000,
+        erase_ns: 2_000_000_000,
+    };
+}
+
+/// How long the board's erase wait feeds the watchdog at most, ns (`board/flash.rs`:
+/// `ERASE_TIMEOUT_CYCLES`, 3 s).
+pub const ERASE_FEED_LIMIT_NS: u64 = 3_000_000_000;
+
+/// The odometer flash as the board's driver (`src/board/flash.rs`) drives it: every
+/// operation costs its datasheet time in virtual time, during which the controller does
+/// nothing else (the CPU stalls on flash fetches); an erase waits from SRAM feeding the
+/// watchdog for at most [`ERASE_FEED_LIMIT_NS`]. So the rig sees what the board sees: a
+/// long erase delays the next control step, and one that outlasts the feeding is a
+/// watchdog reset.
+#[derive(Clone, Debug)]
+pub struct BoardFlash {
+    /// The flash array.
+    pub flash: SharedFlash,
+    clock: SimClock,
+    wdg: SimWatchdog,
+    /// Operation times.
+    pub times: FlashTimes,
+}
+
+impl embedded_storage::nor_flash::ErrorType for BoardFlash {
+    type Error = crate::flash::SimFlashError;
+}
+
+impl embedded_storage::nor_flash::ReadNorFlash for BoardFlash {
+    const READ_SIZE: usize = 1;
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        self.flash.read(offset, bytes)
+    }
+    fn capacity(&self) -> usize {
+        self.flash.capacity()
+    }
+}
+
+impl embedded_storage::nor_flash::NorFlash for BoardFlash {
+    const WRITE_SIZE: usize = 4;
+    const ERASE_SIZE: usize = crate::flash::SECTOR_SIZE;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        let sectors = (to.saturating_sub(from) as u64).div_ceil(Self::ERASE_SIZE as u64);
+        for _ in 0..sectors {
+            let mut waited = 0;
+            while waited < self.times.erase_ns {
+                let d = (self.times.erase_ns - waited).min(50_000_000);
+                self.clock.advance_ns(d);
+                waited += d;
+                if waited <= ERASE_FEED_LIMIT_NS {
+                    self.wdg.feed();
+                }
+            }
+        }
+        self.flash.erase(from, to)
+    }
+
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        self.clock
+            .advance_ns(bytes.len().div_ceil(4) as u64 * self.times.word_ns);
+        self.flash.write(offset, bytes)
+    }
 }
 
 /// Extra force a scene puts on the load cell (jam, spikes), N.
@@ -368,7 +452,12 @@ impl Rig {
                 }
             },
             wdg: wdg.clone(),
-            flash: flash.clone(),
+            flash: BoardFlash {
+                flash: flash.clone(),
+                clock: clock.clone(),
+                wdg: wdg.clone(),
+                times: FlashTimes::MAX,
+            },
         };
         let mut cfg = ControllerConfig::new(opts.rate_sps, sim_calibration(&hx_cfg));
         cfg.default_material = opts.material;

@@ -740,40 +740,8 @@ fn read_newest(flash: &SharedFlash) -> Result<Vec<Option<(u32, Vec<u8>)>>, Strin
         .collect())
 }
 
-/// Fill the odometer log, with the firmware's own format (the library's `RecordLog`),
-/// until the current sector is past its maintenance mark and the next sector holds old
-/// records: the next idle moment of the firmware erases it.
 fn prefill_log(flash: &SharedFlash) -> Result<Prefill, String> {
-    use docking_controller::odometer::{self, kind, StateRecord};
-    let (mut log, _) = RecordLog::open(flash.clone()).map_err(|e| format!("open: {e}"))?;
-    let wear = docking_controller::odometer::WearConfig::DEFAULT;
-    let cone = odometer::Cone::new(
-        1,
-        docking_controller::material::Material::ZQSn5_2,
-        "SN-1",
-        0,
-    );
-    log.append(kind::CONE, &odometer::cone_to_bytes(&cone))
-        .map_err(|e| format!("append: {e}"))?;
-    let mut odo = odometer::restore(wear, Some(cone), None, cone.material);
-    let per_sector = log.slots_per_sector();
-    // One full sector, then 95 % of the next: the one after (the first) is not blank.
-    let total = per_sector + per_sector * 95 / 100;
-    let mut n = 0;
-    while n < total {
-        odo.on_contact_sample(0, 100_000);
-        odo.on_contact_sample(30_000, 100_000);
-        odo.end_contact();
-        let _ = odo.complete_cycle();
-        let rec = StateRecord::of(&odo, true).to_bytes();
-        log.append(kind::STATE, &rec)
-            .map_err(|e| format!("append: {e}"))?;
-        n += 1;
-    }
-    if !log.needs_maintenance() {
-        return Err("prefill did not reach the maintenance mark".into());
-    }
-    drop(log);
+    hil_sim::flash::fill_log_to_maintenance(flash)?;
     Ok(Prefill {
         erases: flash.with(|f| f.erase_counts().iter().sum()),
         newest: read_newest(flash)?,
