@@ -303,7 +303,25 @@ impl Session {
             .iter()
             .map(|&(_, b)| b)
             .collect();
-        Ok(String::from_utf8_lossy(&out).into_owned())
+        let reply = String::from_utf8_lossy(&out).into_owned();
+        if std::env::var_os("VBOARD_TRACE_CONSOLE").is_some() {
+            eprintln!("[{:.6} s] > {line}\n{reply}", self.now() as f64 * 1e-12);
+        }
+        Ok(reply)
+    }
+
+    /// Ask `cmd` (a `--json` command) until a JSON reply comes (a byte the one-byte
+    /// receive register lost makes an error reply; a technician types it again), at most
+    /// three times.
+    pub fn console_json(&mut self, cmd: &str) -> Result<String, Halt> {
+        let mut last = String::new();
+        for _ in 0..3 {
+            last = self.console(cmd, 2 * PS_PER_S)?;
+            if last.trim_start().starts_with('{') {
+                break;
+            }
+        }
+        Ok(last)
     }
 
     /// The reset causes so far (the power-on included), by name.
@@ -379,6 +397,8 @@ pub struct Report {
     pub samples_missed: u64,
     /// HX711 power-downs (PD_SCK high > 60 µs), the firmware's boot power-cycle included.
     pub hx711_power_downs: u64,
+    /// Console bytes lost to USART2 overruns (the one-byte data register was full).
+    pub console_overruns: u64,
     /// Cycles per instruction used.
     pub cpi: f64,
     /// LSI frequency used, Hz.
@@ -425,7 +445,7 @@ impl Report {
             })
             .collect();
         format!(
-            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"samples_missed\":{},\"hx711_power_downs\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}]}}",
+            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}]}}",
             self.reset_count,
             strs(&causes),
             num(self.instructions_per_control_step),
@@ -434,6 +454,7 @@ impl Report {
             self.samples_read,
             self.samples_missed,
             self.hx711_power_downs,
+            self.console_overruns,
             num(self.cpi),
             self.lsi_hz,
             self.flash_timing,
@@ -543,6 +564,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         )
     });
     let mut trip: Option<(u64, f64)> = None;
+    let mut stop_latency_pins_us = None;
     let (mut max_after, mut min_after) = (f64::MIN, f64::MAX);
     let max_ps = (cycles as u64 * 150 + 60) * PS_PER_S;
     let mut settle_until: Option<u64> = None;
@@ -557,7 +579,12 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             let before = prefill.unwrap_or_default();
             let deadline = s.now() + 8 * PS_PER_S;
             s.run_until(deadline, |x| {
-                x.board.soc().world.flash.with(|f| f.erase_counts().iter().sum::<u32>()) > before.erases
+                x.board
+                    .soc()
+                    .world
+                    .flash
+                    .with(|f| f.erase_counts().iter().sum::<u32>())
+                    > before.erases
             })
             .map_err(|e| e.to_string())?;
             s.run_for(PS_PER_S).map_err(|e| e.to_string())?;
@@ -569,16 +596,16 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             ));
             // Reboot on the same flash and compare every kind's newest record.
             let after = read_newest(&flash)?;
+            // Lost: a kind whose newest record is gone, or older than before (a carried
+            // copy has the same payload under a higher sequence number).
             let lost_records = before
                 .newest
                 .iter()
                 .zip(&after)
-                .filter(|(b, a)| {
-                    b.is_some()
-                        && a != b
-                        && !a
-                            .as_ref()
-                            .is_some_and(|a| a.0 > b.as_ref().map_or(0, |b| b.0))
+                .filter(|(b, a)| match (b, a) {
+                    (Some((bs, _)), Some((as_, _))) => as_ < bs,
+                    (Some(_), None) => true,
+                    (None, _) => false,
                 })
                 .count();
             checks.push((
@@ -602,6 +629,8 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
                 let edges = s.machine().axis.enable_edges();
                 if let Some(e) = edges.iter().rev().find(|e| !e.enabled) {
                     trip = Some((e.t_ns, e.pos_um));
+                    // Now, while the HX711 still remembers the conversions before it.
+                    stop_latency_pins_us = latency_us(&s.machine().hx.recent_conversions(), e.t_ns);
                 }
             }
             if let Some((_, p0)) = trip {
@@ -623,21 +652,19 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
     }
 
     // The end state, as the console reports it.
-    let status = s
-        .console("status --json", 2 * PS_PER_S)
-        .map_err(|e| e.to_string())?;
+    let status = s.console_json("status --json").map_err(|e| e.to_string())?;
     let final_state = json_field(&status, "state").unwrap_or_else(|| "unknown".into());
-    let wear = s
-        .console("wear --json", 2 * PS_PER_S)
-        .map_err(|e| e.to_string())?;
+    let wear = s.console_json("wear --json").map_err(|e| e.to_string())?;
     let peak_force_n = json_field(&wear, "peak_force_n")
         .and_then(|v| v.parse().ok())
         .unwrap_or(0.0);
+    // The fault records as the firmware keeps them (phase, peak force to the clear).
+    let faults_json = s.console_json("faults --json").map_err(|e| e.to_string())?;
+    let faults = parse_faults(&faults_json).unwrap_or_else(|| s.seen.faults.clone());
     s.board.poll_rtt();
 
     let m = s.machine();
     let hx = m.hx.stats();
-    let stop_latency_pins_us = trip.and_then(|(t, _)| latency_us(&m.hx.recent_conversions(), t));
     let wall = started.elapsed().as_secs_f64();
     let soc = s.board.soc();
     let sim_s = s.now() as f64 / PS_PER_S as f64;
@@ -648,7 +675,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         rate_sps: opts.session.rate_sps,
         seed: opts.session.seed,
         cycles_completed: s.seen.cycles_completed,
-        faults: s.seen.faults.clone(),
+        faults,
         peak_force_n,
         stop_latency_s: stop_latency_pins_us.map(|u| u * 1e-6),
         final_state: leak(final_state),
@@ -673,6 +700,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         samples_read: hx.samples_read,
         samples_missed: hx.samples_missed,
         hx711_power_downs: hx.power_downs,
+        console_overruns: soc.usart2.overruns,
         cpi: soc.clock.cpi_milli() as f64 / 1000.0,
         lsi_hz: soc.iwdg.lsi_hz,
         flash_timing: match soc.flash.timing {
@@ -701,6 +729,24 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
     })
 }
 
+/// The `faults` of a `faults --json` reply.
+fn parse_faults(json: &str) -> Option<Vec<FaultSeen>> {
+    let v: serde_json::Value = serde_json::from_str(json.trim()).ok()?;
+    v["faults"]
+        .as_array()?
+        .iter()
+        .map(|f| {
+            Some(FaultSeen {
+                kind: docking_controller_fault_name(f["kind"].as_str()?),
+                cycle: f["cycle"].as_u64()? as u32,
+                phase: f["phase"].as_u64().map(|p| p as u8),
+                t_s: f["t_s"].as_f64()?,
+                peak_force_n: f["peak_force_n"].as_f64()?,
+            })
+        })
+        .collect()
+}
+
 fn leak(s: String) -> &'static str {
     Box::leak(s.into_boxed_str())
 }
@@ -724,11 +770,14 @@ pub fn json_field(json: &str, key: &str) -> Option<String> {
 pub struct Prefill {
     /// Erases done so far.
     pub erases: u32,
-    /// The newest record of every kind: (seq, payload).
-    pub newest: Vec<Option<(u32, Vec<u8>)>>,
+    /// The newest record of every kind.
+    pub newest: Newest,
 }
 
-fn read_newest(flash: &SharedFlash) -> Result<Vec<Option<(u32, Vec<u8>)>>, String> {
+/// The newest record of every kind: (seq, payload).
+pub type Newest = Vec<Option<(u32, Vec<u8>)>>;
+
+fn read_newest(flash: &SharedFlash) -> Result<Newest, String> {
     let (mut log, _) = RecordLog::open(flash.clone()).map_err(|e| format!("open: {e}"))?;
     Ok((0..docking_controller::storage::MAX_KINDS)
         .map(|k| {
@@ -757,7 +806,7 @@ fn power_cut_write(
     opts: &SceneOptions,
 ) -> Result<(), Halt> {
     s.run_for(PS_PER_S)?;
-    let before = s.console("wear --json", 2 * PS_PER_S)?;
+    let before = s.console_json("wear --json")?;
     let faults_before: u64 = json_field(&before, "faults")
         .and_then(|v| v.parse().ok())
         .unwrap_or(0);
@@ -783,7 +832,7 @@ fn power_cut_write(
     s.board.reset_pin();
     s.machine().hx.set_fault(hil_sim::hx711::Hx711Fault::None);
     s.run_for(2 * PS_PER_S)?;
-    let after = s.console("wear --json", 2 * PS_PER_S)?;
+    let after = s.console_json("wear --json")?;
     let faults_after: u64 = json_field(&after, "faults")
         .and_then(|v| v.parse().ok())
         .unwrap_or(0);

@@ -45,8 +45,11 @@ pub enum Periph {
     Flash,
 }
 
-/// The bus map: base, size, peripheral, and its clock enable (bus, bit).
-pub const BUS_MAP: &[(u32, u32, Periph, Option<(Bus, u32)>)] = &[
+/// A peripheral's clock enable: bus and bit of its RCC enable register.
+pub type ClockEnable = Option<(Bus, u32)>;
+
+/// The bus map: base, size, peripheral, and its clock enable.
+pub const BUS_MAP: &[(u32, u32, Periph, ClockEnable)] = &[
     (0x4000_0000, 0x400, Periph::Tim(0), Some((Bus::Apb1, 0))),
     (0x4000_0400, 0x400, Periph::Tim(1), Some((Bus::Apb1, 1))),
     (0x4000_0800, 0x400, Periph::Tim(2), Some((Bus::Apb1, 2))),
@@ -347,10 +350,10 @@ impl Soc {
                 continue;
             }
             let g = &self.gpio[w.port as usize];
-            let level = g.driven(w.pin).unwrap_or(match (w.ext, g.pull(w.pin)) {
-                (Ext::Up, _) | (_, Pull::Up) => true,
-                _ => false,
-            });
+            let level = g.driven(w.pin).unwrap_or(matches!(
+                (w.ext, g.pull(w.pin)),
+                (Ext::Up, _) | (_, Pull::Up)
+            ));
             if last != Some(level) {
                 self.out_levels[i].1 = Some(level);
                 self.world.drive(signal, level, now / 1_000);
@@ -491,14 +494,14 @@ impl Soc {
 
     // --- the bus ------------------------------------------------------------------
 
-    fn lookup(addr: u32) -> Option<(u32, Periph, Option<(Bus, u32)>)> {
+    fn lookup(addr: u32) -> Option<(u32, Periph, ClockEnable)> {
         BUS_MAP
             .iter()
             .find(|(b, s, _, _)| addr >= *b && addr < b + s)
             .map(|&(b, _, p, en)| (b, p, en))
     }
 
-    fn clock_on(&mut self, name: Periph, en: Option<(Bus, u32)>) -> bool {
+    fn clock_on(&mut self, name: Periph, en: ClockEnable) -> bool {
         match en {
             Some((bus, bit)) if !self.rcc.enabled(bus, bit) => {
                 self.diag(format!(

@@ -240,7 +240,12 @@ impl Nvic {
 
     /// Pending and enabled exceptions, as a bit set (to notice new arrivals).
     pub fn pending_enabled(&self) -> u128 {
-        let sys = bit(exc::NMI) | bit(exc::HARD_FAULT) | bit(exc::SVCALL) | bit(exc::PENDSV) | bit(exc::SYSTICK) | bit(12);
+        let sys = bit(exc::NMI)
+            | bit(exc::HARD_FAULT)
+            | bit(exc::SVCALL)
+            | bit(exc::PENDSV)
+            | bit(exc::SYSTICK)
+            | bit(12);
         let faults = (bit(exc::MEM_MANAGE) | bit(exc::BUS_FAULT) | bit(exc::USAGE_FAULT))
             & ((self.shcsr as u128 >> 16) << exc::MEM_MANAGE);
         self.pending & (self.enabled | sys | faults)
@@ -541,7 +546,7 @@ mod tests {
     fn priorities_masks_and_preemption() {
         let mut n = Nvic::default();
         // IRQ6 (EXTI0) at priority 0x10, SysTick at 0xF0, USART2 (38) at 0x80.
-        n.write(0x100, 4, (1 << 6) | 0).unwrap();
+        n.write(0x100, 4, 1 << 6).unwrap();
         n.write(0x104, 4, 1 << (38 - 32)).unwrap();
         n.write(0x404, 4, 0x10 << 16).unwrap(); // IPR1: IRQ6 in byte 2
         n.write(0x424, 4, 0x80 << 16).unwrap(); // IPR9: IRQ38 in byte 2
