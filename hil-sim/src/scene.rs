@@ -268,6 +268,17 @@ pub struct Devices<'a> {
     pub lock: &'a SimLock,
 }
 
+/// What a flooding terminal sends (picked at random): commands with long replies, a full
+/// `history`, garbage with control bytes and escape sequences, an overlong line.
+pub const FLOOD_PIECES: [&[u8]; 6] = [
+    b"status --json\r\n",
+    b"history 100 --json\r\n",
+    b"\xff\xfe\x00\x1b[A garbage \x07\r\n",
+    b"cone replace zqsn5-2 X\r\n",
+    b"wear\rfaults --json\n",
+    b"AAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAA",
+];
+
 /// A scene run while the console is flooded.
 #[derive(Clone, Debug)]
 pub struct FloodReport {
@@ -288,16 +299,8 @@ pub fn run_with_console_flood(name: &str, opts: SceneOptions) -> Result<FloodRep
     let report = run_inner(name, opts, &mut |rig: &mut Rig, rng: &mut Rng| {
         rig.console_enabled = true;
         let due = (rig.clock.now_ns() as f64 * 11.52e-6) as u64;
-        const PIECES: [&[u8]; 6] = [
-            b"status --json\r\n",
-            b"history 100 --json\r\n",
-            b"\xff\xfe\x00\x1b[A garbage \x07\r\n",
-            b"cone replace zqsn5-2 X\r\n",
-            b"wear\rfaults --json\n",
-            b"AAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAA",
-        ];
         while sent < due {
-            let piece = PIECES[(rng.next_u64() % PIECES.len() as u64) as usize];
+            let piece = FLOOD_PIECES[(rng.next_u64() % FLOOD_PIECES.len() as u64) as usize];
             rig.term.send(piece);
             sent += piece.len() as u64;
         }

@@ -18,7 +18,7 @@ use std::time::Instant;
 use docking_controller::storage::RecordLog;
 use hil_sim::flash::{SharedFlash, SimFlash};
 use hil_sim::rig::{Machine, RigOptions};
-use hil_sim::scene::{num, FaultSeen, Progress, SceneDriver, SceneReport, Stage};
+use hil_sim::scene::{num, FaultSeen, Progress, SceneDriver, SceneReport, Stage, FLOOD_PIECES};
 
 use crate::cpu::{Board, BoardConfig, Halt};
 use crate::image::Image;
@@ -281,7 +281,7 @@ impl Session {
         let start = self.board.soc().console_out.len();
         let mut bytes = line.as_bytes().to_vec();
         bytes.extend_from_slice(b"\r\n");
-        self.board.soc_mut().console_send(&bytes);
+        let _ = self.board.soc_mut().console_send(&bytes);
         let deadline = self.now() + timeout_ps;
         let mut quiet_since: Option<(usize, u64)> = None;
         self.run_until(deadline, |s| {
@@ -372,6 +372,9 @@ pub struct SceneOptions {
     pub session: Options,
     /// Docking cycles (the disturbance comes in the last).
     pub cycles: u32,
+    /// Flood the console at the line rate during the scene (`hil-sim`'s flood: long
+    /// replies, a full `history`, garbage, overlong lines).
+    pub flood: bool,
 }
 
 /// What a scene produced: the fields of `hil-sim scene --json`, and what only a board
@@ -399,6 +402,8 @@ pub struct Report {
     pub hx711_power_downs: u64,
     /// Console bytes lost to USART2 overruns (the one-byte data register was full).
     pub console_overruns: u64,
+    /// Bytes the flooding terminal sent (`--flood`).
+    pub console_flood_bytes: u64,
     /// Cycles per instruction used.
     pub cpi: f64,
     /// LSI frequency used, Hz.
@@ -445,7 +450,7 @@ impl Report {
             })
             .collect();
         format!(
-            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}]}}",
+            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_flood_bytes\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}]}}",
             self.reset_count,
             strs(&causes),
             num(self.instructions_per_control_step),
@@ -455,6 +460,7 @@ impl Report {
             self.samples_missed,
             self.hx711_power_downs,
             self.console_overruns,
+            self.console_flood_bytes,
             num(self.cpi),
             self.lsi_hz,
             self.flash_timing,
@@ -483,6 +489,12 @@ impl Report {
         );
         if let Some(l) = self.stop_latency_pins_us {
             s += &format!("\n  stop latency at the pins (DOUT falling → EN high): {l:.1} µs");
+        }
+        if self.console_flood_bytes > 0 || self.console_overruns > 0 {
+            s += &format!(
+                "\n  console: {} bytes of flood sent, {} lost to overruns",
+                self.console_flood_bytes, self.console_overruns
+            );
         }
         s += &format!(
             "\n  emulation: {} instructions at CPI {}, {:.1} MIPS, {:.3}× real time (LSI {} Hz, flash timing {})",
@@ -568,6 +580,8 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
     let (mut max_after, mut min_after) = (f64::MIN, f64::MAX);
     let max_ps = (cycles as u64 * 150 + 60) * PS_PER_S;
     let mut settle_until: Option<u64> = None;
+    let mut flood_rng = hil_sim::rng::Rng::new(opts.session.seed ^ 0xf100d);
+    let mut flood_bytes = 0u64;
 
     match name {
         "boot" => {
@@ -618,6 +632,16 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             power_cut_write(&mut s, &mut checks, opts).map_err(|e| e.to_string())?;
         }
         _ => loop {
+            if opts.flood {
+                // Keep the line busy: the next piece queued before the last one is sent.
+                while s.board.soc().usart2.far_pending() < 32 {
+                    let i = (flood_rng.next_u64() % FLOOD_PIECES.len() as u64) as usize;
+                    if !s.board.soc_mut().console_send(FLOOD_PIECES[i]) {
+                        break; // the console is not up yet
+                    }
+                    flood_bytes += FLOOD_PIECES[i].len() as u64;
+                }
+            }
             s.run_for(PS_PER_MS).map_err(|e| e.to_string())?;
             let p = s.progress();
             if let Some(d) = driver.as_mut() {
@@ -651,6 +675,13 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         },
     }
 
+    if opts.flood {
+        // Let the line drain before asking.
+        let t = s.now() + 3 * PS_PER_S;
+        s.run_until(t, |x| x.board.soc().usart2.far_pending() == 0)
+            .map_err(|e| e.to_string())?;
+        s.run_for(PS_PER_S).map_err(|e| e.to_string())?;
+    }
     // The end state, as the console reports it.
     let status = s.console_json("status --json").map_err(|e| e.to_string())?;
     let final_state = json_field(&status, "state").unwrap_or_else(|| "unknown".into());
@@ -725,6 +756,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             })
             .collect(),
         diagnostics: soc.diagnostics.iter().map(|d| d.what.clone()).collect(),
+        console_flood_bytes: flood_bytes,
         checks,
     })
 }

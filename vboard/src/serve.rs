@@ -55,7 +55,7 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
         }
         let bytes = bridge.read(256);
         if !bytes.is_empty() {
-            s.board.soc_mut().console_send(&bytes);
+            let _ = s.board.soc_mut().console_send(&bytes);
         }
         let outb: Vec<u8> = s.board.soc().console_out[sent..]
             .iter()

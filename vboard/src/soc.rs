@@ -464,14 +464,16 @@ impl Soc {
         g.mode(w.pin) == Mode::Alternate && (afr >> (4 * (w.pin % 8))) & 0xF == af
     }
 
-    /// The far end of the console sends `bytes` (they arrive at the line rate).
-    pub fn console_send(&mut self, bytes: &[u8]) {
+    /// The far end of the console sends `bytes` (they arrive at the line rate). Returns
+    /// `false` when they are lost at once: PA3 is not (yet) USART2's RX.
+    pub fn console_send(&mut self, bytes: &[u8]) -> bool {
         let now = self.now();
         if !self.af_ok(Signal::ConsoleRx, 7) {
             self.console_pin_losses += bytes.len() as u64;
-            return;
+            return false;
         }
         self.usart2.far_send(bytes, now);
+        true
     }
 
     /// Set the NVIC's interrupt lines from the models.

@@ -8,6 +8,7 @@ fn opts() -> SceneOptions {
     SceneOptions {
         session: Options::new(),
         cycles: 1,
+        flood: false,
     }
 }
 
