@@ -243,7 +243,9 @@ impl NorFlash for OdometerFlash {
         unsafe { core::ptr::write_volatile(FLASH_CR, CR_PSIZE_X32 | CR_PG) };
         let mut result = Ok(());
         for (addr, w) in (at..).step_by(4).zip(bytes.chunks_exact(4)) {
-            let word = u32::from_le_bytes([w[0], w[1], w[2], w[3]]);
+            let mut le = [0u8; 4];
+            le.copy_from_slice(w);
+            let word = u32::from_le_bytes(le);
             // SAFETY: a word-aligned address inside the odometer sectors, with PG set:
             // this store programs the word (RM0090 §3.6.4).
             unsafe { core::ptr::write_volatile(addr as *mut u32, word) };
