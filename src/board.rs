@@ -1,64 +1,90 @@
-//! Board layer for the STM32F407VGTx (thin: pins, clocks, peripherals, fault handlers).
+//! Board layer for the STM32F407VGTx: pins, clocks, interrupts and their priorities,
+//! fault handlers. The control logic is the library's.
 //!
 //! Pin map (documented in the README):
 //!
 //! | signal | pin | safe (disabled) level |
 //! |---|---|---|
-//! | propulsion STEP | PE9 | low |
+//! | propulsion STEP | PE9 | low (board pull-down) |
 //! | propulsion DIR | PE10 | — |
-//! | propulsion EN (active low) | PE11 | **high** (driver off) |
-//! | lock motor IN1 (toward locked) | PD12 | **low** |
-//! | lock motor IN2 (toward released) | PD13 | **low** |
+//! | propulsion EN (active low) | PE11 | **high** (driver off; board pull-up) |
+//! | lock motor IN1 (toward locked) | PD12 | **low** (board pull-down) |
+//! | lock motor IN2 (toward released) | PD13 | **low** (board pull-down) |
 //! | home / end switch (active low) | PC0 / PC1 | input, pull-up |
 //! | lock locked / released switch (active low) | PC2 / PC3 | input, pull-up |
-//! | HX711 DOUT / PD_SCK | PB0 / PB1 | input pull-up / low |
+//! | HX711 DOUT / PD_SCK | PB0 (EXTI0, falling edge) / PB1 | input pull-up / low |
 //! | console USART2 TX / RX | PA2 / PA3 | 115200 8N1 |
 //! | dock request from the vehicle/PLC (active low) | PC4 | input, pull-up |
 //!
-//! Step pulses come from a SysTick interrupt at 20 kHz (a phase accumulator, i.e. DDS):
-//! the step rates this machine needs are ≤ 4 kHz, SysTick needs no PAC-specific timer
-//! code, and the panic/fault path can stop it with one register write.
+//! # Priorities: a safety path no other work can delay
+//!
+//! RTIC 2 runs each piece of work as a task bound to an interrupt, at a fixed priority;
+//! a resource shared by tasks is locked by raising BASEPRI to the highest priority of
+//! its users (the stack resource policy), so a lock never blocks a task that does not
+//! share the resource.
+//!
+//! | priority | task (interrupt) | what | shares |
+//! |---|---|---|---|
+//! | 4 | `data_ready` (EXTI0: HX711 DOUT falls) | read the sample, judge it, **stop the propulsion** | `kernel` |
+//! | 3 | `step_tick` (SysTick, 20 kHz, only while moving) | step pulses | — |
+//! | 2 | `usart2` (USART2) | console bytes in and out | — |
+//! | 1 | `control` (TIM2: each sample, and every sample period) | the control step | `kernel`, `ctrl` |
+//! | 0 | `idle` | console commands, flash (record writes, erases), the defmt log, dock-request input; **sleeps** (`wfi`) when there is nothing to do | `ctrl` |
+//!
+//! The stop latency (DOUT falling to EN high) is therefore the EXTI entry, the HX711
+//! readout (25.5 µs) and the guard, plus at most the longest section that masks every
+//! interrupt: a defmt log call (its RTT critical section), a `control` task's lock of
+//! `kernel` (a few dozen instructions), a clock-high phase of the readout. A console
+//! flood, a `history` walk (it holds `ctrl`, which only `control` shares), a record
+//! write or the log never wait in front of it. A flash *erase* masks everything for up
+//! to 2 s: erases happen only with every motor off (`Controller::background`).
 
+mod clock;
+mod console;
+mod crash;
 mod delay;
 mod flash;
+mod options;
+mod step;
 
-use flash::OdometerFlash;
+use core::sync::atomic::{AtomicBool, Ordering};
 
-use core::cell::RefCell;
-use core::sync::atomic::{AtomicU32, Ordering};
-
-use cortex_m::interrupt::Mutex;
-use cortex_m::peripheral::syst::SystClkSource;
-use cortex_m_rt::{entry, exception, ExceptionFrame};
+use cortex_m_rt::{exception, ExceptionFrame};
 use defmt_rtt as _;
 use docking_controller::console::service::Console;
 use docking_controller::controller::{Bsp, Controller, ControllerConfig, Parts};
-use docking_controller::hal::{ConsoleIo, Monotonic, StepPulses, Watchdog};
+use docking_controller::diag::{file_tail, Crash, CrashKind, ResetCause};
+use docking_controller::hal::Watchdog;
 use docking_controller::hx711::{Calibration, Gain, Hx711};
-use embedded_hal_nb::serial::{Read as _, Write as _};
-use heapless::Deque;
-use stm32f4xx_hal::interrupt;
-use stm32f4xx_hal::serial::{config::Config as SerialConfig, Rx, RxListen, Tx};
-use stm32f4xx_hal::{
-    gpio::{Input, Output, PinState, PB0, PB1, PC0, PC1, PC2, PC3, PD12, PD13, PE10, PE11, PE9},
-    pac,
-    prelude::*,
-    rcc::Config,
-    watchdog::IndependentWatchdog,
+use docking_controller::safety::{GatedEn, KernelEvent, SafetyKernel};
+use docking_controller::sequencer::Request;
+use stm32f4xx_hal::gpio::{
+    Input, Output, PinState, PB0, PB1, PC0, PC1, PC2, PC3, PC4, PD12, PD13, PE10, PE11,
 };
+use stm32f4xx_hal::pac;
+use stm32f4xx_hal::watchdog::IndependentWatchdog;
+
+use flash::OdometerFlash;
+use step::{BoardStepPulses, BoardStop};
 
 /// Core clock, Hz (HSE 8 MHz → PLL → 168 MHz).
-const SYSCLK_HZ: u32 = 168_000_000;
-/// Step-pulse interrupt rate, Hz.
-const STEP_TICK_HZ: u32 = 20_000;
-/// Independent watchdog period, ms (the control loop runs at ≥ 10 Hz).
+pub const SYSCLK_HZ: u32 = 168_000_000;
+/// Independent watchdog period, ms (fed by a control step that keeps its period).
 const WATCHDOG_MS: u32 = 500;
 /// A dock request must stay asserted this long to count, µs.
 const DOCK_REQUEST_DEBOUNCE_US: u64 = 20_000;
-/// HX711 output data rate (its RATE pin is tied high on this board: 80 SPS).
-const SAMPLE_RATE_SPS: u32 = 80;
-/// Load-cell calibration until a technician calibrates the machine (500 N, 2 mV/V
-/// cell on channel A/128 at 5 V excitation: ≈ 8 590 counts/N).
+/// HX711 output data rate: 80 SPS with the module's RATE pin high, 10 SPS with it low
+/// (most modules tie it low). Build with `DOCKING_HX711_SPS=10` for such a module.
+const SAMPLE_RATE_SPS: u32 = match option_env!("DOCKING_HX711_SPS") {
+    Some(s) => match s.as_bytes() {
+        [b'1', b'0'] => 10,
+        _ => 80,
+    },
+    None => 80,
+};
+/// Load-cell calibration until a technician calibrates the machine (a 500 N, 2 mV/V cell
+/// on channel A/128 at 5 V: ≈ 8 590 counts/N). Without a stored calibration the
+/// controller refuses to dock.
 const DEFAULT_CALIBRATION: Calibration = Calibration::SIM_DEFAULT;
 
 // --- Safe state, by raw register writes (RM0090 §7.4, §8.4) ------------------------
@@ -82,7 +108,10 @@ pub fn force_safe_outputs() {
         core::ptr::write_volatile(SYST_CSR, 0); // stop the step-pulse tick
         let en = core::ptr::read_volatile(RCC_AHB1ENR);
         core::ptr::write_volatile(RCC_AHB1ENR, en | (1 << 3) | (1 << 4)); // GPIOD, GPIOE clocks
-                                                                          // Levels first (BSRR), then mode, so the pin never drives the wrong level.
+                                                                          // A write to a peripheral right after its clock enable can be lost (RM0090
+                                                                          // §6.3.11, ES0182 errata 2.2.x): the bus must see the enable first.
+        cortex_m::asm::dsb();
+        // Levels first (BSRR), then mode, so the pin never drives the wrong level.
         core::ptr::write_volatile((GPIOE_BASE + BSRR) as *mut u32, (1 << 11) | (1 << (9 + 16)));
         core::ptr::write_volatile(
             (GPIOD_BASE + BSRR) as *mut u32,
@@ -99,99 +128,48 @@ pub fn force_safe_outputs() {
 
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
-    // panic-probe would report first and has no hook to run before it; motors must be
-    // safe before anything that can itself fail, so this handler is ours.
+    // Motors safe before anything that can itself fail; then the crash record, which the
+    // next boot reports (a log call here could find the logger taken by the code that
+    // panicked); then a reset: after it nothing moves without a request.
     force_safe_outputs();
-    defmt::error!("panic: {}", defmt::Display2Format(info));
-    // Hand over to the debugger / HardFault like panic-probe does.
-    cortex_m::asm::udf()
+    let (file, line) = info.location().map_or(("?", 0), |l| (l.file(), l.line()));
+    crash::record(&Crash {
+        kind: CrashKind::Panic,
+        pc: 0,
+        lr: 0,
+        cfsr: 0,
+        hfsr: 0,
+        line,
+        file: file_tail(file),
+    });
+    cortex_m::peripheral::SCB::sys_reset()
 }
 
 #[exception]
 unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
     force_safe_outputs();
-    defmt::error!("HardFault at pc={=u32:#x}", frame.pc());
-    loop {
-        // With a probe attached this stops the session; without one, the IWDG resets.
-        cortex_m::asm::bkpt();
-    }
-}
-
-defmt::timestamp!("{=u64:us}", {
-    // Timestamp from the DWT cycle counter (wraps every 25 s; good enough for logs).
-    (cortex_m::peripheral::DWT::cycle_count() / (SYSCLK_HZ / 1_000_000)) as u64
-});
-
-// --- Step pulses: SysTick DDS ----------------------------------------------------------
-
-struct StepGen {
-    pin: PE9<Output>,
-    phase: u32,
-    increment: u32,
-    pin_high: bool,
-}
-
-static STEP_GEN: Mutex<RefCell<Option<StepGen>>> = Mutex::new(RefCell::new(None));
-static STEP_COUNT: AtomicU32 = AtomicU32::new(0);
-
-#[exception]
-fn SysTick() {
-    cortex_m::interrupt::free(|cs| {
-        if let Some(g) = STEP_GEN.borrow(cs).borrow_mut().as_mut() {
-            if g.pin_high {
-                g.pin.set_low();
-                g.pin_high = false;
-            }
-            let (next, overflow) = g.phase.overflowing_add(g.increment);
-            g.phase = next;
-            if overflow {
-                g.pin.set_high();
-                g.pin_high = true;
-                STEP_COUNT.fetch_add(1, Ordering::Relaxed);
-            }
-        }
+    // SAFETY: reads of SCB CFSR and HFSR (fixed addresses).
+    let (cfsr, hfsr) = unsafe {
+        (
+            core::ptr::read_volatile(0xE000_ED28 as *const u32),
+            core::ptr::read_volatile(0xE000_ED2C as *const u32),
+        )
+    };
+    crash::record(&Crash {
+        kind: CrashKind::HardFault,
+        pc: frame.pc(),
+        lr: frame.lr(),
+        cfsr,
+        hfsr,
+        line: 0,
+        file: [0; 20],
     });
+    cortex_m::peripheral::SCB::sys_reset()
 }
 
-/// Handle to the SysTick step generator.
-pub struct BoardStepPulses;
+defmt::timestamp!("{=u64:us}", clock::now_us());
 
-impl StepPulses for BoardStepPulses {
-    fn set_rate_hz(&mut self, rate_hz: u32) {
-        // increment = rate / tick · 2^32; rates are capped below the tick rate / 2.
-        let rate = rate_hz.min(STEP_TICK_HZ / 2) as u64;
-        let inc = ((rate << 32) / STEP_TICK_HZ as u64) as u32;
-        cortex_m::interrupt::free(|cs| {
-            if let Some(g) = STEP_GEN.borrow(cs).borrow_mut().as_mut() {
-                g.increment = inc;
-            }
-        });
-    }
-
-    fn take_pulses(&mut self) -> u32 {
-        STEP_COUNT.swap(0, Ordering::Relaxed)
-    }
-}
-
-/// Monotonic µs clock from the DWT cycle counter, extended to 64 bits (must be read at
-/// least every 25 s; the control loop reads it every iteration).
-pub struct BoardClock {
-    last: u32,
-    high: u64,
-}
-
-impl Monotonic for BoardClock {
-    fn now_us(&mut self) -> u64 {
-        let now = cortex_m::peripheral::DWT::cycle_count();
-        if now < self.last {
-            self.high += 1 << 32;
-        }
-        self.last = now;
-        (self.high | now as u64) / (SYSCLK_HZ / 1_000_000) as u64
-    }
-}
-
-/// The independent watchdog, fed only by a healthy control loop.
+/// The independent watchdog, fed only by a control step that keeps its period.
 pub struct BoardWatchdog(IndependentWatchdog);
 
 impl Watchdog for BoardWatchdog {
@@ -200,74 +178,7 @@ impl Watchdog for BoardWatchdog {
     }
 }
 
-// --- Console: USART2, 115200 8N1, PA2 (TX) / PA3 (RX) ------------------------------
-
-/// Receive ring filled by the USART2 interrupt (bytes beyond it are lost: an overrun).
-static RX_RING: Mutex<RefCell<Deque<u8, 256>>> = Mutex::new(RefCell::new(Deque::new()));
-/// The receiver, owned by the interrupt.
-static CONSOLE_RX: Mutex<RefCell<Option<Rx<pac::USART2>>>> = Mutex::new(RefCell::new(None));
-/// Receive errors (framing, noise, overrun) and ring overruns.
-static RX_ERRORS: AtomicU32 = AtomicU32::new(0);
-
-#[interrupt]
-fn USART2() {
-    cortex_m::interrupt::free(|cs| {
-        let mut rx = CONSOLE_RX.borrow(cs).borrow_mut();
-        let Some(rx) = rx.as_mut() else { return };
-        let mut ring = RX_RING.borrow(cs).borrow_mut();
-        match rx.read() {
-            Ok(b) => {
-                if ring.push_back(b).is_err() {
-                    RX_ERRORS.fetch_add(1, Ordering::Relaxed);
-                }
-            }
-            Err(nb::Error::WouldBlock) => {}
-            Err(nb::Error::Other(_)) => {
-                RX_ERRORS.fetch_add(1, Ordering::Relaxed);
-            }
-        }
-    });
-}
-
-/// The console's byte stream: RX from the interrupt's ring, TX through a ring pumped
-/// from the main loop (never blocks the control loop).
-pub struct BoardConsole {
-    tx: Tx<pac::USART2>,
-    out: Deque<u8, 1024>,
-}
-
-impl BoardConsole {
-    /// Move queued bytes into the transmitter while it has room.
-    pub fn pump(&mut self) {
-        while let Some(&b) = self.out.front() {
-            if self.tx.write(b).is_err() {
-                break;
-            }
-            self.out.pop_front();
-        }
-    }
-}
-
-impl ConsoleIo for BoardConsole {
-    fn read_byte(&mut self) -> nb::Result<u8, ()> {
-        cortex_m::interrupt::free(|cs| RX_RING.borrow(cs).borrow_mut().pop_front())
-            .ok_or(nb::Error::WouldBlock)
-    }
-
-    fn write(&mut self, bytes: &[u8]) -> usize {
-        let mut n = 0;
-        for &b in bytes {
-            if self.out.push_back(b).is_err() {
-                break;
-            }
-            n += 1;
-        }
-        self.pump();
-        n
-    }
-}
-
-/// Seed for PIN salts: the chip's 96-bit unique ID and the cycle counter at boot.
+/// Seed for PIN salts: the chip's 96-bit unique ID and the microsecond clock at boot.
 fn entropy() -> [u8; 32] {
     let uid = stm32f4xx_hal::signature::Uid::get();
     let mut e = [0u8; 32];
@@ -275,25 +186,22 @@ fn entropy() -> [u8; 32] {
         &uid.x().to_le_bytes(),
         &uid.y().to_le_bytes(),
         uid.lot_num().as_bytes(),
-        &cortex_m::peripheral::DWT::cycle_count().to_le_bytes(),
+        &clock::now_us().to_le_bytes(),
     ];
-    let mut at = 0;
-    for p in parts {
-        for &b in p {
-            if let Some(slot) = e.get_mut(at) {
-                *slot = b;
-            }
-            at += 1;
-        }
+    for (slot, &b) in e.iter_mut().zip(parts.into_iter().flatten()) {
+        *slot = b;
     }
     e
 }
+
+/// The HX711 on PB0/PB1, its clock phases timed by the core's cycle counter.
+pub type BoardAdc = Hx711<PB0<Input>, PB1<Output>, delay::CycleDelay>;
 
 /// The board's parts for the controller.
 pub struct Board;
 
 impl Bsp for Board {
-    type EnN = PE11<Output>;
+    type EnN = GatedEn<PE11<Output>, BoardStop>;
     type Dir = PE10<Output>;
     type Pulses = BoardStepPulses;
     type LockIn1 = PD12<Output>;
@@ -302,153 +210,13 @@ impl Bsp for Board {
     type End = PC1<Input>;
     type Locked = PC2<Input>;
     type Released = PC3<Input>;
-    /// The HX711 on PB0/PB1, timed by the core's cycle counter (a busy-wait delay: the
-    /// driver runs each clock-high phase inside a critical section, so the delay must
-    /// not need interrupts; see [`delay::CycleDelay`] for why not the HAL's).
-    type Adc = Hx711<PB0<Input>, PB1<Output>, delay::CycleDelay>;
+    type Stop = BoardStop;
     type Wdg = BoardWatchdog;
     type Flash = OdometerFlash;
 }
 
-#[entry]
-fn main() -> ! {
-    // 1. Motors safe before anything else, before clocks.
-    force_safe_outputs();
-
-    let (Some(dp), Some(mut cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
-        // Unreachable at reset; stay safe and let the watchdog (if any) reset us.
-        loop {
-            cortex_m::asm::wfi();
-        }
-    };
-
-    // 2. Clocks.
-    let mut rcc = dp.RCC.freeze(Config::hse(8.MHz()).sysclk(SYSCLK_HZ.Hz()));
-    cp.DCB.enable_trace();
-    cp.DWT.enable_cycle_counter();
-
-    // 3. Pins, motor outputs created in their safe level (no glitch).
-    let gpiob = dp.GPIOB.split(&mut rcc);
-    let gpioc = dp.GPIOC.split(&mut rcc);
-    let gpiod = dp.GPIOD.split(&mut rcc);
-    let gpioe = dp.GPIOE.split(&mut rcc);
-    let step = gpioe.pe9.into_push_pull_output_in_state(PinState::Low);
-    let dir = gpioe.pe10.into_push_pull_output_in_state(PinState::Low);
-    let en_n = gpioe.pe11.into_push_pull_output_in_state(PinState::High);
-    let lock_in1 = gpiod.pd12.into_push_pull_output_in_state(PinState::Low);
-    let lock_in2 = gpiod.pd13.into_push_pull_output_in_state(PinState::Low);
-    let home = gpioc.pc0.into_pull_up_input();
-    let end = gpioc.pc1.into_pull_up_input();
-    let locked = gpioc.pc2.into_pull_up_input();
-    let released = gpioc.pc3.into_pull_up_input();
-    // Dock request from the vehicle/PLC: a debounced press starts one cycle (the
-    // controller refuses it unless idle, homed, locked, tared and the cone not worn out).
-    let dock_request = gpioc.pc4.into_pull_up_input();
-    let hx_dout = gpiob.pb0.into_pull_up_input();
-    let hx_sck = gpiob.pb1.into_push_pull_output_in_state(PinState::Low);
-    let gpioa = dp.GPIOA.split(&mut rcc);
-
-    cortex_m::interrupt::free(|cs| {
-        STEP_GEN.borrow(cs).replace(Some(StepGen {
-            pin: step,
-            phase: 0,
-            increment: 0,
-            pin_high: false,
-        }));
-    });
-    cp.SYST.set_clock_source(SystClkSource::Core);
-    cp.SYST.set_reload(SYSCLK_HZ / STEP_TICK_HZ - 1);
-    cp.SYST.clear_current();
-    cp.SYST.enable_interrupt();
-    cp.SYST.enable_counter();
-    let mut pulses = BoardStepPulses;
-    pulses.set_rate_hz(0);
-
-    // The HX711 may have been mid-readout when the MCU reset: power-cycle it (settles in
-    // 4 conversions, which the controller's disconnect timeout allows for).
-    let Ok(mut adc) = Hx711::new(hx_dout, hx_sck, delay::CycleDelay, Gain::A128) else {
-        halt_safe()
-    };
-    if adc.power_down().and_then(|_| adc.power_up()).is_err() {
-        halt_safe();
-    }
-
-    let mut clock = BoardClock { last: 0, high: 0 };
-    let mut iwdg = IndependentWatchdog::new(dp.IWDG);
-    iwdg.start(WATCHDOG_MS.millis());
-    let wdg = BoardWatchdog(iwdg);
-
-    let flash = OdometerFlash::new(dp.FLASH);
-    let parts = Parts::<Board> {
-        flash,
-        en_n,
-        dir,
-        pulses,
-        lock_in1,
-        lock_in2,
-        home,
-        end,
-        locked,
-        released,
-        adc,
-        wdg,
-    };
-    let cfg = ControllerConfig::new(SAMPLE_RATE_SPS, DEFAULT_CALIBRATION);
-    // Console on USART2; a console that cannot start leaves the controller running.
-    let mut term = match dp.USART2.serial(
-        (gpioa.pa2, gpioa.pa3),
-        SerialConfig::default().baudrate(115_200.bps()),
-        &mut rcc,
-    ) {
-        Ok(serial) => {
-            let (tx, mut rx) = serial.split();
-            rx.listen();
-            cortex_m::interrupt::free(|cs| CONSOLE_RX.borrow(cs).replace(Some(rx)));
-            // SAFETY: the handler only touches statics behind critical sections.
-            unsafe { cortex_m::peripheral::NVIC::unmask(pac::Interrupt::USART2) };
-            Some(BoardConsole {
-                tx,
-                out: Deque::new(),
-            })
-        }
-        Err(_) => None,
-    };
-    let mut console = Console::new(entropy());
-    let Ok(mut ctrl) = Controller::new(parts, cfg, clock.now_us()) else {
-        halt_safe()
-    };
-    defmt::info!(
-        "docking-controller {} booted; motors safe",
-        env!("CARGO_PKG_VERSION")
-    );
-
-    // 4. The control loop: poll as fast as possible; a step runs per load-cell sample.
-    let mut request_low_since: Option<u64> = None;
-    let mut request_latched = false;
-    loop {
-        let now_us = clock.now_us();
-        // Dock request: low for 20 ms (debounce) starts one cycle; release re-arms.
-        if dock_request.is_low() {
-            let since = *request_low_since.get_or_insert(now_us);
-            if !request_latched && now_us.saturating_sub(since) >= DOCK_REQUEST_DEBOUNCE_US {
-                request_latched = true;
-                ctrl.request(docking_controller::sequencer::Request::StartCycle);
-            }
-        } else {
-            request_low_since = None;
-            request_latched = false;
-        }
-        let _ = ctrl.poll(now_us);
-        if let Some(t) = term.as_mut() {
-            // After the control step: bounded work, see console::service.
-            let _ = console.poll(&mut ctrl, t, now_us / 1_000);
-            t.pump();
-        }
-        while let Some(ev) = ctrl.next_event() {
-            defmt::info!("t={=u64} ms {}", ev.t_ms, ev.event);
-        }
-    }
-}
+/// Set by the control task when it has events or persistence for the idle loop.
+static IDLE_WORK: AtomicBool = AtomicBool::new(false);
 
 /// Could not even build the controller: keep the motors safe and wait for the watchdog
 /// (or a debugger).
@@ -457,5 +225,286 @@ fn halt_safe() -> ! {
     defmt::error!("start-up failed; motors safe, halted");
     loop {
         cortex_m::asm::wfi();
+    }
+}
+
+#[rtic::app(device = stm32f4xx_hal::pac, peripherals = true)]
+mod app {
+    use super::*;
+    use heapless::spsc::{Consumer, Producer, Queue};
+    use stm32f4xx_hal::gpio::{Edge, ExtiPin};
+    use stm32f4xx_hal::prelude::*;
+    use stm32f4xx_hal::rcc::{Config, Enable};
+    use stm32f4xx_hal::serial::config::Config as SerialConfig;
+
+    #[shared]
+    struct Shared {
+        ctrl: Controller<Board>,
+        kernel: SafetyKernel<BoardAdc>,
+    }
+
+    #[local]
+    struct Local {
+        stop: BoardStop,
+        events_tx: Producer<'static, KernelEvent>,
+        events_rx: Consumer<'static, KernelEvent>,
+        step_gen: step::StepGen,
+        console_isr: console::ConsoleIsr,
+        term: console::BoardConsole,
+        console: Console,
+        dock_request: PC4<Input>,
+        tim2: pac::TIM2,
+    }
+
+    #[init(local = [
+        events: Queue<KernelEvent, 16> = Queue::new(),
+        rx_ring: Queue<u8, 257> = Queue::new(),
+        tx_ring: Queue<u8, 1025> = Queue::new(),
+    ])]
+    fn init(cx: init::Context) -> (Shared, Local) {
+        // 1. Motors safe before anything else, before clocks.
+        force_safe_outputs();
+        let dp: pac::Peripherals = cx.device;
+        let mut cp = cx.core;
+
+        // 2. Why we reset, and what the last run left behind; then clear the flags.
+        let csr = dp.RCC.csr().read().bits();
+        dp.RCC.csr().modify(|_, w| w.rmvf().set_bit());
+        let cause = ResetCause::from_csr(csr);
+        let crashed = crash::take();
+
+        // 3. Clocks; the cycle counter (the HX711's delay); the microsecond clock.
+        let mut rcc = dp.RCC.freeze(Config::hse(8.MHz()).sysclk(SYSCLK_HZ.Hz()));
+        cp.DCB.enable_trace();
+        cp.DWT.enable_cycle_counter();
+        let tim_hz = rcc.clocks.timclk1().raw();
+        clock::start(dp.TIM5, &mut rcc, tim_hz);
+
+        // 4. Brown-out reset at 2.70 V, before the watchdog runs (it takes a while).
+        let bor = options::ensure_bor_level_3();
+
+        // 5. Pins, motor outputs created at their safe level (no glitch).
+        let gpioa = dp.GPIOA.split(&mut rcc);
+        let gpiob = dp.GPIOB.split(&mut rcc);
+        let gpioc = dp.GPIOC.split(&mut rcc);
+        let gpiod = dp.GPIOD.split(&mut rcc);
+        let gpioe = dp.GPIOE.split(&mut rcc);
+        let step = gpioe.pe9.into_push_pull_output_in_state(PinState::Low);
+        let dir = gpioe.pe10.into_push_pull_output_in_state(PinState::Low);
+        let en_n = gpioe.pe11.into_push_pull_output_in_state(PinState::High);
+        let lock_in1 = gpiod.pd12.into_push_pull_output_in_state(PinState::Low);
+        let lock_in2 = gpiod.pd13.into_push_pull_output_in_state(PinState::Low);
+        let home = gpioc.pc0.into_pull_up_input();
+        let end = gpioc.pc1.into_pull_up_input();
+        let locked = gpioc.pc2.into_pull_up_input();
+        let released = gpioc.pc3.into_pull_up_input();
+        let dock_request = gpioc.pc4.into_pull_up_input();
+        let mut hx_dout = gpiob.pb0.into_pull_up_input();
+        let hx_sck = gpiob.pb1.into_push_pull_output_in_state(PinState::Low);
+
+        // 6. HX711 data ready: DOUT falling on EXTI0.
+        let mut syscfg = dp.SYSCFG.constrain(&mut rcc);
+        let mut exti = dp.EXTI;
+        hx_dout.make_interrupt_source(&mut syscfg);
+        hx_dout.trigger_on_edge(&mut exti, Edge::Falling);
+        hx_dout.enable_interrupt(&mut exti);
+
+        // 7. Step pulses: SysTick at 20 kHz, its interrupt on only while moving.
+        cp.SYST
+            .set_clock_source(cortex_m::peripheral::syst::SystClkSource::Core);
+        cp.SYST.set_reload(SYSCLK_HZ / step::STEP_TICK_HZ - 1);
+        cp.SYST.clear_current();
+        cp.SYST.enable_counter();
+
+        // 8. The HX711 may have been mid-readout when the MCU reset: power-cycle it (it
+        // settles in 4 conversions, which the disconnect timeout allows for).
+        let Ok(mut adc) = Hx711::new(hx_dout, hx_sck, delay::CycleDelay, Gain::A128) else {
+            halt_safe()
+        };
+        if adc.power_down().and_then(|_| adc.power_up()).is_err() {
+            halt_safe();
+        }
+
+        // 9. The watchdog.
+        let mut iwdg = IndependentWatchdog::new(dp.IWDG);
+        iwdg.start(WATCHDOG_MS.millis());
+
+        // 10. The controller and its safety kernel.
+        let parts = Parts::<Board> {
+            flash: OdometerFlash::new(dp.FLASH),
+            en_n: GatedEn::new(en_n, BoardStop),
+            dir,
+            pulses: BoardStepPulses,
+            lock_in1,
+            lock_in2,
+            home,
+            end,
+            locked,
+            released,
+            stop: BoardStop,
+            wdg: BoardWatchdog(iwdg),
+        };
+        let cfg = ControllerConfig::new(SAMPLE_RATE_SPS, DEFAULT_CALIBRATION);
+        let Ok(mut ctrl) = Controller::new(parts, cfg) else {
+            halt_safe()
+        };
+        let now = clock::now_us();
+        let mut kernel =
+            SafetyKernel::new(adc, cfg.guard, SAMPLE_RATE_SPS, ctrl.calibration(), now);
+        kernel.configure(ctrl.kernel_config(), now);
+        defmt::info!(
+            "docking-controller {} booted; motors safe; HX711 at {} SPS; BOR {}",
+            env!("CARGO_PKG_VERSION"),
+            SAMPLE_RATE_SPS,
+            bor
+        );
+        ctrl.boot(cause, crashed);
+        let (used, size) = crash::stack_usage();
+        ctrl.set_stack_usage(used, size);
+
+        // 11. The console on USART2.
+        let serial = match dp.USART2.serial(
+            (gpioa.pa2, gpioa.pa3),
+            SerialConfig::default().baudrate(115_200.bps()),
+            &mut rcc,
+        ) {
+            Ok(s) => s,
+            Err(_) => halt_safe(),
+        };
+        let (tx, mut rx) = serial.split();
+        rx.listen();
+        let (rx_in, rx_out) = cx.local.rx_ring.split();
+        let (tx_in, tx_out) = cx.local.tx_ring.split();
+
+        // 12. The control tick: TIM2 every sample period (and pended after every sample).
+        pac::TIM2::enable(&mut rcc);
+        let tim2 = dp.TIM2;
+        let period_us = 1_000_000 / SAMPLE_RATE_SPS;
+        tim2.psc()
+            .write(|w| w.psc().set((tim_hz / 1_000_000 - 1) as u16));
+        tim2.arr().write(|w| w.arr().set(period_us - 1));
+        tim2.egr().write(|w| w.ug().set_bit());
+        tim2.sr().write(|w| w.uif().clear_bit());
+        tim2.dier().write(|w| w.uie().set_bit());
+        tim2.cr1().write(|w| w.cen().set_bit());
+
+        let (events_tx, events_rx) = cx.local.events.split();
+        (
+            Shared { ctrl, kernel },
+            Local {
+                stop: BoardStop,
+                events_tx,
+                events_rx,
+                step_gen: step::StepGen::new(step),
+                console_isr: console::ConsoleIsr {
+                    rx,
+                    tx,
+                    rx_in,
+                    tx_out,
+                },
+                term: console::BoardConsole { rx_out, tx_in },
+                console: Console::new(entropy()),
+                dock_request,
+                tim2,
+            },
+        )
+    }
+
+    /// The HX711's DOUT fell: a sample is ready. Read it, judge it, stop if it must —
+    /// here, before anything else runs — then hand it to the control task.
+    #[task(binds = EXTI0, priority = 4, shared = [kernel], local = [stop, events_tx])]
+    fn data_ready(mut cx: data_ready::Context) {
+        let now = clock::now_us();
+        let ev = cx.shared.kernel.lock(|k| k.on_ready(now, cx.local.stop));
+        // DOUT toggles with the data bits during the readout: those edges are not
+        // samples. Clear the pending edge only now.
+        // SAFETY: EXTI PR is write-1-to-clear; line 0 is ours.
+        unsafe {
+            (*pac::EXTI::ptr())
+                .pr()
+                .write(|w| w.pr0().clear_bit_by_one())
+        };
+        if let Some(ev) = ev {
+            let _ = cx.local.events_tx.enqueue(ev);
+            rtic::pend(pac::Interrupt::TIM2);
+        }
+    }
+
+    /// Step pulses (20 kHz while the axis moves).
+    #[task(binds = SysTick, priority = 3, local = [step_gen])]
+    fn step_tick(cx: step_tick::Context) {
+        cx.local.step_gen.tick();
+    }
+
+    /// Console bytes in and out.
+    #[task(binds = USART2, priority = 2, local = [console_isr])]
+    fn usart2(cx: usart2::Context) {
+        cx.local.console_isr.on_interrupt();
+    }
+
+    /// The control step: once per sample (pended by `data_ready`) and once per sample
+    /// period without one (TIM2), so that deadlines and the disconnect timeout run.
+    #[task(binds = TIM2, priority = 1, shared = [ctrl, kernel], local = [events_rx, tim2])]
+    fn control(mut cx: control::Context) {
+        cx.local.tim2.sr().write(|w| w.uif().clear_bit());
+        let now = clock::now_us();
+        let events_rx = cx.local.events_rx;
+        cx.shared.ctrl.lock(|ctrl| {
+            let mut stepped = false;
+            while let Some(ev) = events_rx.dequeue() {
+                let _ = ctrl.step(now, Some(ev));
+                stepped = true;
+            }
+            if !stepped && ctrl.step_due(now) {
+                let mut stop = BoardStop;
+                let silent = cx.shared.kernel.lock(|k| k.check(now, &mut stop));
+                let _ = ctrl.step(now, silent);
+            }
+            let cfg = ctrl.kernel_config();
+            cx.shared.kernel.lock(|k| k.configure(cfg, now));
+        });
+        IDLE_WORK.store(true, Ordering::Relaxed);
+    }
+
+    /// Everything that may wait: console commands, flash, the log, the dock-request
+    /// input. Sleeps when there is nothing to do.
+    #[idle(shared = [ctrl], local = [term, console, dock_request])]
+    fn idle(mut cx: idle::Context) -> ! {
+        let mut request_low_since: Option<u64> = None;
+        let mut request_latched = false;
+        loop {
+            let now_us = clock::now_us();
+            // Dock request: low for 20 ms (debounce) asks for one cycle; release re-arms.
+            let mut request = None;
+            if cx.local.dock_request.is_low() {
+                let since = *request_low_since.get_or_insert(now_us);
+                if !request_latched && now_us.saturating_sub(since) >= DOCK_REQUEST_DEBOUNCE_US {
+                    request_latched = true;
+                    request = Some(Request::StartCycle);
+                }
+            } else {
+                request_low_since = None;
+                request_latched = false;
+            }
+            let (term, console) = (&mut *cx.local.term, &mut *cx.local.console);
+            cx.shared.ctrl.lock(|ctrl| {
+                if let Some(r) = request {
+                    ctrl.request(r);
+                }
+                // Bounded work (see console::service), then the flash, then the log.
+                let _ = console.poll(ctrl, term, now_us / 1_000);
+                ctrl.background();
+                while let Some(ev) = ctrl.next_event() {
+                    defmt::info!("t={=u64} ms {}", ev.t_ms, ev.event);
+                }
+            });
+            // Sleep until an interrupt, unless work arrived meanwhile (checked with
+            // interrupts masked: an interrupt pending at `wfi` wakes it at once).
+            cortex_m::interrupt::free(|_| {
+                if !IDLE_WORK.swap(false, Ordering::Relaxed) && !term.rx_pending() {
+                    cortex_m::asm::wfi();
+                }
+            });
+        }
     }
 }

@@ -1,33 +1,42 @@
 //! The control loop: one sample flows from the load cell through the sensor monitor, the
 //! overload guard, the phase tracker and the sequencer to the motors in one step.
 //!
-//! [`Controller::poll`] is called from the main loop as often as it likes. It runs a
-//! control step when the load cell has a new sample, or when a sample period has passed
-//! without one (so that deadlines and the disconnect timeout still run). In a step:
+//! The sample is read and judged first by the **safety kernel** ([`crate::safety`]): it
+//! stops the propulsion itself, in the same call, on an overload, a pull or a sensor
+//! fault, and hands the judged sample on as a [`KernelEvent`]. [`Controller::step`]
+//! then runs once per event, and once a sample period without one (so that deadlines
+//! still run):
 //!
-//! 1. the propulsion's emitted pulses are counted (position), the switches read;
-//! 2. the sample is converted to force (calibration, tare) and judged: sensor health,
-//!    then the overload guard at the current depth. **On a trip the propulsion is
-//!    disabled right there**, before anything else runs;
+//! 1. the propulsion's emitted pulses are counted (position), the switches read and
+//!    filtered (a change counts when two steps agree);
+//! 2. the kernel's verdict is acted on: a stop it made becomes a latched fault (an
+//!    overload backs off under control), sensor faults too; the force feeds the wear
+//!    odometer and, at rest, the tare;
 //! 3. the contact phase is derived from the depth and cross-checked with the force;
-//! 4. the pure sequencer decides; its commands are applied to the drivers;
-//! 5. the watchdog is fed if the loop is keeping its period.
+//! 4. the pure sequencer decides; its commands are applied to the drivers (the driver is
+//!    enabled again only once the controller has seen every stop the kernel made);
+//! 5. the kernel is told the limit for the next samples ([`Controller::kernel_config`]);
+//! 6. the watchdog is fed if the steps keep their period.
 //!
-//! The board and the simulator provide the hardware through [`Bsp`].
+//! On the board the kernel runs in the HX711's data-ready interrupt and the step in a
+//! lower-priority task (`src/board.rs`); on the host rig one after the other. The
+//! board and the simulator provide the hardware through [`Bsp`].
 
 use embedded_hal::digital::{InputPin, OutputPin};
 use embedded_storage::nor_flash::NorFlash;
 use heapless::Deque;
 
 use crate::config::MachineConfig;
-use crate::guard::{GuardConfig, OverloadGuard, SensorFault, SensorMonitor, Verdict};
-use crate::hal::{LoadCellAdc, StepPulses, Watchdog};
-use crate::hx711::{Calibration, CODE_MAX, CODE_MIN};
+use crate::diag::{Crash, ResetCause, ResetCounts};
+use crate::guard::{GuardConfig, SensorFault, Verdict};
+use crate::hal::{StepPulses, StopLatch, Watchdog};
+use crate::hx711::Calibration;
 use crate::lock::{LockActuator, LockCmd};
 use crate::material::Material;
 use crate::odometer::{self, restore, CycleSummary, Odometer, StateRecord, WearConfig, WearLevel};
 use crate::profile::{ContactPhase, BOUNDARY_UM, STROKE_UM};
 use crate::propulsion::Propulsion;
+use crate::safety::{GuardMode, KernelConfig, KernelEvent};
 use crate::sequencer::{AxisCmd, FaultKind, Inputs, Request, SeqEvent, Sequencer, State, Switches};
 use crate::storage::{OpenReport, RecordLog};
 
@@ -51,8 +60,8 @@ pub trait Bsp {
     type Locked: InputPin;
     /// Lock-released switch, active low.
     type Released: InputPin;
-    /// Load-cell ADC.
-    type Adc: LoadCellAdc;
+    /// The safety path's stop latch (shared with the kernel).
+    type Stop: StopLatch;
     /// Independent watchdog.
     type Wdg: Watchdog;
     /// The flash sectors reserved for the wear odometer.
@@ -79,8 +88,8 @@ pub struct Parts<B: Bsp> {
     pub locked: B::Locked,
     /// Lock-released switch.
     pub released: B::Released,
-    /// Load cell.
-    pub adc: B::Adc,
+    /// The stop latch.
+    pub stop: B::Stop,
     /// Watchdog.
     pub wdg: B::Wdg,
     /// Odometer flash.
@@ -153,6 +162,8 @@ pub enum Event {
     CycleCounted(CycleSummary),
     /// A start was refused: the cone has reached its wear limit.
     WearLimitRefusal,
+    /// A start was refused: the load cell has no stored calibration.
+    UncalibratedRefusal,
 }
 
 /// An event with its time.
@@ -227,11 +238,20 @@ pub struct Controller<B: Bsp> {
     end: B::End,
     locked: B::Locked,
     released: B::Released,
-    adc: B::Adc,
+    stop: B::Stop,
+    /// The highest stop number the controller has seen (re-arm only up to it).
+    seen_stop: u32,
     wdg: B::Wdg,
     seq: Sequencer,
-    guard: OverloadGuard,
-    sensor: SensorMonitor,
+    /// Sample period, µs.
+    period_us: u64,
+    /// Bumped when a fault is cleared: the kernel forgets its history.
+    clear_epoch: u32,
+    /// A technician's calibration is in flash: without one the machine does not dock.
+    calibrated: bool,
+    /// Switch debouncing: the raw reading of the last step and the accepted state.
+    switch_raw: Switches,
+    switches: Switches,
     cal: Calibration,
     /// Raw codes of the last samples taken at rest (Idle or Faulted): the per-cycle tare
     /// and the technician's calibration both average them.
@@ -261,6 +281,14 @@ pub struct Controller<B: Bsp> {
     /// The pending snapshot ends a cycle (a history entry).
     persist_cycle_end: bool,
     storage_errors: u32,
+    /// Resets by cause since commissioning (from flash).
+    resets: ResetCounts,
+    /// This boot's reset cause (`None` until the board reports it).
+    last_reset: Option<ResetCause>,
+    /// The crash stored last (this boot's, or an earlier one from flash).
+    last_crash: Option<Crash>,
+    /// Deepest stack use seen (bytes) and the stack's size, as the board measures it.
+    stack: Option<(u32, u32)>,
 }
 
 /// Why a maintenance action was refused.
@@ -363,7 +391,7 @@ fn closed<P: InputPin>(p: &mut P) -> Result<bool, ()> {
 
 impl<B: Bsp> Controller<B> {
     /// Take the parts, put every motor output in its safe state, start at `now_us`.
-    pub fn new(parts: Parts<B>, cfg: ControllerConfig, now_us: u64) -> Result<Self, StartError> {
+    pub fn new(parts: Parts<B>, cfg: ControllerConfig) -> Result<Self, StartError> {
         let prop = Propulsion::new(parts.en_n, parts.dir, parts.pulses, cfg.machine)
             .map_err(|_| StartError::Pin)?;
         let lock =
@@ -396,12 +424,26 @@ impl<B: Bsp> Controller<B> {
             );
         }
         let fresh = cone.is_none();
-        // A technician's calibration from flash overrides the built-in default.
-        let cal0 = log
+        // A technician's calibration from flash overrides the built-in default; without
+        // one the machine refuses to dock (the default is a datasheet guess).
+        let stored_cal = log
             .as_mut()
             .and_then(|l| l.latest(odometer::kind::CALIBRATION).ok().flatten())
-            .and_then(|r| calibration_from_bytes(r.data()))
-            .unwrap_or(cfg.calibration);
+            .and_then(|r| calibration_from_bytes(r.data()));
+        let calibrated = stored_cal.is_some();
+        if !calibrated {
+            warn!("load cell not calibrated: docking refused until a technician calibrates it");
+        }
+        let cal0 = stored_cal.unwrap_or(cfg.calibration);
+        let resets = log
+            .as_mut()
+            .and_then(|l| l.latest(odometer::kind::RESETS).ok().flatten())
+            .and_then(|r| ResetCounts::from_bytes(r.data()))
+            .unwrap_or_default();
+        let last_crash = log
+            .as_mut()
+            .and_then(|l| l.latest(odometer::kind::CRASH).ok().flatten())
+            .and_then(|r| Crash::from_bytes(r.data()));
         let odo = restore(cfg.wear, cone, state, cfg.default_material);
         info!(
             "odometer: cone {} ({}), {} cycles, wear {} nm; lifetime {} cycles",
@@ -419,11 +461,15 @@ impl<B: Bsp> Controller<B> {
             end: parts.end,
             locked: parts.locked,
             released: parts.released,
-            adc: parts.adc,
+            stop: parts.stop,
+            seen_stop: 0,
             wdg: parts.wdg,
             seq: Sequencer::new(cfg.machine),
-            guard: OverloadGuard::new(cfg.guard),
-            sensor: SensorMonitor::new(cfg.sample_rate_sps, now_us),
+            period_us: 1_000_000 / cfg.sample_rate_sps.max(1) as u64,
+            clear_epoch: 0,
+            calibrated,
+            switch_raw: Switches::default(),
+            switches: Switches::default(),
             cal: cal0,
             recent_raw: Deque::new(),
             base_cal: cal0,
@@ -448,7 +494,26 @@ impl<B: Bsp> Controller<B> {
             persist_pending: false,
             persist_cycle_end: false,
             storage_errors: 0,
+            resets,
+            last_reset: None,
+            last_crash,
+            stack: None,
         };
+        // The switches as they are now: the filter starts from them.
+        if let (Ok(home), Ok(end), Ok(locked), Ok(released)) = (
+            closed(&mut me.home),
+            closed(&mut me.end),
+            closed(&mut me.locked),
+            closed(&mut me.released),
+        ) {
+            me.switch_raw = Switches {
+                home,
+                end,
+                locked,
+                released,
+            };
+            me.switches = me.switch_raw;
+        }
         if fresh {
             // A new machine: record its first cone so its identity survives.
             me.write_cone_record();
@@ -466,8 +531,20 @@ impl<B: Bsp> Controller<B> {
         }
     }
 
-    /// Write the pending counter snapshot, and pre-erase the next sector if due. Only
-    /// called with every motor off: a flash erase stalls the CPU for up to ~2 s.
+    /// Background work, off the control step: write the pending counter snapshot and
+    /// pre-erase the next odometer sector if due — only while every motor is off (Idle,
+    /// Faulted): a flash erase stalls the CPU for up to 2 s. The board runs it at its
+    /// lowest priority; the rig after each step.
+    pub fn background(&mut self) {
+        if matches!(self.seq.state(), State::Idle | State::Faulted { .. })
+            && !self.prop.is_enabled()
+            && self.lock.cmd() == LockCmd::Off
+        {
+            self.persist();
+        }
+    }
+
+    /// Write the pending counter snapshot, and pre-erase the next sector if due.
     fn persist(&mut self) {
         let Some(l) = self.log.as_mut() else { return };
         if self.persist_pending {
@@ -489,32 +566,88 @@ impl<B: Bsp> Controller<B> {
         }
     }
 
+    /// At boot, before the first step (every motor off): count the reset `cause` in
+    /// flash, and store and report `crash` if the last run ended in one.
+    pub fn boot(&mut self, cause: ResetCause, crash: Option<Crash>) {
+        self.resets.count(cause);
+        self.last_reset = Some(cause);
+        info!("reset cause: {}", cause.name());
+        if let Some(c) = crash {
+            error!(
+                "the last run crashed: {} at pc {:#x} (lr {:#x}, cfsr {:#x}, line {})",
+                c.kind.name(),
+                c.pc,
+                c.lr,
+                c.cfsr,
+                c.line
+            );
+            self.last_crash = Some(c);
+        }
+        if let Some(l) = self.log.as_mut() {
+            let mut ok = l
+                .append(odometer::kind::RESETS, &self.resets.to_bytes())
+                .is_ok();
+            if let Some(c) = crash {
+                ok &= l.append(odometer::kind::CRASH, &c.to_bytes()).is_ok();
+            }
+            if !ok {
+                self.storage_errors = self.storage_errors.saturating_add(1);
+            }
+        }
+    }
+
+    /// The board's measurement of the stack: deepest use and size, bytes.
+    pub fn set_stack_usage(&mut self, used: u32, size: u32) {
+        self.stack = Some((used, size));
+    }
+
+    /// Resets by cause since commissioning.
+    pub fn reset_counts(&self) -> ResetCounts {
+        self.resets
+    }
+
+    /// This boot's reset cause.
+    pub fn last_reset(&self) -> Option<ResetCause> {
+        self.last_reset
+    }
+
+    /// The last crash on record.
+    pub fn last_crash(&self) -> Option<Crash> {
+        self.last_crash
+    }
+
+    /// Deepest stack use and the stack's size, bytes (`None` off the board).
+    pub fn stack_usage(&self) -> Option<(u32, u32)> {
+        self.stack
+    }
+
     /// Ask for something; acted on in the next control step.
     pub fn request(&mut self, r: Request) {
         self.pending = Some(r);
     }
 
-    /// Poll from the main loop at `now_us`.
-    pub fn poll(&mut self, now_us: u64) -> PollResult {
-        let (sample, io_fault) = match self.adc.read_code() {
-            Ok(c) => (Some(c), false),
-            Err(nb::Error::WouldBlock) => (None, false),
-            Err(nb::Error::Other(())) => (None, true),
-        };
-        let period = self.sensor.period_us();
-        let due = sample.is_some()
-            || io_fault
-            || self
-                .last_step_us
-                .is_none_or(|t| now_us.saturating_sub(t) >= period);
-        if !due {
-            return PollResult::default();
-        }
-        self.step(now_us, sample, io_fault)
+    /// The sample period, µs: step at least this often.
+    pub fn period_us(&self) -> u64 {
+        self.period_us
     }
 
-    fn step(&mut self, now_us: u64, sample: Option<i32>, io_fault: bool) -> PollResult {
-        let period = self.sensor.period_us();
+    /// Whether a step is due at `now_us` without a kernel event (a period has passed).
+    pub fn step_due(&self, now_us: u64) -> bool {
+        self.last_step_us
+            .is_none_or(|t| now_us.saturating_sub(t) >= self.period_us)
+    }
+
+    /// One control step at `now_us` for the kernel's event `ev` (`None`: a period passed
+    /// without one).
+    pub fn step(&mut self, now_us: u64, ev: Option<KernelEvent>) -> PollResult {
+        let period = self.period_us;
+        let sample = match ev {
+            Some(KernelEvent::Sample(s)) => Some(s),
+            _ => None,
+        };
+        if let Some(n) = ev.and_then(|e| e.stop()) {
+            self.seen_stop = self.seen_stop.max(n);
+        }
         let dt_us = self
             .last_step_us
             .map_or(period, |t| now_us.saturating_sub(t));
@@ -529,19 +662,23 @@ impl<B: Bsp> Controller<B> {
         // 1. Position and switches.
         self.prop.sync();
         let pos_um = self.prop.position_um();
-        let mut fault = io_fault.then_some(FaultKind::Io);
+        let mut fault = match ev {
+            Some(KernelEvent::Io { .. }) => Some(FaultKind::Io),
+            Some(KernelEvent::Silent { .. }) => Some(FaultKind::SensorDisconnected),
+            _ => None,
+        };
         let switches = match (
             closed(&mut self.home),
             closed(&mut self.end),
             closed(&mut self.locked),
             closed(&mut self.released),
         ) {
-            (Ok(home), Ok(end), Ok(locked), Ok(released)) => Switches {
+            (Ok(home), Ok(end), Ok(locked), Ok(released)) => self.filter_switches(Switches {
                 home,
                 end,
                 locked,
                 released,
-            },
+            }),
             _ => {
                 fault = Some(FaultKind::Io);
                 Switches::default()
@@ -551,37 +688,38 @@ impl<B: Bsp> Controller<B> {
         let depth_um = state
             .in_compliant_motion()
             .then(|| pos_um - self.cfg.machine.engage_um);
-        // While retreating from an overload the load is expected to be high and falling:
-        // only the hard limit applies then (a hard-limit trip ends the retreat).
-        let guard_depth_um = if matches!(state, State::BackingOff { .. }) {
-            None
-        } else {
-            depth_um
-        };
-
-        // 2. Sample: sensor health, then overload.
-        if let Some(code) = sample {
-            self.force_mn = self.cal.to_force_mn(code);
+        // 2. The kernel's verdict on the sample (it has stopped the propulsion already if
+        // it had to).
+        if let Some(smp) = sample {
+            let code = smp.code;
+            self.force_mn = smp.force_mn;
             self.peak_force_mn = self.peak_force_mn.max(self.force_mn);
             if let Some(f) = self.faults.back_mut() {
                 if matches!(state, State::Faulted { .. } | State::BackingOff { .. }) {
                     f.peak_force_mn = f.peak_force_mn.max(self.force_mn);
                 }
             }
-            if let Some(sf) = self.sensor.on_sample(code, now_us, CODE_MIN, CODE_MAX) {
+            if let Some(sf) = smp.sensor {
                 fault = fault.or(Some(sensor_fault(sf)));
             }
-            self.limit_mn = self.guard.limit_mn(guard_depth_um);
-            match self.guard.check_against(self.force_mn, self.limit_mn) {
+            self.limit_mn = smp.limit_mn;
+            match smp.verdict {
                 Verdict::Trip { .. } => {
-                    // Stop now, in this step; the sequencer then backs off under control.
+                    // The kernel stopped it at the sample; the propulsion driver learns it
+                    // here, and the sequencer backs off under control.
                     let _ = self.prop.disable();
-                    self.disabled_at_us = Some(now_us);
+                    self.disabled_at_us = Some(smp.t_us);
                     result.tripped = true;
                     self.overload_trips = self.overload_trips.saturating_add(1);
                     self.odo.record_overload(self.force_mn);
                     self.persist_pending = true;
                     fault = fault.or(Some(FaultKind::Overload));
+                }
+                Verdict::Tension { .. } => {
+                    let _ = self.prop.disable();
+                    self.disabled_at_us = Some(smp.t_us);
+                    result.tripped = true;
+                    fault = fault.or(Some(FaultKind::Tension));
                 }
                 Verdict::Warn => {
                     if !self.warning {
@@ -613,8 +751,6 @@ impl<B: Bsp> Controller<B> {
             } else {
                 self.recent_raw.clear();
             }
-        } else if let Some(sf) = self.sensor.check_timeout(now_us) {
-            fault = fault.or(Some(sensor_fault(sf)));
         }
         if fault.is_some_and(|f| f != FaultKind::Overload) && self.prop.is_enabled() {
             let _ = self.prop.disable();
@@ -639,6 +775,13 @@ impl<B: Bsp> Controller<B> {
             );
             self.push_event(now_ms, Event::WearLimitRefusal);
         }
+        if request == Some(Request::StartCycle) && state == State::Idle && !self.calibrated {
+            request = None;
+            error!(
+                "start refused: the load cell is not calibrated (calibrate tare, calibrate span)"
+            );
+            self.push_event(now_ms, Event::UncalibratedRefusal);
+        }
         if request == Some(Request::StartCycle) && state == State::Idle {
             match self.take_tare() {
                 TareResult::Ready => {}
@@ -649,8 +792,8 @@ impl<B: Bsp> Controller<B> {
             }
         }
         if request == Some(Request::ClearFault) && matches!(state, State::Faulted { .. }) {
-            self.guard.reset();
-            self.sensor.reset(now_us);
+            // The kernel forgets its sample history and restarts its timeout.
+            self.clear_epoch = self.clear_epoch.wrapping_add(1);
         }
         let inputs = Inputs {
             now_ms,
@@ -669,7 +812,15 @@ impl<B: Bsp> Controller<B> {
         if out.zero_position {
             self.prop.set_position_um(0);
         }
+        // The driver may be enabled only once every stop the kernel made has been seen
+        // here; a stop still in flight keeps it off for this step.
+        let gate_open = !matches!(out.axis, AxisCmd::Disabled)
+            && (!self.stop.latched() || self.stop.rearm(self.seen_stop));
         let pin_ok = match out.axis {
+            _ if !gate_open && !matches!(out.axis, AxisCmd::Disabled) => {
+                let _ = self.prop.disable();
+                true
+            }
             AxisCmd::Disabled => {
                 if self.prop.is_enabled() {
                     self.disabled_at_us = Some(now_us);
@@ -700,19 +851,51 @@ impl<B: Bsp> Controller<B> {
             self.pending = None;
         }
 
-        // 6. Persist counters only while every motor is off (Idle, Faulted).
-        if matches!(self.seq.state(), State::Idle | State::Faulted { .. })
-            && !self.prop.is_enabled()
-            && self.lock.cmd() == LockCmd::Off
-        {
-            self.persist();
-        }
-
-        // 7. A loop that keeps its period feeds the watchdog; a stalled one does not.
+        // 6. A loop that keeps its period feeds the watchdog; a stalled one does not.
         if dt_us <= 3 * period {
             self.wdg.feed();
         }
         result
+    }
+
+    /// Switch debouncing: a switch's change counts once two consecutive steps read it,
+    /// so one noisy reading never stops, zeroes or faults anything, and a real change
+    /// (an overtravel) counts at most one step — one sample period — later.
+    fn filter_switches(&mut self, raw: Switches) -> Switches {
+        let f = |accepted: bool, prev: bool, now: bool| if prev == now { now } else { accepted };
+        let (a, p) = (self.switches, self.switch_raw);
+        self.switches = Switches {
+            home: f(a.home, p.home, raw.home),
+            end: f(a.end, p.end, raw.end),
+            locked: f(a.locked, p.locked, raw.locked),
+            released: f(a.released, p.released, raw.released),
+        };
+        self.switch_raw = raw;
+        self.switches
+    }
+
+    /// What the safety kernel must judge the next samples by: the calibration in force
+    /// and the limit of the state and depth the machine is in now.
+    pub fn kernel_config(&self) -> KernelConfig {
+        let state = self.seq.state();
+        let mode = match state {
+            State::BackingOff { .. } => GuardMode::BackOff,
+            s if s.in_compliant_motion() => GuardMode::Cone {
+                depth_um: self.prop.position_um() - self.cfg.machine.engage_um,
+            },
+            _ => GuardMode::Free,
+        };
+        KernelConfig {
+            cal: self.cal,
+            mode,
+            clear: self.clear_epoch,
+        }
+    }
+
+    /// Whether a technician's calibration is stored (without one the machine does not
+    /// dock).
+    pub fn calibrated(&self) -> bool {
+        self.calibrated
     }
 
     /// Mean raw code of the samples at rest, once there are enough of them.
@@ -987,6 +1170,7 @@ impl<B: Bsp> Controller<B> {
             .map_err(|_| CalibrateError::Storage)?;
         self.base_cal = cal;
         self.cal = cal;
+        self.calibrated = true;
         info!(
             "load cell calibrated: offset {} counts, {} mN/count (Q32.32)",
             cal.offset_counts, cal.mn_per_count_q32
@@ -1084,11 +1268,6 @@ impl<B: Bsp> Controller<B> {
     /// Overload trips since boot.
     pub fn overload_trips(&self) -> u32 {
         self.overload_trips
-    }
-
-    /// Single-sample spikes the guard rejected.
-    pub fn spikes_rejected(&self) -> u32 {
-        self.guard.spikes_rejected()
     }
 
     /// When the propulsion was last switched off by the controller, µs.

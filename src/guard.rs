@@ -10,6 +10,10 @@
 //!   `abs_mn` (defaults 25 % and 30 N: with 0.3 N RMS sensor noise the nominal profile
 //!   stays ≥ 50 N below it, while a jam crosses it within a few newtons of extra load).
 //!
+//! **Both ways.** A pulling force (the load cell in tension) beyond `tension_mn`, or a
+//! bridge wired in reverse (compression then reads negative), is its own verdict,
+//! [`Verdict::Tension`]: not "zero force, no wear, no trip".
+//!
 //! **Spike rejection without delay.** A sample over a limit trips at once if it is
 //! *plausible*: the previous sample was over the limit too, or this one is within
 //! `slew_mn` of the previous one (a load that grows, as a jam does). An implausible jump
@@ -33,6 +37,8 @@ use crate::profile::{BOUNDARY_UM, STROKE_UM};
 pub struct GuardConfig {
     /// Hard force limit, mN (any state).
     pub hard_limit_mn: i32,
+    /// Largest pulling force (negative reading), mN, as a positive number.
+    pub tension_mn: i32,
     /// Envelope: relative margin over the nominal force, percent.
     pub rel_pct: u32,
     /// Envelope: absolute margin over the nominal force, mN.
@@ -49,6 +55,9 @@ impl GuardConfig {
     /// Defaults (see the module doc for why).
     pub const DEFAULT: Self = Self {
         hard_limit_mn: 300_000,
+        // Ten times the cell's noise and beyond a 20 N tare drift; the docking forces are
+        // all compressive (N3 ≥ 107 N in the cone), so a reversed bridge trips at the mouth.
+        tension_mn: 30_000,
         rel_pct: 25,
         abs_mn: 30_000,
         slew_mn: 40_000,
@@ -142,6 +151,18 @@ pub enum Verdict {
         /// The limit that was exceeded, mN.
         limit_mn: i32,
     },
+    /// Tension (or a reversed bridge): stop now.
+    Tension {
+        /// The (negative) limit that was passed, mN.
+        limit_mn: i32,
+    },
+}
+
+impl Verdict {
+    /// Whether the propulsion must stop.
+    pub const fn stops(&self) -> bool {
+        matches!(self, Self::Trip { .. } | Self::Tension { .. })
+    }
 }
 
 /// The overload guard.
@@ -195,12 +216,17 @@ impl OverloadGuard {
 
     /// Judge one sample of `force_mn` against `limit` (from [`Self::limit_mn`]).
     pub fn check_against(&mut self, force_mn: i32, limit: i32) -> Verdict {
-        let over = force_mn > limit;
+        let pull = force_mn < -self.cfg.tension_mn;
+        let over = force_mn > limit || pull;
         let plausible = self.prev_over
             || self
                 .prev_mn
                 .is_none_or(|p| force_mn.abs_diff(p) <= self.cfg.slew_mn as u32);
-        let verdict = if over && plausible {
+        let verdict = if pull && plausible {
+            Verdict::Tension {
+                limit_mn: -self.cfg.tension_mn,
+            }
+        } else if over && plausible {
             Verdict::Trip { limit_mn: limit }
         } else if over {
             Verdict::Suspect
@@ -406,6 +432,29 @@ mod tests {
         assert_eq!(g.check(112_000, d), Verdict::Ok);
         assert_eq!(g.check(400_000, d), Verdict::Suspect);
         assert_eq!(g.check(400_000, d), Verdict::Trip { limit_mn: lim });
+    }
+
+    #[test]
+    fn tension_and_a_reversed_bridge_are_a_verdict_not_zero_force() {
+        let mut g = OverloadGuard::new(GuardConfig::DEFAULT);
+        assert_eq!(
+            g.check(-25_000, None),
+            Verdict::Ok,
+            "within the tension limit"
+        );
+        g.reset();
+        // A reversed bridge at the cone mouth: −112 N out of the blue is held one sample
+        // like any jump, then trips.
+        assert_eq!(g.check(-300, Some(0)), Verdict::Ok);
+        assert_eq!(g.check(-112_000, Some(10)), Verdict::Suspect);
+        assert_eq!(
+            g.check(-112_300, Some(20)),
+            Verdict::Tension { limit_mn: -30_000 }
+        );
+        // A growing pull trips on its first sample past the limit.
+        g.reset();
+        assert_eq!(g.check(-29_000, None), Verdict::Ok);
+        assert!(g.check(-31_000, None).stops());
     }
 
     #[test]

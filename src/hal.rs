@@ -43,3 +43,24 @@ pub trait LoadCellAdc {
     /// the device could not be read.
     fn read_code(&mut self) -> nb::Result<i32, ()>;
 }
+
+/// The safety path's hold on the propulsion: an immediate stop that latches, so the
+/// driver stays off until the controller has seen every stop.
+///
+/// The board implements it on the EN pin's set/reset register and the step generator
+/// (usable from the highest-priority interrupt); the simulator on the simulated pins.
+/// Stops are numbered so that the controller re-arms only after it has processed the
+/// last one: a stop the safety path makes while the controller is busy is never
+/// cleared by it unseen.
+pub trait StopLatch {
+    /// Disable the propulsion driver (EN high) and halt its step pulses, now; latch.
+    /// Returns this stop's number (1, 2, … since boot).
+    fn stop_now(&mut self) -> u32;
+    /// Stops so far.
+    fn stops(&self) -> u32;
+    /// Whether the latch is set (the driver may not be enabled).
+    fn latched(&self) -> bool;
+    /// Clear the latch unless a stop came after stop number `seen`; returns whether it
+    /// is clear now.
+    fn rearm(&mut self, seen: u32) -> bool;
+}

@@ -22,14 +22,16 @@
 //!
 //! | symbol | meaning | datasheet | used here |
 //! |---|---|---|---|
-//! | T1 | DOUT falling edge → first PD_SCK rising edge | ≥ 0.1 µs | [`T1_WAIT_NS`] = 1 µs |
+//! | T1 | DOUT falling edge → first PD_SCK rising edge | ≥ 0.1 µs | [`T1_WAIT_NS`] = 0.5 µs |
 //! | T2 | PD_SCK rising edge → DOUT valid | ≤ 0.1 µs | DOUT sampled after T3 |
-//! | T3 | PD_SCK high time | 0.2–50 µs | [`SCK_HIGH_NS`] = 1 µs |
-//! | T4 | PD_SCK low time | ≥ 0.2 µs | [`SCK_LOW_NS`] = 1 µs |
+//! | T3 | PD_SCK high time | 0.2–50 µs | [`SCK_HIGH_NS`] = 0.5 µs |
+//! | T4 | PD_SCK low time | ≥ 0.2 µs | [`SCK_LOW_NS`] = 0.5 µs |
 //! | — | PD_SCK high → power-down | > 60 µs | [`POWER_DOWN_WAIT_US`] = 80 µs |
 //! | — | settling after reset/power-up | 4 conversions (50 ms at 80 SPS, 400 ms at 10 SPS) | [`settling_time_us`] |
 //!
-//! A readout is T1 + (25…27) × (T3 + T4) = 51–55 µs.
+//! A readout is T1 + (25…27) × (T3 + T4) = 25.5–27.5 µs ([`readout_ns`]): 2.5× the
+//! datasheet minimum on every phase, and short, because the board reads the HX711 in
+//! its stop path (the overload stop counts from DOUT falling).
 //!
 //! # Power-down hazard
 //!
@@ -94,11 +96,17 @@ pub const POWER_DOWN_NS: u32 = 60_000;
 pub const SETTLING_CONVERSIONS: u32 = 4;
 
 /// Wait between DOUT seen low and the first rising edge, ns (≥ T1).
-pub const T1_WAIT_NS: u32 = 1_000;
+pub const T1_WAIT_NS: u32 = 500;
 /// PD_SCK high time this driver uses, ns (T3 within 0.2–50 µs).
-pub const SCK_HIGH_NS: u32 = 1_000;
+pub const SCK_HIGH_NS: u32 = 500;
 /// PD_SCK low time this driver uses, ns (T4 ≥ 0.2 µs).
-pub const SCK_LOW_NS: u32 = 1_000;
+pub const SCK_LOW_NS: u32 = 500;
+
+/// The delays of one readout of `pulses` clock pulses (25–27), ns (the pin operations
+/// come on top).
+pub const fn readout_ns(pulses: u8) -> u32 {
+    T1_WAIT_NS + pulses as u32 * (SCK_HIGH_NS + SCK_LOW_NS)
+}
 /// How long [`Hx711::power_down`] holds PD_SCK high, µs (> 60 µs, with margin).
 pub const POWER_DOWN_WAIT_US: u32 = 80;
 

@@ -448,6 +448,10 @@ pub mod kind {
     pub const PIN: u8 = 5;
     /// Audit record of a maintenance action.
     pub const AUDIT: u8 = 6;
+    /// Resets by cause ([`crate::diag::ResetCounts`]).
+    pub const RESETS: u8 = 7;
+    /// The last crash ([`crate::diag::Crash`]).
+    pub const CRASH: u8 = 8;
 }
 
 /// Snapshot of every counter, as persisted (48 bytes, little endian):

@@ -10,10 +10,17 @@
 //! out are the automatic, controlled back-off after an overload and an explicit
 //! [`Request::ClearFault`], which starts a recovery to home.
 //!
+//! **Nothing moves after a reset until someone asks.** At power-up (any reset: the
+//! panel may be inside the cone) the sequencer waits in `PowerUp`. Only when the home
+//! and locked switches are both closed does it zero there and go idle, moving nothing.
+//! Otherwise a [`Request::Home`] or a [`Request::StartCycle`] (console, dock-request
+//! input) starts the homing; the cycle itself then needs a request of its own.
+//!
 //! One docking cycle is one insertion and one extraction:
 //!
 //! ```text
-//!  PowerUp ─▶ Homing ─(home sw)─▶ Locking ─(locked sw)─▶ Idle ◀──────────────────────────┐
+//!  PowerUp ─(home and locked sw: zero, no motion)───────────────────▶ Idle
+//!  PowerUp ─(Home / StartCycle request)─▶ Homing ─(home sw)─▶ Locking ─(locked sw)─▶ Idle ◀┐
 //!                                                        │ StartCycle (home, locked)     │
 //!                                                        ▼                               │
 //!   PreAlign (locked, fast, to engage) ─▶ Releasing (lock → released sw)                 │
@@ -62,6 +69,9 @@ pub enum FaultKind {
     SwitchConflict,
     /// A pin or driver could not be read or driven.
     Io,
+    /// A pulling force beyond the tension limit, or a load cell bridge wired in reverse
+    /// (compression reading negative).
+    Tension,
 }
 
 impl FaultKind {
@@ -79,6 +89,7 @@ impl FaultKind {
             Self::LockNotLocked => "lock_not_locked",
             Self::SwitchConflict => "switch_conflict",
             Self::Io => "io",
+            Self::Tension => "tension",
         }
     }
 
@@ -101,6 +112,7 @@ impl FaultKind {
             8 => Self::LockNotLocked,
             9 => Self::SwitchConflict,
             10 => Self::Io,
+            11 => Self::Tension,
             _ => return None,
         })
     }
@@ -127,6 +139,9 @@ pub enum Request {
     StartCycle,
     /// Clear a latched fault and recover to home (accepted in `Faulted` only).
     ClearFault,
+    /// Find home and lock (accepted in `PowerUp` only: after a reset nothing moves
+    /// without a request).
+    Home,
 }
 
 /// What the controller measured in this control step.
@@ -209,7 +224,7 @@ pub enum AfterLock {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub enum State {
-    /// Just booted: nothing known.
+    /// Just booted: position unknown; nothing moves until a home or dock request.
     PowerUp,
     /// Searching the home switch (toward −, at ≤ v0: the panel may be in the cone).
     Homing {
@@ -465,6 +480,10 @@ impl Sequencer {
                 (r, self.state),
                 (Request::StartCycle, State::PreAlign { .. })
                     | (
+                        Request::Home | Request::StartCycle,
+                        State::Homing { .. } | State::Locking { .. }
+                    )
+                    | (
                         Request::ClearFault,
                         State::Recovering { .. } | State::Locking { .. } | State::Returning { .. }
                     )
@@ -552,23 +571,28 @@ impl Sequencer {
         let stay = |s: State| (s, None, false);
         let fault = |f: FaultKind| (State::Faulted { fault: f }, Some(SeqEvent::Fault(f)), false);
         match self.state {
-            // Already on the home switch: zero here, no motion at all.
-            State::PowerUp if sw.home => (
-                State::Locking {
-                    deadline_ms: self.lock_deadline(now),
-                    then: AfterLock::Idle,
-                },
-                Some(SeqEvent::Homed),
-                true,
-            ),
-            State::PowerUp => {
-                let deadline_ms = self.move_deadline(
-                    now,
-                    cfg.end_switch_um + HOME_OVERSHOOT_UM,
-                    cfg.dock_speed_um_per_s,
-                );
-                (State::Homing { deadline_ms }, None, false)
-            }
+            // Home and locked already: zero here and idle, moving nothing at all.
+            State::PowerUp if sw.home && sw.locked => (State::Idle, Some(SeqEvent::Homed), true),
+            // Anything else needs a request: the panel may be inside the cone.
+            State::PowerUp => match inp.request {
+                Some(Request::Home | Request::StartCycle) if sw.home => (
+                    State::Locking {
+                        deadline_ms: self.lock_deadline(now),
+                        then: AfterLock::Idle,
+                    },
+                    Some(SeqEvent::Homed),
+                    true,
+                ),
+                Some(Request::Home | Request::StartCycle) => {
+                    let deadline_ms = self.move_deadline(
+                        now,
+                        cfg.end_switch_um + HOME_OVERSHOOT_UM,
+                        cfg.dock_speed_um_per_s,
+                    );
+                    (State::Homing { deadline_ms }, None, false)
+                }
+                _ => stay(State::PowerUp),
+            },
             State::Homing { deadline_ms } => {
                 if sw.home {
                     (
@@ -804,16 +828,39 @@ mod tests {
     }
 
     #[test]
-    fn boots_homes_locks_and_idles() {
-        // On the home switch at power-up: zero at once, no motion.
+    fn boots_home_and_locked_to_idle_moving_nothing() {
+        // On the home switch and locked at power-up: zero at once, no motion at all.
         let mut r = Rig::new();
         let o = r.step(10);
         assert!(o.zero_position);
         assert_eq!(o.event, Some(SeqEvent::Homed));
-        assert_eq!((o.axis, o.lock), (AxisCmd::Hold, LockCmd::ToLocked));
-        let o = r.step(10);
+        assert_eq!((o.axis, o.lock), (AxisCmd::Disabled, LockCmd::Off));
         assert_eq!(r.seq.state(), State::Idle);
-        assert_eq!(o.axis, AxisCmd::Disabled);
+    }
+
+    #[test]
+    fn after_a_reset_nothing_moves_until_a_request() {
+        // At home but unlocked, or away from home (perhaps in the cone): wait.
+        for (home, locked) in [(true, false), (false, true), (false, false)] {
+            let mut r = Rig::new();
+            r.inp.switches = Switches {
+                home,
+                locked,
+                ..Switches::default()
+            };
+            for _ in 0..1_000 {
+                let o = r.step(10);
+                assert_eq!((o.axis, o.lock), (AxisCmd::Disabled, LockCmd::Off));
+            }
+            assert_eq!(r.seq.state(), State::PowerUp);
+            r.inp.request = Some(Request::Home);
+            let o = r.step(10);
+            assert_ne!(
+                (o.axis, o.lock),
+                (AxisCmd::Disabled, LockCmd::Off),
+                "moves on request"
+            );
+        }
     }
 
     #[test]
@@ -822,6 +869,8 @@ mod tests {
         r.inp.switches.home = false;
         r.inp.axis_idle = false;
         r.inp.pos_um = 0; // unknown: counted from zero at boot
+        assert_eq!(r.step(10).axis, AxisCmd::Disabled, "waits for a request");
+        r.inp.request = Some(Request::Home);
         let o = r.step(10);
         assert!(matches!(r.seq.state(), State::Homing { .. }));
         assert!(
@@ -980,6 +1029,7 @@ mod tests {
         let mut r = Rig::new();
         r.inp.switches.home = false;
         r.inp.axis_idle = false;
+        r.inp.request = Some(Request::Home);
         let o = r.step(10);
         assert!(matches!(o.axis, AxisCmd::Move { .. }));
         r.inp.axis_idle = true; // reached the search limit, switch still open
@@ -1012,6 +1062,7 @@ mod tests {
         }
         assert_eq!(FaultKind::from_code(0), Some(FaultKind::Overload));
         assert_eq!(FaultKind::from_code(10), Some(FaultKind::Io));
-        assert_eq!(FaultKind::from_code(11), None);
+        assert_eq!(FaultKind::from_code(11), Some(FaultKind::Tension));
+        assert_eq!(FaultKind::from_code(12), None);
     }
 }

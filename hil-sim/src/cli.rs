@@ -16,13 +16,15 @@ impl std::fmt::Display for UsageError {
 }
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate SPS] [--seed S] [--json] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--json] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS]";
+pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--json] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS]";
 
 /// Parse `--rate` as one of the HX711 rates.
 fn hx_rate(o: &Opts) -> Result<u32, UsageError> {
     let r = o.num("rate", 80u32, 1, u32::MAX)?;
     if !crate::hx711::Hx711Config::RATES_SPS.contains(&r) {
-        return err(format!("--rate must be 10, 80 or 320 samples/s, got '{r}'"));
+        return err(format!(
+            "--rate must be 10 or 80 samples/s (the HX711's RATE pin), got '{r}'"
+        ));
     }
     Ok(r)
 }

@@ -1,15 +1,16 @@
 //! A simulated HX711 24-bit load-cell ADC, at pin level, in virtual time.
 //!
 //! Behaviour follows the Avia HX711 datasheet:
-//! * conversions run continuously at the selected rate (10 or 80 SPS on the real part;
-//!   320 SPS is offered as an "HX711-like" faster part); DOUT goes **low** when a
-//!   conversion is ready;
+//! * conversions run continuously at the selected rate: 10 or 80 SPS (the RATE pin; a
+//!   model at other rates is not an HX711 — the HX717 has 320 SPS — and only the
+//!   accuracy study uses one); DOUT goes **low** when a conversion is ready;
 //! * each PD_SCK rising edge shifts out one bit, MSB first, 24 bits in two's complement;
 //!   after the 24th bit, 1–3 more pulses select the next conversion's channel/gain
 //!   (25: A/128, 26: B/32, 27: A/64) and DOUT returns high;
 //! * PD_SCK held high for more than 60 µs powers the chip down; returning it low resets
 //!   it, and the first conversion after reset is ready only after the settling time
-//!   (4 conversion periods: 400 ms at 10 SPS, 50 ms at 80 SPS);
+//!   (4 conversion periods: 400 ms at 10 SPS, 50 ms at 80 SPS); a readout that selects
+//!   another gain or channel restarts the settling the same way;
 //! * outputs saturate at 0x7FFFFF / 0x800000.
 //!
 //! The analogue side is `code = offset + gain · F + noise` with F from a
@@ -67,7 +68,7 @@ pub enum Hx711Fault {
 /// Analogue front end and rate.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Hx711Config {
-    /// Output data rate, samples/s (10, 80 or 320).
+    /// Output data rate, samples/s (10 or 80 on an HX711).
     pub rate_sps: u32,
     /// Code at zero force (bridge offset), counts.
     pub offset_counts: f64,
@@ -89,8 +90,8 @@ impl Hx711Config {
         }
     }
 
-    /// Rates this part offers.
-    pub const RATES_SPS: [u32; 3] = [10, 80, 320];
+    /// Rates this part offers (its RATE pin low or high).
+    pub const RATES_SPS: [u32; 2] = [10, 80];
 
     fn period_ns(&self) -> u64 {
         1_000_000_000 / self.rate_sps.max(1) as u64
@@ -104,7 +105,8 @@ pub struct Hx711Stats {
     pub conversions: u64,
     /// Samples read out completely (24 bits).
     pub samples_read: u64,
-    /// Conversions overwritten before they were read.
+    /// Conversions overwritten before they were read, once reading had begun (the
+    /// conversions of a part nobody reads yet are not misses).
     pub samples_missed: u64,
     /// Times the part powered down (PD_SCK high > 60 µs).
     pub power_downs: u64,
@@ -179,7 +181,7 @@ impl<S: ForceSource> Hx711Model<S> {
             return; // readout in progress: the part holds its output register
         }
         let code = self.convert(t);
-        if self.ready.is_some() {
+        if self.ready.is_some() && self.stats.samples_read > 0 {
             self.stats.samples_missed += 1;
         }
         self.stats.conversions += 1;
@@ -273,6 +275,11 @@ impl<S: ForceSource> Hx711Model<S> {
             return;
         }
         if self.pulses >= 25 {
+            if self.pulses != self.gain_pulses {
+                // Another gain or channel: the output settles over 4 conversions again.
+                self.ready = None;
+                self.next_conv_ns = now + self.settle_ns();
+            }
             self.gain_pulses = self.pulses;
         }
     }
@@ -393,7 +400,8 @@ impl<S: ForceSource> SimHx711<S> {
     }
 
     /// Word-level read: the whole 24-bit readout (with 25 gain pulses) in one call,
-    /// taking the same virtual time as bit-banging at 1 µs per clock phase. Same
+    /// taking the same virtual time as the firmware's driver's delays
+    /// (`docking_controller::hx711::readout_ns`). Same
     /// data-ready and power-down semantics as the pins; for long runs where the
     /// bit-level protocol has been proven by the driver tests.
     pub fn read_word(&self) -> Option<i32> {
@@ -413,7 +421,8 @@ impl<S: ForceSource> SimHx711<S> {
         m.last_read = Some((code, t));
         m.mark_read(t);
         drop(m);
-        self.clock.advance_ns(50_000);
+        self.clock
+            .advance_ns(docking_controller::hx711::readout_ns(25) as u64);
         Some(code)
     }
 }
@@ -550,12 +559,18 @@ mod tests {
     }
 
     #[test]
-    fn gain_pulses_select_the_next_gain() {
+    fn gain_pulses_select_the_next_gain_after_settling() {
         let (hx, mut clk) = part(10.0, 80);
         let (mut d, mut s) = (hx.dout(), hx.pd_sck());
         clk.advance_to_ns(50_000_000);
         let a128 = bitbang(&mut d, &mut s, &mut clk, 27).unwrap();
-        clk.advance_to_ns(62_500_000);
+        let t = clk.now_ns();
+        clk.advance_to_ns(t + 49_000_000);
+        assert!(
+            d.is_high().unwrap(),
+            "settling over 4 conversions after a gain change"
+        );
+        clk.advance_to_ns(t + 50_000_000);
         let a64 = bitbang(&mut d, &mut s, &mut clk, 25).unwrap();
         assert_eq!(a64, a128 / 2);
     }
@@ -577,8 +592,8 @@ mod tests {
 
     #[test]
     fn word_read_matches_pin_read() {
-        let (hx, clk) = part(42.0, 320);
-        clk.advance_to_ns(20_000_000);
+        let (hx, clk) = part(42.0, 80);
+        clk.advance_to_ns(50_000_000); // after the 4-conversion settling
         let w = hx.read_word().unwrap();
         assert_eq!(w, (31_000.0f64 + 42.0 * 8_590.0).round() as i32);
         assert_eq!(hx.read_word(), None);

@@ -6,9 +6,10 @@ use std::rc::Rc;
 
 use docking_controller::config::MachineConfig;
 use docking_controller::controller::{Bsp, Controller, ControllerConfig, Parts};
-use docking_controller::hal::{LoadCellAdc, Watchdog};
+use docking_controller::hal::{LoadCellAdc, StepPulses, StopLatch, Watchdog};
 use docking_controller::hx711::{Calibration, Gain, Hx711};
 use docking_controller::profile::{forces_at_depth_um, STROKE_UM};
+use docking_controller::safety::{GatedEn, SafetyKernel};
 
 use crate::axis::{AxisPin, AxisPulses, SimAxis};
 use crate::clock::SimClock;
@@ -104,8 +105,52 @@ impl LoadCellAdc for SimAdc {
 /// The simulated board.
 pub struct SimBsp;
 
+/// The rig's stop latch: EN high and the pulse rate to zero on the simulated axis, the
+/// latch shared by the kernel's handle, the controller's and the EN gate's.
+#[derive(Clone)]
+pub struct SimStop {
+    en_n: Rc<RefCell<AxisPin>>,
+    pulses: Rc<RefCell<AxisPulses>>,
+    /// (stops so far, latched)
+    state: Rc<Cell<(u32, bool)>>,
+}
+
+impl SimStop {
+    /// A latch on `axis`'s EN line and pulse generator.
+    pub fn new(axis: &SimAxis) -> Self {
+        Self {
+            en_n: Rc::new(RefCell::new(axis.enable_n())),
+            pulses: Rc::new(RefCell::new(axis.pulses())),
+            state: Rc::new(Cell::new((0, false))),
+        }
+    }
+}
+
+impl StopLatch for SimStop {
+    fn stop_now(&mut self) -> u32 {
+        let _ = embedded_hal::digital::OutputPin::set_high(&mut *self.en_n.borrow_mut());
+        StepPulses::set_rate_hz(&mut *self.pulses.borrow_mut(), 0);
+        let n = self.state.get().0 + 1;
+        self.state.set((n, true));
+        n
+    }
+    fn stops(&self) -> u32 {
+        self.state.get().0
+    }
+    fn latched(&self) -> bool {
+        self.state.get().1
+    }
+    fn rearm(&mut self, seen: u32) -> bool {
+        let (n, latched) = self.state.get();
+        if latched && seen >= n {
+            self.state.set((n, false));
+        }
+        !self.state.get().1
+    }
+}
+
 impl Bsp for SimBsp {
-    type EnN = AxisPin;
+    type EnN = GatedEn<AxisPin, SimStop>;
     type Dir = AxisPin;
     type Pulses = AxisPulses;
     type LockIn1 = LockPin;
@@ -114,7 +159,7 @@ impl Bsp for SimBsp {
     type End = AxisPin;
     type Locked = LockPin;
     type Released = LockPin;
-    type Adc = SimAdc;
+    type Stop = SimStop;
     type Wdg = SimWatchdog;
     type Flash = BoardFlash;
 }
@@ -346,6 +391,9 @@ pub struct RigOptions {
     pub material: docking_controller::material::Material,
     /// Load-cell RMS noise in counts (`None` = the part's default, ≈ 0.3 N).
     pub noise_counts: Option<f64>,
+    /// A technician has calibrated the load cell: a new machine's flash gets the
+    /// calibration record (without one the controller refuses to dock).
+    pub commissioned: bool,
 }
 
 impl RigOptions {
@@ -357,6 +405,23 @@ impl RigOptions {
             adc: AdcMode::Word,
             material: docking_controller::material::Material::ZQSn5_2,
             noise_counts: None,
+            commissioned: true,
+        }
+    }
+}
+
+/// Commission `flash` as a technician does at installation: store the calibration of the
+/// simulated cell's front end `hx`, unless a calibration is stored already.
+pub fn commission(flash: &SharedFlash, hx: &Hx711Config) {
+    use docking_controller::controller::calibration_to_bytes;
+    use docking_controller::odometer::kind;
+    use docking_controller::storage::RecordLog;
+    if let Ok((mut log, _)) = RecordLog::open(flash.clone()) {
+        if log.latest(kind::CALIBRATION).ok().flatten().is_none() {
+            let _ = log.append(
+                kind::CALIBRATION,
+                &calibration_to_bytes(&sim_calibration(hx)),
+            );
         }
     }
 }
@@ -377,6 +442,10 @@ pub struct Rig {
     pub script: Rc<RefCell<ForceScript>>,
     /// The controller under test.
     pub ctrl: Controller<SimBsp>,
+    /// The safety path (the board runs it in the HX711's data-ready interrupt).
+    pub kernel: SafetyKernel<SimAdc>,
+    /// The kernel's stop latch.
+    pub stop: SimStop,
     /// Conversions so far (the force source's call count).
     pub conversions: Rc<Cell<u64>>,
     /// The odometer flash (shared: cut power on it, reboot on it).
@@ -431,9 +500,20 @@ impl Rig {
             hx_config: hx_cfg,
             ..
         } = Machine::new(&opts);
+        if opts.commissioned {
+            commission(&flash, &hx_cfg);
+        }
         let wdg = SimWatchdog::new(clock.clone());
+        let stop = SimStop::new(&axis);
+        let adc = match opts.adc {
+            AdcMode::Word => SimAdc::Word(hx.clone()),
+            AdcMode::Pins => match Hx711::new(hx.dout(), hx.pd_sck(), clock.clone(), Gain::A128) {
+                Ok(d) => SimAdc::Pins(d),
+                Err(e) => unreachable!("simulated pins are infallible: {e:?}"),
+            },
+        };
         let parts = Parts::<SimBsp> {
-            en_n: axis.enable_n(),
+            en_n: GatedEn::new(axis.enable_n(), stop.clone()),
             dir: axis.dir(),
             pulses: axis.pulses(),
             lock_in1: lock.in1(),
@@ -442,15 +522,7 @@ impl Rig {
             end: axis.end_switch(),
             locked: lock.locked_switch(),
             released: lock.released_switch(),
-            adc: match opts.adc {
-                AdcMode::Word => SimAdc::Word(hx.clone()),
-                AdcMode::Pins => {
-                    match Hx711::new(hx.dout(), hx.pd_sck(), clock.clone(), Gain::A128) {
-                        Ok(d) => SimAdc::Pins(d),
-                        Err(e) => unreachable!("simulated pins are infallible: {e:?}"),
-                    }
-                }
-            },
+            stop: stop.clone(),
             wdg: wdg.clone(),
             flash: BoardFlash {
                 flash: flash.clone(),
@@ -461,10 +533,12 @@ impl Rig {
         };
         let mut cfg = ControllerConfig::new(opts.rate_sps, sim_calibration(&hx_cfg));
         cfg.default_material = opts.material;
-        let ctrl = match Controller::new(parts, cfg, 0) {
+        let ctrl = match Controller::new(parts, cfg) {
             Ok(c) => c,
             Err(e) => unreachable!("simulated pins are infallible: {e:?}"),
         };
+        let mut kernel = SafetyKernel::new(adc, cfg.guard, opts.rate_sps, ctrl.calibration(), 0);
+        kernel.configure(ctrl.kernel_config(), 0);
         Self {
             clock,
             axis,
@@ -473,6 +547,8 @@ impl Rig {
             wdg,
             script,
             ctrl,
+            kernel,
+            stop,
             conversions,
             flash,
             period_ns: 1_000_000_000 / opts.rate_sps.max(1) as u64,
@@ -483,15 +559,28 @@ impl Rig {
         }
     }
 
-    /// Advance virtual time to the next event (a conversion, or a sample period) and
-    /// poll the controller once there.
+    /// Advance virtual time to the next event (a conversion, or a sample period) and run
+    /// what the board runs there: the safety kernel on the sample (it stops the
+    /// propulsion itself if it must), then the control step, then the kernel's new
+    /// configuration.
     pub fn tick(&mut self) -> docking_controller::controller::PollResult {
         let next = self
             .hx
             .next_conversion_ns()
             .min(self.clock.now_ns() + self.period_ns);
         self.clock.advance_to_ns(next);
-        let r = self.ctrl.poll(self.clock.now_ns() / 1_000);
+        let now_us = self.clock.now_ns() / 1_000;
+        let ev = self
+            .kernel
+            .on_ready(now_us, &mut self.stop)
+            .or_else(|| self.kernel.check(now_us, &mut self.stop));
+        let r = if ev.is_some() || self.ctrl.step_due(now_us) {
+            self.ctrl.step(now_us, ev)
+        } else {
+            docking_controller::controller::PollResult::default()
+        };
+        self.kernel.configure(self.ctrl.kernel_config(), now_us);
+        self.ctrl.background();
         if self.console_enabled {
             // The main loop polls the console after the controller, and its work takes
             // CPU time: charge it to virtual time.

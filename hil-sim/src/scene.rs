@@ -432,7 +432,7 @@ fn run_inner(
         motors_disabled: !rig.axis.enabled() && !rig.lock.driven(),
         forward_after_trip_um: tripped.then_some(max_after.max(0.0)),
         backed_off_um: tripped.then_some((-min_after).max(0.0).min(BACK_OFF_UM as f64 + 100.0)),
-        spikes_rejected: rig.ctrl.spikes_rejected(),
+        spikes_rejected: rig.kernel.spikes_rejected(),
         spikes_injected,
         control_steps: steps,
         sim_time_s: rig.clock.now_s(),

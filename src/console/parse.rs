@@ -99,6 +99,8 @@ pub enum Command<'a> {
     },
     /// `clear-fault`.
     ClearFault,
+    /// `home`: find home and lock after a reset.
+    Home,
     /// `cone replace <material> <serial>`.
     ConeReplace {
         /// The new cone's material.
@@ -143,6 +145,7 @@ impl Command<'_> {
             Self::History { .. } => "history",
             Self::Faults { .. } => "faults",
             Self::ClearFault => "clear-fault",
+            Self::Home => "home",
             Self::ConeReplace { .. } => "cone replace",
             Self::Measure { .. } => "measure",
             Self::CalibrateTare => "calibrate tare",
@@ -158,6 +161,7 @@ impl Command<'_> {
         matches!(
             self,
             Self::ClearFault
+                | Self::Home
                 | Self::ConeReplace { .. }
                 | Self::CalibrateTare
                 | Self::CalibrateSpan { .. }
@@ -194,6 +198,7 @@ impl fmt::Debug for Command<'_> {
                 .finish(),
             Self::Faults { json } => f.debug_struct("Faults").field("json", json).finish(),
             Self::ClearFault => f.write_str("ClearFault"),
+            Self::Home => f.write_str("Home"),
             Self::ConeReplace { material, serial } => f
                 .debug_struct("ConeReplace")
                 .field("material", material)
@@ -371,6 +376,7 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
             | "history"
             | "faults"
             | "clear-fault"
+            | "home"
             | "cone"
             | "measure"
             | "calibrate"
@@ -401,6 +407,10 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
         "clear-fault" => {
             a.action(0)?;
             Ok(Command::ClearFault)
+        }
+        "home" => {
+            a.action(0)?;
+            Ok(Command::Home)
         }
         "cone" => {
             a.action(3)?;

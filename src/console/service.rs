@@ -52,6 +52,8 @@ pub mod action {
     pub const CALIBRATE_SPAN: u8 = 5;
     /// The maintenance PIN was set.
     pub const PIN_SET: u8 = 6;
+    /// Homing was asked for after a reset.
+    pub const HOME: u8 = 7;
 }
 
 /// What one poll did.
@@ -320,6 +322,15 @@ impl Console {
                     self.ok(&"fault cleared; recovering to home");
                 }
             }
+            Command::Home => {
+                if ctrl.state() != State::PowerUp {
+                    self.err(&"already homed (home is for after a reset)");
+                } else {
+                    ctrl.request(Request::Home);
+                    self.audit(ctrl, action::HOME, now_ms, &[]);
+                    self.ok(&"homing: the axis moves at no more than v0, then the lock");
+                }
+            }
             Command::ConeReplace { material, serial } => {
                 match ctrl.replace_cone(material, serial) {
                     Ok(()) => {
@@ -412,7 +423,7 @@ impl Console {
     }
 
     fn help(&mut self, json: bool) {
-        const CMDS: [&str; 14] = [
+        const CMDS: [&str; 15] = [
             "help [--json]",
             "version [--json]",
             "status [--json]",
@@ -420,6 +431,7 @@ impl Console {
             "history [N] [--json]",
             "faults [--json]",
             "clear-fault",
+            "home",
             "cone replace <material> <serial>",
             "measure <bore_diameter_mm>",
             "calibrate tare",
@@ -452,6 +464,9 @@ impl Console {
 
     fn status<B: Bsp>(&mut self, ctrl: &mut Controller<B>, json: bool, maint: bool) {
         let s = ctrl.status();
+        let calibrated = ctrl.calibrated();
+        let reset = ctrl.last_reset();
+        let stack = ctrl.stack_usage();
         let fault = s.fault.map(|f| f.name());
         if json {
             self.reply_json(|j| {
@@ -470,7 +485,18 @@ impl Console {
                 };
                 j.bool("warning", s.warning)?
                     .fixed("peak_force_n", s.peak_force_mn as i64, 3)?
-                    .bool("maintenance", maint)?;
+                    .bool("maintenance", maint)?
+                    .bool("calibrated", calibrated)?;
+                match reset {
+                    Some(r) => j.str("reset", r.name())?,
+                    None => j.null("reset")?,
+                };
+                match stack {
+                    Some((used, size)) => j
+                        .u64("stack_used", used as u64)?
+                        .u64("stack_size", size as u64)?,
+                    None => j.null("stack_used")?.null("stack_size")?,
+                };
                 Ok(())
             });
         } else {
@@ -482,12 +508,18 @@ impl Console {
                 kv_fixed(o, "pos_mm", s.pos_um as i64, 3)?;
                 write!(
                     o,
-                    " cycles={} fault={} warning={} maintenance={}\r\n",
+                    " cycles={} fault={} warning={} maintenance={} calibrated={} reset={}",
                     s.cycles_completed,
                     fault.unwrap_or("none"),
                     if s.warning { "yes" } else { "no" },
-                    if maint { "yes" } else { "no" }
-                )
+                    if maint { "yes" } else { "no" },
+                    if calibrated { "yes" } else { "no" },
+                    reset.map_or("unknown", |r| r.name()),
+                )?;
+                if let Some((used, size)) = stack {
+                    write!(o, " stack={used}/{size}")?;
+                }
+                o.write_str("\r\n")
             });
         }
     }
@@ -592,6 +624,8 @@ impl Console {
         let overloads = ctrl.odometer().lifetime().overload_events;
         let recs: heapless::Vec<crate::controller::FaultRecord, 16> =
             ctrl.faults().copied().collect();
+        let resets = ctrl.reset_counts();
+        let crash = ctrl.last_crash();
         if json {
             self.reply_json(|j| {
                 match active {
@@ -600,6 +634,25 @@ impl Console {
                 };
                 j.u64("count_since_boot", count as u64)?
                     .u64("overload_events_lifetime", overloads as u64)?;
+                j.object("resets", |r| {
+                    for c in crate::diag::ResetCause::ALL {
+                        r.u64(c.name(), resets.of(c) as u64)?;
+                    }
+                    Ok(())
+                })?;
+                match crash {
+                    Some(c) => j.object("last_crash", |x| {
+                        x.str("kind", c.kind.name())?
+                            .u64("pc", c.pc as u64)?
+                            .u64("lr", c.lr as u64)?
+                            .u64("cfsr", c.cfsr as u64)?
+                            .u64("hfsr", c.hfsr as u64)?
+                            .str("file", c.file_str())?
+                            .u64("line", c.line as u64)?;
+                        Ok(())
+                    })?,
+                    None => j.null("last_crash")?,
+                };
                 j.array("faults", |a| {
                     for f in &recs {
                         a.object(|x| {
@@ -633,6 +686,24 @@ impl Console {
                     kv_fixed(o, "t_s", f.t_ms as i64, 3)?;
                     kv_fixed(o, "peak_force_n", f.peak_force_mn as i64, 3)?;
                     o.write_str("\r\n")?;
+                }
+                o.write_str("resets")?;
+                for c in crate::diag::ResetCause::ALL {
+                    write!(o, " {}={}", c.name(), resets.of(c))?;
+                }
+                o.write_str("\r\n")?;
+                if let Some(c) = crash {
+                    write!(
+                        o,
+                        "last_crash={} pc={:#010x} lr={:#010x} cfsr={:#010x} hfsr={:#010x} file={} line={}\r\n",
+                        c.kind.name(),
+                        c.pc,
+                        c.lr,
+                        c.cfsr,
+                        c.hfsr,
+                        c.file_str(),
+                        c.line
+                    )?;
                 }
                 Ok(())
             });

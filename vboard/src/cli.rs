@@ -10,7 +10,7 @@ use crate::periph::flash::FlashTiming;
 use crate::scene::{Options, SceneOptions, SCENES};
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--flood] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--firmware ELF] [--rate 10|80] [--cpi X] [--speed X] [--for SECONDS]";
+pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--firmware ELF] [--rate 10|80] [--cpi X] [--speed X] [--for SECONDS]";
 
 /// How the command failed.
 #[derive(Debug)]
@@ -85,7 +85,7 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
             "flash-timing",
             "seed",
         ],
-        &["json", "flood"],
+        &["json", "flood", "log"],
     )?;
     let opts = SceneOptions {
         session: session(&o)?,
@@ -93,6 +93,11 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
         flood: o.flag("flood"),
     };
     let r = crate::scene::run(name, &opts).map_err(Failure::Run)?;
+    if o.flag("log") {
+        for l in &r.log {
+            eprintln!("{} {:<5} {}", l.timestamp, l.level, l.msg);
+        }
+    }
     let text = if o.flag("json") {
         r.to_json()
     } else {

@@ -929,6 +929,19 @@ impl Board {
         Ok(())
     }
 
+    /// Count the executions of the instruction at `addr` (a debugging aid: a code hook on
+    /// that one instruction).
+    pub fn watch_pc(&mut self, addr: u32) -> std::rc::Rc<std::cell::Cell<u64>> {
+        let hits = std::rc::Rc::new(std::cell::Cell::new(0u64));
+        let h = hits.clone();
+        let _ = self
+            .uc
+            .add_code_hook(addr as u64, addr as u64, move |_, _, _| {
+                h.set(h.get() + 1);
+            });
+        hits
+    }
+
     /// Read a word of memory (RAM, flash) as a probe would.
     pub fn peek(&self, addr: u32) -> Option<u32> {
         read_u32(&self.uc, addr)

@@ -42,6 +42,9 @@ pub struct Options {
     pub seed: u64,
     /// Board configuration (CPI, LSI, flash timing).
     pub board: BoardConfig,
+    /// A technician has calibrated the load cell: a new board's odometer flash holds the
+    /// calibration (without one the firmware refuses to dock).
+    pub commissioned: bool,
 }
 
 impl Options {
@@ -52,6 +55,7 @@ impl Options {
             rate_sps: 80,
             seed: 1,
             board: BoardConfig::default(),
+            commissioned: true,
         }
     }
 }
@@ -112,6 +116,9 @@ impl Session {
             seed: opts.seed,
             ..RigOptions::new(opts.rate_sps)
         });
+        if opts.commissioned {
+            hil_sim::rig::commission(&flash, &machine.hx_config);
+        }
         let world = World::new(machine, flash);
         let mut board = Board::new(img, world, opts.board)?;
         board.power_on();
@@ -424,6 +431,8 @@ pub struct Report {
     pub diagnostics: Vec<String>,
     /// Scene-specific checks (name, passed, detail).
     pub checks: Vec<(String, bool, String)>,
+    /// The firmware's defmt log, decoded.
+    pub log: Vec<LogLine>,
 }
 
 impl Report {
@@ -758,6 +767,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         diagnostics: soc.diagnostics.iter().map(|d| d.what.clone()).collect(),
         console_flood_bytes: flood_bytes,
         checks,
+        log: s.board.log.clone(),
     })
 }
 
@@ -849,17 +859,24 @@ fn power_cut_write(
         .set_fault(hil_sim::hx711::Hx711Fault::Disconnected);
     let ops0 = s.board.soc().flash.ops_started;
     let deadline = s.now() + 2 * PS_PER_S;
-    let started = s.run_until(deadline, |x| x.board.soc().flash.ops_started > ops0)?;
-    // A record is 2 writes of up to 60 bytes: reset somewhere within the next 64 word
-    // programs' worth of instructions.
-    let mut rng = hil_sim::rng::Rng::new(opts.session.seed ^ 0xC07);
-    let insns0 = s.board.soc().clock.insns();
-    let at = insns0 + 1 + (rng.uniform() * 20_000.0) as u64;
-    let end = s.now() + PS_PER_S;
-    while s.board.soc().clock.insns() < at && s.now() < end {
-        let t = s.now() + 1_000_000; // 1 µs steps
+    // In 1 µs steps, so the write's first word program is seen when it starts.
+    while s.board.soc().flash.ops_started == ops0 && s.now() < deadline {
+        let t = s.now() + 1_000_000;
         s.board.run_until(t)?;
     }
+    let started = s.board.soc().flash.ops_started > ops0;
+    // A record is one 64-byte slot: 16 word programs (DS8626: up to 100 µs each) and the
+    // CPU between them. Pull NRST at a random instant (1 µs resolution) inside it.
+    let mut rng =
+        hil_sim::rng::Rng::new(opts.session.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xC07);
+    let t0 = s.now();
+    let cut_at = t0 + (rng.uniform() * 16.0 * 110.0) as u64 * 1_000_000;
+    while s.now() < cut_at {
+        let t = s.now() + 1_000_000;
+        s.board.run_until(t)?;
+    }
+    let inside =
+        s.board.soc().flash.busy_until().is_some() || s.board.soc().flash.ops_started - ops0 < 16;
     let writes = s.board.soc().flash.ops_started - ops0;
     s.board.reset_pin();
     s.machine().hx.set_fault(hil_sim::hx711::Hx711Fault::None);
@@ -871,10 +888,10 @@ fn power_cut_write(
     let lifetime = |j: &str| json_field(j, "lifetime_cycles").and_then(|v| v.parse::<u64>().ok());
     checks.push((
         "record write cut".into(),
-        started && writes > 0,
+        started && writes > 0 && inside,
         format!(
-            "reset after {writes} flash operation(s) of the write, {} instructions in",
-            s.board.soc().clock.insns().saturating_sub(insns0)
+            "NRST pulled {:.1} µs into the write, after {writes} of its 16 word programs",
+            (cut_at - t0) as f64 * 1e-6
         ),
     ));
     checks.push((

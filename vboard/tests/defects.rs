@@ -24,8 +24,9 @@ fn hx711_clock_high_phase_stays_below_the_power_down_time() {
         "faults at boot: {:?}",
         r.scene.faults
     );
-    // 2 s at 80 SPS, after 50 ms of settling: about 150 samples.
-    assert!(r.samples_read >= 140, "{} samples read", r.samples_read);
+    // 2.1 s, of which the first boot spends 0.53 s programming the brown-out level and
+    // the HX711 50 ms settling after its power-cycle: about 120 samples at 80 SPS.
+    assert!(r.samples_read >= 110, "{} samples read", r.samples_read);
     assert_eq!(r.hx711_power_downs, 1, "only the boot power-cycle");
     assert_eq!(r.scene.final_state, "idle");
     assert_eq!(r.reset_causes, vec!["power_on"]);

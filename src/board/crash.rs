@@ -1,0 +1,143 @@
+//! Crash records that survive the reset, and the stack's deepest use.
+//!
+//! A panic or a HardFault writes a [`Crash`] (what and where) into [`CRASH_BLOCK`], in
+//! `.uninit` RAM that no reset initialises, then resets the MCU; the next boot finds it
+//! (checked by its CRC), reports it and stores it in flash.
+//!
+//! A stack overflow runs off the bottom of SRAM (the stack sits below the statics, see
+//! `memory.x`) and faults; exception entry cannot stack on an exhausted stack, so the
+//! core locks up until the watchdog resets it — no handler runs. It is found at the next
+//! boot instead: cortex-m-rt paints the stack at every reset (`paint-stack`), and before
+//! that, in `__pre_init`, the bottom word is looked at. If the last run had painted its
+//! stack ([`PAINTED`]) and that word is paint no more, the stack reached its bottom.
+//!
+//! Layout of the block (`#[repr(C)]`, words):
+//!
+//! ```text
+//!  0       4     8                       52        56         60
+//!  +-------+-----+-----------------------+---------+----------+
+//!  | magic | crc | crash (44 B, diag.rs) | painted | overflow |
+//!  +-------+-----+-----------------------+---------+----------+
+//!  crc: CRC-32/ISO-HDLC of the 44 crash bytes; overflow: OVERFLOWED when __pre_init
+//!  found the stack's bottom word scrubbed
+//! ```
+
+use core::mem::MaybeUninit;
+use core::ptr::addr_of_mut;
+
+use docking_controller::diag::{Crash, CrashKind, CRASH_LEN};
+
+/// A crash is recorded.
+const MAGIC: u32 = 0xC4A5_4BAD;
+/// The last run painted its stack (set at boot, after cortex-m-rt painted it).
+pub const PAINTED: u32 = 0x57AC_0C0C;
+/// `__pre_init` found the stack's bottom word scrubbed.
+pub const OVERFLOWED: u32 = 0x0F10_0D0D;
+/// cortex-m-rt's stack paint.
+pub const STACK_PAINT: u32 = 0xCCCC_CCCC;
+
+/// The block.
+#[repr(C)]
+pub struct CrashBlock {
+    magic: u32,
+    crc: u32,
+    body: [u8; CRASH_LEN],
+    painted: u32,
+    overflow: u32,
+}
+
+/// The block, in RAM no reset initialises.
+#[no_mangle]
+#[link_section = ".uninit.CRASH_BLOCK"]
+pub static mut CRASH_BLOCK: MaybeUninit<CrashBlock> = MaybeUninit::uninit();
+
+const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+extern "C" {
+    static _stack_end: u32;
+    static _stack_start: u32;
+}
+
+// Runs before RAM is initialised and before cortex-m-rt paints the stack: look at the
+// stack's bottom word while it still holds what the last run left there. Assembly,
+// because no Rust may run before RAM initialisation.
+core::arch::global_asm!(
+    ".section .text.__pre_init,\"ax\",%progbits",
+    ".global __pre_init",
+    ".type __pre_init,%function",
+    ".thumb_func",
+    "__pre_init:",
+    "    ldr r0, =CRASH_BLOCK",
+    "    ldr r1, [r0, #52]", // painted
+    "    ldr r2, ={painted}",
+    "    cmp r1, r2",
+    "    bne 1f",
+    "    ldr r3, =_stack_end",
+    "    ldr r3, [r3]",
+    "    ldr r2, ={paint}",
+    "    cmp r3, r2",
+    "    beq 1f",
+    "    ldr r1, ={overflowed}",
+    "    str r1, [r0, #56]", // overflow
+    "1:  bx lr",
+    painted = const PAINTED,
+    paint = const STACK_PAINT,
+    overflowed = const OVERFLOWED,
+);
+
+/// Record `c` (from the panic or HardFault handler: no allocation, no panic).
+pub fn record(c: &Crash) {
+    let body = c.to_bytes();
+    let crc = CRC32.checksum(&body);
+    // SAFETY: raw writes into the block (no reference is made); the handlers that call
+    // this run with nothing else running after them but the reset.
+    unsafe {
+        let b = addr_of_mut!(CRASH_BLOCK) as *mut CrashBlock;
+        addr_of_mut!((*b).body).write(body);
+        addr_of_mut!((*b).crc).write(crc);
+        addr_of_mut!((*b).magic).write(MAGIC);
+    }
+}
+
+/// At boot: the crash the last run left (a valid record, or a stack overflow found by
+/// `__pre_init`), once; then mark this run's stack as painted.
+pub fn take() -> Option<Crash> {
+    // SAFETY: init runs alone; raw reads and writes of the block.
+    unsafe {
+        let b = addr_of_mut!(CRASH_BLOCK) as *mut CrashBlock;
+        let magic = addr_of_mut!((*b).magic).read();
+        let crc = addr_of_mut!((*b).crc).read();
+        let body = addr_of_mut!((*b).body).read();
+        let overflow = addr_of_mut!((*b).overflow).read();
+        addr_of_mut!((*b).magic).write(0);
+        addr_of_mut!((*b).overflow).write(0);
+        addr_of_mut!((*b).painted).write(PAINTED);
+        let recorded = (magic == MAGIC && CRC32.checksum(&body) == crc)
+            .then(|| Crash::from_bytes(&body))
+            .flatten();
+        recorded.or((overflow == OVERFLOWED).then_some(Crash {
+            kind: CrashKind::StackOverflow,
+            pc: 0,
+            lr: 0,
+            cfsr: 0,
+            hfsr: 0,
+            line: 0,
+            file: [0; 20],
+        }))
+    }
+}
+
+/// The stack's deepest use so far and its size, bytes (from the paint left).
+pub fn stack_usage() -> (u32, u32) {
+    // SAFETY: the linker's symbols bound the stack region; reading painted words there
+    // (volatile, word by word from the bottom) has no side effect.
+    unsafe {
+        let bottom = core::ptr::addr_of!(_stack_end) as u32;
+        let top = core::ptr::addr_of!(_stack_start) as u32;
+        let mut a = bottom;
+        while a < top && core::ptr::read_volatile(a as *const u32) == STACK_PAINT {
+            a += 4;
+        }
+        (top - a, top - bottom)
+    }
+}
