@@ -73,15 +73,9 @@ pub const SYSCLK_HZ: u32 = 168_000_000;
 const WATCHDOG_MS: u32 = 500;
 /// A dock request must stay asserted this long to count, µs.
 const DOCK_REQUEST_DEBOUNCE_US: u64 = 20_000;
-/// HX711 output data rate: 80 SPS with the module's RATE pin high, 10 SPS with it low
-/// (most modules tie it low). Build with `DOCKING_HX711_SPS=10` for such a module.
-const SAMPLE_RATE_SPS: u32 = match option_env!("DOCKING_HX711_SPS") {
-    Some(s) => match s.as_bytes() {
-        [b'1', b'0'] => 10,
-        _ => 80,
-    },
-    None => 80,
-};
+/// HX711 output data rate until a technician stores the module's (console `rate`):
+/// 80 SPS with its RATE pin high; most modules tie it low, 10 SPS.
+const DEFAULT_SAMPLE_RATE_SPS: u32 = 80;
 /// Load-cell calibration until a technician calibrates the machine (a 500 N, 2 mV/V cell
 /// on channel A/128 at 5 V: ≈ 8 590 counts/N). Without a stored calibration the
 /// controller refuses to dock.
@@ -344,18 +338,18 @@ mod app {
             stop: BoardStop,
             wdg: BoardWatchdog(iwdg),
         };
-        let cfg = ControllerConfig::new(SAMPLE_RATE_SPS, DEFAULT_CALIBRATION);
+        let cfg = ControllerConfig::new(DEFAULT_SAMPLE_RATE_SPS, DEFAULT_CALIBRATION);
         let Ok(mut ctrl) = Controller::new(parts, cfg) else {
             halt_safe()
         };
+        let rate_sps = ctrl.sample_rate_sps();
         let now = clock::now_us();
-        let mut kernel =
-            SafetyKernel::new(adc, cfg.guard, SAMPLE_RATE_SPS, ctrl.calibration(), now);
+        let mut kernel = SafetyKernel::new(adc, cfg.guard, rate_sps, ctrl.calibration(), now);
         kernel.configure(ctrl.kernel_config(), now);
         defmt::info!(
             "docking-controller {} booted; motors safe; HX711 at {} SPS; BOR {}",
             env!("CARGO_PKG_VERSION"),
-            SAMPLE_RATE_SPS,
+            rate_sps,
             bor
         );
         ctrl.boot(cause, crashed);
@@ -379,7 +373,7 @@ mod app {
         // 12. The control tick: TIM2 every sample period (and pended after every sample).
         pac::TIM2::enable(&mut rcc);
         let tim2 = dp.TIM2;
-        let period_us = 1_000_000 / SAMPLE_RATE_SPS;
+        let period_us = 1_000_000 / rate_sps;
         tim2.psc()
             .write(|w| w.psc().set((tim_hz / 1_000_000 - 1) as u16));
         tim2.arr().write(|w| w.arr().set(period_us - 1));
@@ -473,6 +467,20 @@ mod app {
         let mut request_low_since: Option<u64> = None;
         let mut request_latched = false;
         loop {
+            // Sleep until there is work: the control task signals after each step (at
+            // least once a sample period), console bytes wake us through USART2. The
+            // check runs with interrupts masked: one that arrives meanwhile stays pending
+            // and `wfi` returns at once.
+            let work = cortex_m::interrupt::free(|_| {
+                let w = IDLE_WORK.swap(false, Ordering::Relaxed) || cx.local.term.rx_pending();
+                if !w {
+                    cortex_m::asm::wfi();
+                }
+                w
+            });
+            if !work {
+                continue;
+            }
             let now_us = clock::now_us();
             // Dock request: low for 20 ms (debounce) asks for one cycle; release re-arms.
             let mut request = None;
@@ -496,13 +504,6 @@ mod app {
                 ctrl.background();
                 while let Some(ev) = ctrl.next_event() {
                     defmt::info!("t={=u64} ms {}", ev.t_ms, ev.event);
-                }
-            });
-            // Sleep until an interrupt, unless work arrived meanwhile (checked with
-            // interrupts masked: an interrupt pending at `wfi` wakes it at once).
-            cortex_m::interrupt::free(|_| {
-                if !IDLE_WORK.swap(false, Ordering::Relaxed) && !term.rx_pending() {
-                    cortex_m::asm::wfi();
                 }
             });
         }

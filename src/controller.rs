@@ -130,6 +130,38 @@ impl ControllerConfig {
     }
 }
 
+/// Settings a technician stores at commissioning, record kind
+/// [`odometer::kind::SETTINGS`] (4 bytes, little-endian):
+///
+/// ```text
+///  0             4
+///  +-------------+
+///  | rate_sps u32|   10 or 80: the HX711's RATE pin (most modules tie it low: 10)
+///  +-------------+
+/// ```
+///
+/// They take effect at the next boot (the sample period sets the safety kernel's
+/// timeouts and the control tick).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Settings {
+    /// HX711 output data rate, samples/s (10 or 80).
+    pub rate_sps: u32,
+}
+
+impl Settings {
+    /// The record.
+    pub fn to_bytes(&self) -> [u8; 4] {
+        self.rate_sps.to_le_bytes()
+    }
+
+    /// From a record; `None` if it is not a valid one.
+    pub fn from_bytes(b: &[u8]) -> Option<Self> {
+        let r: [u8; 4] = b.try_into().ok()?;
+        let rate_sps = u32::from_le_bytes(r);
+        matches!(rate_sps, 10 | 80).then_some(Self { rate_sps })
+    }
+}
+
 /// A latched fault as recorded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -302,6 +334,8 @@ pub enum MaintError {
     BadSerial,
     /// The record could not be written to flash (nothing was changed).
     Storage,
+    /// Not an HX711 rate (10 or 80 samples/s).
+    BadRate,
 }
 
 impl core::fmt::Display for MaintError {
@@ -310,6 +344,7 @@ impl core::fmt::Display for MaintError {
             Self::Moving => "refused while a docking is moving",
             Self::BadSerial => "serial must be 1-20 characters of A-Z a-z 0-9 _ -",
             Self::Storage => "could not write to the odometer flash; nothing changed",
+            Self::BadRate => "the HX711 samples at 10 or 80 per second (its RATE pin)",
         })
     }
 }
@@ -435,6 +470,15 @@ impl<B: Bsp> Controller<B> {
             warn!("load cell not calibrated: docking refused until a technician calibrates it");
         }
         let cal0 = stored_cal.unwrap_or(cfg.calibration);
+        // The HX711's rate as commissioned (else the build's default).
+        let mut cfg = cfg;
+        if let Some(st) = log
+            .as_mut()
+            .and_then(|l| l.latest(odometer::kind::SETTINGS).ok().flatten())
+            .and_then(|r| Settings::from_bytes(r.data()))
+        {
+            cfg.sample_rate_sps = st.rate_sps;
+        }
         let resets = log
             .as_mut()
             .and_then(|l| l.latest(odometer::kind::RESETS).ok().flatten())
@@ -624,6 +668,21 @@ impl<B: Bsp> Controller<B> {
     /// Ask for something; acted on in the next control step.
     pub fn request(&mut self, r: Request) {
         self.pending = Some(r);
+    }
+
+    /// The HX711's output data rate in force, samples/s (commissioned, or the default).
+    pub fn sample_rate_sps(&self) -> u32 {
+        self.cfg.sample_rate_sps
+    }
+
+    /// Store the HX711's rate (technician action, at rest): it takes effect at the next
+    /// boot.
+    pub fn store_rate(&mut self, rate_sps: u32) -> Result<(), MaintError> {
+        let st = Settings { rate_sps };
+        if Settings::from_bytes(&st.to_bytes()).is_none() {
+            return Err(MaintError::BadRate);
+        }
+        self.store_record(odometer::kind::SETTINGS, &st.to_bytes())
     }
 
     /// The sample period, µs: step at least this often.

@@ -452,6 +452,8 @@ pub mod kind {
     pub const RESETS: u8 = 7;
     /// The last crash ([`crate::diag::Crash`]).
     pub const CRASH: u8 = 8;
+    /// Machine settings ([`crate::controller::Settings`]).
+    pub const SETTINGS: u8 = 9;
 }
 
 /// Snapshot of every counter, as persisted (48 bytes, little endian):

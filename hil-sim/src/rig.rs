@@ -411,9 +411,9 @@ impl RigOptions {
 }
 
 /// Commission `flash` as a technician does at installation: store the calibration of the
-/// simulated cell's front end `hx`, unless a calibration is stored already.
+/// simulated cell's front end `hx` and its rate, unless they are stored already.
 pub fn commission(flash: &SharedFlash, hx: &Hx711Config) {
-    use docking_controller::controller::calibration_to_bytes;
+    use docking_controller::controller::{calibration_to_bytes, Settings};
     use docking_controller::odometer::kind;
     use docking_controller::storage::RecordLog;
     if let Ok((mut log, _)) = RecordLog::open(flash.clone()) {
@@ -422,6 +422,14 @@ pub fn commission(flash: &SharedFlash, hx: &Hx711Config) {
                 kind::CALIBRATION,
                 &calibration_to_bytes(&sim_calibration(hx)),
             );
+        }
+        if log.latest(kind::SETTINGS).ok().flatten().is_none() {
+            let st = Settings {
+                rate_sps: hx.rate_sps,
+            };
+            if Settings::from_bytes(&st.to_bytes()).is_some() {
+                let _ = log.append(kind::SETTINGS, &st.to_bytes());
+            }
         }
     }
 }

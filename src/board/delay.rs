@@ -19,9 +19,19 @@ use super::SYSCLK_HZ;
 /// Busy-waits at least the requested time, to one core cycle (6 ns at 168 MHz).
 pub struct CycleDelay;
 
+/// Core cycles per microsecond.
+const CYCLES_PER_US: u32 = SYSCLK_HZ / 1_000_000;
+
 impl DelayNs for CycleDelay {
+    #[inline]
     fn delay_ns(&mut self, ns: u32) {
-        let cycles = (u64::from(ns) * u64::from(SYSCLK_HZ)).div_ceil(1_000_000_000);
+        // The short waits of the HX711's clock phases in 32-bit arithmetic (a division
+        // by a constant: no library call in the stop path); long ones in 64 bits.
+        let cycles = if ns <= u32::MAX / CYCLES_PER_US {
+            u64::from((ns * CYCLES_PER_US).div_ceil(1_000))
+        } else {
+            (u64::from(ns) * u64::from(CYCLES_PER_US)).div_ceil(1_000)
+        };
         // Waits longer than one CYCCNT wrap (25.5 s) are split; none is asked for here.
         let mut left = cycles;
         while left > 0 {

@@ -101,6 +101,11 @@ pub enum Command<'a> {
     ClearFault,
     /// `home`: find home and lock after a reset.
     Home,
+    /// `rate <10|80>`: the HX711's output rate (its RATE pin), from the next boot.
+    Rate {
+        /// Samples per second.
+        sps: u32,
+    },
     /// `cone replace <material> <serial>`.
     ConeReplace {
         /// The new cone's material.
@@ -146,6 +151,7 @@ impl Command<'_> {
             Self::Faults { .. } => "faults",
             Self::ClearFault => "clear-fault",
             Self::Home => "home",
+            Self::Rate { .. } => "rate",
             Self::ConeReplace { .. } => "cone replace",
             Self::Measure { .. } => "measure",
             Self::CalibrateTare => "calibrate tare",
@@ -162,6 +168,7 @@ impl Command<'_> {
             self,
             Self::ClearFault
                 | Self::Home
+                | Self::Rate { .. }
                 | Self::ConeReplace { .. }
                 | Self::CalibrateTare
                 | Self::CalibrateSpan { .. }
@@ -199,6 +206,7 @@ impl fmt::Debug for Command<'_> {
             Self::Faults { json } => f.debug_struct("Faults").field("json", json).finish(),
             Self::ClearFault => f.write_str("ClearFault"),
             Self::Home => f.write_str("Home"),
+            Self::Rate { sps } => f.debug_struct("Rate").field("sps", sps).finish(),
             Self::ConeReplace { material, serial } => f
                 .debug_struct("ConeReplace")
                 .field("material", material)
@@ -377,6 +385,7 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
             | "faults"
             | "clear-fault"
             | "home"
+            | "rate"
             | "cone"
             | "measure"
             | "calibrate"
@@ -411,6 +420,14 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
         "home" => {
             a.action(0)?;
             Ok(Command::Home)
+        }
+        "rate" => {
+            a.action(1)?;
+            match a.get(0, "rate_sps")? {
+                "10" => Ok(Command::Rate { sps: 10 }),
+                "80" => Ok(Command::Rate { sps: 80 }),
+                _ => Err(ParseError::BadArgument("rate_sps")),
+            }
         }
         "cone" => {
             a.action(3)?;

@@ -54,6 +54,8 @@ pub mod action {
     pub const PIN_SET: u8 = 6;
     /// Homing was asked for after a reset.
     pub const HOME: u8 = 7;
+    /// The HX711's rate was set.
+    pub const RATE: u8 = 8;
 }
 
 /// What one poll did.
@@ -331,6 +333,13 @@ impl Console {
                     self.ok(&"homing: the axis moves at no more than v0, then the lock");
                 }
             }
+            Command::Rate { sps } => match ctrl.store_rate(sps) {
+                Ok(()) => {
+                    self.audit(ctrl, action::RATE, now_ms, &sps.to_le_bytes());
+                    self.ok(&"HX711 rate stored; it takes effect at the next boot");
+                }
+                Err(e) => self.err(&e),
+            },
             Command::ConeReplace { material, serial } => {
                 match ctrl.replace_cone(material, serial) {
                     Ok(()) => {
@@ -423,7 +432,7 @@ impl Console {
     }
 
     fn help(&mut self, json: bool) {
-        const CMDS: [&str; 15] = [
+        const CMDS: [&str; 16] = [
             "help [--json]",
             "version [--json]",
             "status [--json]",
@@ -432,6 +441,7 @@ impl Console {
             "faults [--json]",
             "clear-fault",
             "home",
+            "rate <10|80>",
             "cone replace <material> <serial>",
             "measure <bore_diameter_mm>",
             "calibrate tare",

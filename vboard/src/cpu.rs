@@ -378,7 +378,12 @@ impl Board {
                 }
             }
             let n = block_insns(uc, addr, size);
-            uc.get_data_mut().clock.execute(n);
+            let s = uc.get_data_mut();
+            s.block_at = (addr as u32, s.clock.mc());
+            s.clock.execute(n);
+            if let Some(c) = s.exc_insns.get_mut(s.current_exc) {
+                *c += n;
+            }
         })
         .map_err(|x| e("block hook", x))?;
         uc.add_intr_hook(|uc: &mut Unicorn<'_, Soc>, intno: u32| {
@@ -527,6 +532,10 @@ fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
     let s = uc.get_data_mut();
     s.nvic.activate(e);
     s.exceptions += 1;
+    s.current_exc = e as usize;
+    if let Some(c) = s.exc_entries.get_mut(e as usize) {
+        *c += 1;
+    }
     Ok(())
 }
 
@@ -535,6 +544,15 @@ fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
 fn exception_return(uc: &mut Unicorn<'_, Soc>) {
     let exc_return = reg(uc, RegisterARM::PC) | 1;
     let ipsr = reg(uc, RegisterARM::IPSR) & 0x1FF;
+    {
+        let s = uc.get_data_mut();
+        if ipsr == exc::IRQ0 + 6 {
+            if let Some(t) = s.exti0_edge_ps.take() {
+                let now = s.now();
+                s.sample_latency.add(now.saturating_sub(t));
+            }
+        }
+    }
     uc.get_data_mut().nvic.deactivate(ipsr);
     uc.get_data_mut().update_lines();
     let m = masks(uc);
@@ -550,6 +568,10 @@ fn exception_return(uc: &mut Unicorn<'_, Soc>) {
             let s = uc.get_data_mut();
             s.nvic.activate(n);
             s.exceptions += 1;
+            s.current_exc = n as usize;
+            if let Some(c) = s.exc_entries.get_mut(n as usize) {
+                *c += 1;
+            }
             return;
         }
     }
@@ -612,6 +634,8 @@ fn exception_return(uc: &mut Unicorn<'_, Soc>) {
     }
     rebuild_hflags(uc);
     set(uc, RegisterARM::PC, ret | 1);
+    let s = uc.get_data_mut();
+    s.current_exc = s.nvic.active_stack().last().copied().unwrap_or(0) as usize;
 }
 
 /// A synchronous fault of kind `kind` (MemManage, BusFault, UsageFault or HardFault)
@@ -759,6 +783,7 @@ impl Board {
         set(uc, RegisterARM::PC, pc | 1);
         let s = uc.get_data_mut();
         s.locked_up = false;
+        s.current_exc = 0;
         s.reset_due = None;
         s.nvic.reset_requested = false;
         let now = s.now();
@@ -927,6 +952,95 @@ impl Board {
             return Err(Halt::Engine(e));
         }
         Ok(())
+    }
+
+    /// Measure how long the firmware masks every interrupt (`cpsid i` … `cpsie i`) while
+    /// the propulsion driver is on: each window delays the safety path by as much. Code
+    /// hooks on every `cpsid i` / `cpsie i` of the image's code (a halfword that is data
+    /// and never executes costs nothing).
+    pub fn watch_masking(&mut self) {
+        // Sites: `cpsid i` (masks), `cpsie i` (unmasks), `msr primask, rN` (restores what
+        // an earlier `mrs` read: unmasks if rN's bit 0 is clear).
+        #[derive(Clone, Copy)]
+        enum Site {
+            Disable,
+            Enable,
+            Restore(RegisterARM),
+        }
+        const REGS: [RegisterARM; 13] = [
+            RegisterARM::R0,
+            RegisterARM::R1,
+            RegisterARM::R2,
+            RegisterARM::R3,
+            RegisterARM::R4,
+            RegisterARM::R5,
+            RegisterARM::R6,
+            RegisterARM::R7,
+            RegisterARM::R8,
+            RegisterARM::R9,
+            RegisterARM::R10,
+            RegisterARM::R11,
+            RegisterARM::R12,
+        ];
+        let code =
+            &self.image.flash[..(self.image.flash_used as usize).min(self.image.flash.len())];
+        let hw = |i: usize| {
+            code.get(2 * i..2 * i + 2)
+                .map(|b| u16::from_le_bytes([b[0], b[1]]))
+        };
+        let mut sites = Vec::new();
+        for i in 0..code.len() / 2 {
+            let addr = FLASH_BASE + 2 * i as u32;
+            match (hw(i), hw(i + 1)) {
+                (Some(0xB672), _) => sites.push((addr, Site::Disable)),
+                (Some(0xB662), _) => sites.push((addr, Site::Enable)),
+                (Some(h1), Some(0x8810)) if h1 & 0xFFF0 == 0xF380 => {
+                    if let Some(&r) = REGS.get((h1 & 0xF) as usize) {
+                        sites.push((addr, Site::Restore(r)));
+                    }
+                }
+                _ => {}
+            }
+        }
+        for (addr, site) in sites {
+            let _ = self
+                .uc
+                .add_code_hook(addr as u64, addr as u64, move |uc, pc, _| {
+                    let masked = reg(uc, RegisterARM::PRIMASK) & 1 != 0;
+                    let unmasks = match site {
+                        Site::Disable => false,
+                        Site::Enable => true,
+                        Site::Restore(r) => reg(uc, r) & 1 == 0,
+                    };
+                    // The time of this very instruction: its block's start plus the
+                    // instructions before it in the block.
+                    let (start, mc0) = uc.get_data().block_at;
+                    let mut before =
+                        vec![0u8; (pc as u32).saturating_sub(start).min(4096) as usize];
+                    let idx = if uc.mem_read(start as u64, &mut before).is_ok() {
+                        count_insns(&before) as u64
+                    } else {
+                        0
+                    };
+                    let s = uc.get_data_mut();
+                    let now = s.clock.time_at_mc(mc0 + idx * s.clock.cpi_milli());
+                    // Time asleep inside a window does not delay anything: a pending
+                    // interrupt wakes the core, which leaves the window at once.
+                    let slept = s.clock.sleep_ps();
+                    if matches!(site, Site::Disable) {
+                        if !masked && s.world.machine.axis.enabled() {
+                            s.mask_start = Some((now, pc as u32, slept));
+                        }
+                    } else if unmasks {
+                        if let Some((t, at, slept0)) = s.mask_start.take() {
+                            let w = now.saturating_sub(t).saturating_sub(slept - slept0);
+                            if w > s.mask_max.0 {
+                                s.mask_max = (w, at);
+                            }
+                        }
+                    }
+                });
+        }
     }
 
     /// Count the executions of the instruction at `addr` (a debugging aid: a code hook on

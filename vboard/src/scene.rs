@@ -121,6 +121,7 @@ impl Session {
         }
         let world = World::new(machine, flash);
         let mut board = Board::new(img, world, opts.board)?;
+        board.watch_masking();
         board.power_on();
         Ok(Self {
             board,
@@ -403,6 +404,16 @@ pub struct Report {
     pub stop_latency_pins_us: Option<f64>,
     /// Samples read out of the HX711.
     pub samples_read: u64,
+    /// For every sample: DOUT falling → end of the handler that read it (what a stop
+    /// decided there takes at most), mean and maximum, µs.
+    pub sample_latency_mean_us: f64,
+    /// See [`Report::sample_latency_mean_us`].
+    pub sample_latency_max_us: f64,
+    /// The longest all-interrupts-masked window while the propulsion was on, µs, and the
+    /// function it began in.
+    pub masked_max_us: f64,
+    /// See [`Report::masked_max_us`].
+    pub masked_max_at: String,
     /// Conversions the firmware did not read before the next one.
     pub samples_missed: u64,
     /// HX711 power-downs (PD_SCK high > 60 µs), the firmware's boot power-cycle included.
@@ -433,6 +444,34 @@ pub struct Report {
     pub checks: Vec<(String, bool, String)>,
     /// The firmware's defmt log, decoded.
     pub log: Vec<LogLine>,
+    /// Per exception (task): name, entries, instructions executed in it (thread mode —
+    /// RTIC's idle — as `thread`).
+    pub tasks: Vec<(String, u64, u64)>,
+}
+
+/// A name for exception `e` (STM32F407 interrupt names for those the board models).
+pub fn exception_name(e: usize) -> String {
+    match e {
+        0 => "thread".into(),
+        2 => "NMI".into(),
+        3 => "HardFault".into(),
+        11 => "SVCall".into(),
+        14 => "PendSV".into(),
+        15 => "SysTick".into(),
+        e if e >= 16 => match e - 16 {
+            4 => "FLASH".into(),
+            6 => "EXTI0".into(),
+            23 => "EXTI9_5".into(),
+            28 => "TIM2".into(),
+            29 => "TIM3".into(),
+            30 => "TIM4".into(),
+            38 => "USART2".into(),
+            40 => "EXTI15_10".into(),
+            50 => "TIM5".into(),
+            n => format!("IRQ{n}"),
+        },
+        e => format!("exception{e}"),
+    }
 }
 
 impl Report {
@@ -459,13 +498,17 @@ impl Report {
             })
             .collect();
         format!(
-            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_flood_bytes\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}]}}",
+            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_flood_bytes\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}]}}",
             self.reset_count,
             strs(&causes),
             num(self.instructions_per_control_step),
             num(self.cpu_load_pct),
             self.stop_latency_pins_us.map_or("null".into(), num),
             self.samples_read,
+            num(self.sample_latency_mean_us),
+            num(self.sample_latency_max_us),
+            num(self.masked_max_us),
+            json_escape(&self.masked_max_at),
             self.samples_missed,
             self.hx711_power_downs,
             self.console_overruns,
@@ -473,6 +516,13 @@ impl Report {
             num(self.cpi),
             self.lsi_hz,
             self.flash_timing,
+            self.tasks
+                .iter()
+                .map(|(n, e, i)| format!(
+                    "{{\"name\":\"{n}\",\"entries\":{e},\"instructions\":{i}}}"
+                ))
+                .collect::<Vec<_>>()
+                .join(","),
             self.instructions,
             num(self.mips),
             num(self.realtime_factor),
@@ -499,6 +549,15 @@ impl Report {
         if let Some(l) = self.stop_latency_pins_us {
             s += &format!("\n  stop latency at the pins (DOUT falling → EN high): {l:.1} µs");
         }
+        if self.sample_latency_max_us > 0.0 {
+            s += &format!(
+                "\n  every sample while moving, DOUT falling → its handler done: mean {:.1} µs, max {:.1} µs; longest all-masked window {:.1} µs ({})",
+                self.sample_latency_mean_us,
+                self.sample_latency_max_us,
+                self.masked_max_us,
+                self.masked_max_at
+            );
+        }
         if self.console_flood_bytes > 0 || self.console_overruns > 0 {
             s += &format!(
                 "\n  console: {} bytes of flood sent, {} lost to overruns",
@@ -509,6 +568,10 @@ impl Report {
             "\n  emulation: {} instructions at CPI {}, {:.1} MIPS, {:.3}× real time (LSI {} Hz, flash timing {})",
             self.instructions, self.cpi, self.mips, self.realtime_factor, self.lsi_hz, self.flash_timing
         );
+        s += "\n  tasks:";
+        for (n, e, i) in &self.tasks {
+            s += &format!(" {n} {e}× {:.0}", *i as f64 / (*e).max(1) as f64);
+        }
         for f in &self.core_faults {
             s += &format!("\n  core fault: {f}");
         }
@@ -734,10 +797,24 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         scene,
         reset_count: s.board.resets.len(),
         reset_causes: s.reset_causes(),
-        instructions_per_control_step: insns as f64 / hx.samples_read.max(1) as f64,
+        // The control step is the TIM2 task on the interrupt-driven firmware; a polling
+        // firmware has no such task, and then every instruction counts.
+        instructions_per_control_step: match soc.exc_entries.get(16 + 28) {
+            Some(&n) if n > 0 => soc.exc_insns[16 + 28] as f64 / n as f64,
+            _ => insns as f64 / hx.samples_read.max(1) as f64,
+        },
         cpu_load_pct: 100.0 * awake,
         stop_latency_pins_us,
         samples_read: hx.samples_read,
+        sample_latency_mean_us: soc.sample_latency.mean_us(),
+        sample_latency_max_us: soc.sample_latency.max_us(),
+        masked_max_us: soc.mask_max.0 as f64 * 1e-6,
+        masked_max_at: s
+            .board
+            .image
+            .function_at(soc.mask_max.1)
+            .unwrap_or("-")
+            .to_string(),
         samples_missed: hx.samples_missed,
         hx711_power_downs: hx.power_downs,
         console_overruns: soc.usart2.overruns,
@@ -768,6 +845,10 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         console_flood_bytes: flood_bytes,
         checks,
         log: s.board.log.clone(),
+        tasks: (0..soc.exc_insns.len())
+            .filter(|&e| e == 0 || soc.exc_entries[e] > 0)
+            .map(|e| (exception_name(e), soc.exc_entries[e], soc.exc_insns[e]))
+            .collect(),
     })
 }
 

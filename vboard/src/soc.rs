@@ -88,6 +88,36 @@ pub struct Diagnostic {
     pub what: String,
 }
 
+/// Count, mean and maximum of a latency, ps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LatencyStats {
+    /// Samples.
+    pub count: u64,
+    /// Sum, ps.
+    pub sum_ps: u64,
+    /// Maximum, ps.
+    pub max_ps: u64,
+}
+
+impl LatencyStats {
+    /// Add one.
+    pub fn add(&mut self, ps: u64) {
+        self.count += 1;
+        self.sum_ps += ps;
+        self.max_ps = self.max_ps.max(ps);
+    }
+
+    /// Mean, µs.
+    pub fn mean_us(&self) -> f64 {
+        self.sum_ps as f64 / self.count.max(1) as f64 * 1e-6
+    }
+
+    /// Maximum, µs.
+    pub fn max_us(&self) -> f64 {
+        self.max_ps as f64 * 1e-6
+    }
+}
+
 /// A pin edge, as seen on the board.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Edge {
@@ -165,6 +195,28 @@ pub struct Soc {
     pub engine_error: Option<String>,
     /// Engine runs (between two stops), for the figures.
     pub runs: u64,
+    /// Instructions executed in each exception (0: thread mode), and its entries: the
+    /// per-task cost of the firmware.
+    pub exc_insns: Vec<u64>,
+    /// Entries of each exception.
+    pub exc_entries: Vec<u64>,
+    /// The exception running now (0: thread mode).
+    pub current_exc: usize,
+    /// When EXTI line 0's pending edge (the HX711's DOUT falling) was latched, while its
+    /// handler was not running.
+    pub exti0_edge_ps: Option<u64>,
+    /// From each DOUT falling edge while the propulsion driver is on to the end of the
+    /// handler that served it: what a stop decided in that handler takes at most, for
+    /// every sample, not only the one that trips.
+    pub sample_latency: LatencyStats,
+    /// An all-interrupts-masked window in progress (start, the `cpsid` site, the time
+    /// asleep so far then).
+    pub mask_start: Option<(u64, u32, u64)>,
+    /// The longest such window while the propulsion was on, ps, and its `cpsid` site.
+    pub mask_max: (u64, u32),
+    /// The block running: its address and the milli-cycle count at its start (to time an
+    /// instruction inside it).
+    pub block_at: (u32, u64),
     /// Peripheral accesses (reads, writes), for the figures.
     pub accesses: (u64, u64),
 }
@@ -225,6 +277,14 @@ impl Soc {
             engine_error: None,
             runs: 0,
             accesses: (0, 0),
+            exc_insns: vec![0; crate::periph::nvic::SLOTS as usize],
+            exc_entries: vec![0; crate::periph::nvic::SLOTS as usize],
+            current_exc: 0,
+            exti0_edge_ps: None,
+            sample_latency: LatencyStats::default(),
+            mask_start: None,
+            mask_max: (0, 0),
+            block_at: (0, 0),
         }
     }
 
@@ -382,7 +442,19 @@ impl Soc {
                 let port = self.exti.port_of(line);
                 if (port as usize) < self.gpio.len() {
                     let l = self.pin_level(port, line);
+                    let was = self.exti.pending(line);
                     self.exti.sample(line, l);
+                    // Only while the propulsion driver is on (EN low): that is when the
+                    // stop latency matters (and flash writes never happen then).
+                    if line == 0
+                        && !was
+                        && self.exti.pending(0)
+                        && !self.nvic.is_active(exc::IRQ0 + 6)
+                        && self.exti0_edge_ps.is_none()
+                        && self.world.machine.axis.enabled()
+                    {
+                        self.exti0_edge_ps = Some(self.now());
+                    }
                 }
             }
         }

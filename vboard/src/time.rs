@@ -118,6 +118,13 @@ impl Clock {
         self.hclk_hz = hz.max(1);
     }
 
+    /// The time at milli-cycle count `mc` (after the last rebase), ps.
+    pub fn time_at_mc(&self, mc: u64) -> u64 {
+        self.base_ps
+            + (mc.saturating_sub(self.base_mc) as u128 * 1_000_000_000 / self.hclk_hz as u128)
+                as u64
+    }
+
     /// The milli-cycle count at which time reaches `t_ps` (for the block hook's cheap
     /// "is an event due" compare).
     pub fn mc_at(&self, t_ps: u64) -> u64 {

@@ -77,6 +77,11 @@ impl Exti {
         }
     }
 
+    /// Whether line `line`'s pending bit is set.
+    pub fn pending(&self, line: u8) -> bool {
+        self.pr & (1 << line) != 0
+    }
+
     /// Set the sampled level without edge detection (after a reset or a re-selection).
     pub fn set_level(&mut self, line: u8, high: bool) {
         let bit = 1u16 << line;
