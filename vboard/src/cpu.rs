@@ -784,6 +784,9 @@ impl Board {
         let s = uc.get_data_mut();
         s.locked_up = false;
         s.current_exc = 0;
+        // A reset ends any masked window and any sample in flight.
+        s.mask_start = None;
+        s.exti0_edge_ps = None;
         s.reset_due = None;
         s.nvic.reset_requested = false;
         let now = s.now();

@@ -11,7 +11,8 @@
 //! | `boot` | power-on → home → idle, no request |
 //! | the scenes of `hil-sim scene` | the same disturbance at the same moment |
 //! | `sector-move` | the odometer log is filled (through the firmware's own record format) until the next record write makes the firmware erase a sector, with the watchdog running |
-//! | `power-cut-write` | a pin reset at a random instruction during a record write, then a reboot on the same flash |
+//! | `power-cut-write` | a pin reset at a random instant inside a record write, then a reboot on the same flash |
+//! | `power-cycle` | a pin reset in the middle of an insertion: after the reboot nothing may move until a request (the dock-request input), then the machine homes out of the cone |
 
 use std::time::Instant;
 
@@ -358,7 +359,7 @@ fn docking_controller_fault_name(s: &str) -> &'static str {
 }
 
 /// The scenes of `vboard scene`.
-pub const SCENES: [&str; 12] = [
+pub const SCENES: [&str; 13] = [
     "boot",
     "nominal",
     "overload",
@@ -371,6 +372,7 @@ pub const SCENES: [&str; 12] = [
     "lock-stuck",
     "sector-move",
     "power-cut-write",
+    "power-cycle",
 ];
 
 /// Options of a scene run.
@@ -442,6 +444,10 @@ pub struct Report {
     pub diagnostics: Vec<String>,
     /// Scene-specific checks (name, passed, detail).
     pub checks: Vec<(String, bool, String)>,
+    /// `power-cycle`: whether anything moved after the reset before a request.
+    pub motion_before_request: Option<bool>,
+    /// The STEP/DIR/EN pins as a DM542-class driver sees them.
+    pub step: hil_sim::axis::StepTiming,
     /// The firmware's defmt log, decoded.
     pub log: Vec<LogLine>,
     /// Per exception (task): name, entries, instructions executed in it (thread mode —
@@ -498,7 +504,7 @@ impl Report {
             })
             .collect();
         format!(
-            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_flood_bytes\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}]}}",
+            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_flood_bytes\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{}}}",
             self.reset_count,
             strs(&causes),
             num(self.instructions_per_control_step),
@@ -529,7 +535,16 @@ impl Report {
             self.erase_counts,
             strs(&self.core_faults),
             strs(&self.diagnostics),
-            checks.join(",")
+            checks.join(","),
+            self.motion_before_request
+                .map_or("null".to_string(), |m| m.to_string()),
+            self.step.pulses_pos,
+            self.step.pulses_neg,
+            self.step.pulses_disabled,
+            self.step.setup_violations,
+            self.step.width_violations,
+            us_or_null(self.step.min_setup_ns),
+            us_or_null(self.step.min_high_ns),
         )
     }
 
@@ -568,6 +583,19 @@ impl Report {
             "\n  emulation: {} instructions at CPI {}, {:.1} MIPS, {:.3}× real time (LSI {} Hz, flash timing {})",
             self.instructions, self.cpi, self.mips, self.realtime_factor, self.lsi_hz, self.flash_timing
         );
+        let st = &self.step;
+        if st.pulses_pos + st.pulses_neg + st.pulses_disabled > 0 {
+            s += &format!(
+                "\n  step pins: {} pulses +, {} −, {} with the driver off; {} setup and {} width violations; shortest DIR/EN setup {} µs, STEP high {} µs",
+                st.pulses_pos,
+                st.pulses_neg,
+                st.pulses_disabled,
+                st.setup_violations,
+                st.width_violations,
+                us_or_null(st.min_setup_ns),
+                us_or_null(st.min_high_ns)
+            );
+        }
         s += "\n  tasks:";
         for (n, e, i) in &self.tasks {
             s += &format!(" {n} {e}× {:.0}", *i as f64 / (*e).max(1) as f64);
@@ -587,6 +615,14 @@ impl Report {
     /// Whether every scene-specific check passed.
     pub fn passed(&self) -> bool {
         self.checks.iter().all(|(_, ok, _)| *ok)
+    }
+}
+
+fn us_or_null(ns: u64) -> String {
+    if ns == u64::MAX {
+        "null".into()
+    } else {
+        num(ns as f64 / 1000.0)
     }
 }
 
@@ -633,7 +669,11 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
     }
     let mut s =
         Session::with_flash(opts.session.clone(), flash.clone()).map_err(|e| e.to_string())?;
-    let host_scene = !matches!(name, "boot" | "sector-move" | "power-cut-write");
+    let host_scene = !matches!(
+        name,
+        "boot" | "sector-move" | "power-cut-write" | "power-cycle"
+    );
+    let mut motion_before_request = None;
     let mut driver = if host_scene {
         Some(SceneDriver::new(name, cycles)?)
     } else {
@@ -654,6 +694,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
     let mut settle_until: Option<u64> = None;
     let mut flood_rng = hil_sim::rng::Rng::new(opts.session.seed ^ 0xf100d);
     let mut flood_bytes = 0u64;
+    let mut pos_checked = false;
 
     match name {
         "boot" => {
@@ -700,6 +741,10 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
                 format!("{lost_records} kind(s) lost their newest record"),
             ));
         }
+        "power-cycle" => {
+            motion_before_request =
+                Some(power_cycle(&mut s, &mut checks).map_err(|e| e.to_string())?);
+        }
         "power-cut-write" => {
             power_cut_write(&mut s, &mut checks, opts).map_err(|e| e.to_string())?;
         }
@@ -733,6 +778,28 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
                 let pos = s.machine().axis.pos_um();
                 max_after = max_after.max(pos - p0);
                 min_after = min_after.min(pos - p0);
+            }
+            // After the extraction (a reversal), while the lock re-locks at the engagement
+            // point: the firmware's counted position must be the carriage's.
+            if !pos_checked
+                && s.seen.extracting
+                && s.machine().lock.driven()
+                && s.machine().lock.fraction_locked() < 1.0
+            {
+                pos_checked = true;
+                let real_um = s.machine().axis.pos_um();
+                let st = s.console_json("status --json").map_err(|e| e.to_string())?;
+                let counted_um = json_field(&st, "pos_mm")
+                    .and_then(|v| v.parse::<f64>().ok())
+                    .map(|mm| mm * 1000.0);
+                let ok = counted_um.is_some_and(|c| (c - real_um).abs() <= 5.0);
+                checks.push((
+                    "pulses counted in the direction they were emitted".into(),
+                    ok,
+                    format!(
+                        "after the extraction: counted {counted_um:?} µm, carriage {real_um:.1} µm"
+                    ),
+                ));
             }
             let at_rest = s.at_rest();
             let faulted = !s.seen.faults.is_empty();
@@ -844,6 +911,8 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         diagnostics: soc.diagnostics.iter().map(|d| d.what.clone()).collect(),
         console_flood_bytes: flood_bytes,
         checks,
+        motion_before_request,
+        step: m.axis.step_timing(),
         log: s.board.log.clone(),
         tasks: (0..soc.exc_insns.len())
             .filter(|&e| e == 0 || soc.exc_entries[e] > 0)
@@ -918,6 +987,76 @@ fn prefill_log(flash: &SharedFlash) -> Result<Prefill, String> {
         erases: flash.with(|f| f.erase_counts().iter().sum()),
         newest: read_newest(flash)?,
     })
+}
+
+/// Dock; in the middle of the insertion (10 mm deep, the rod in the cone, the lock
+/// released) pull NRST; then watch the pins for 5 s: no STEP pulse, no EN low, no lock
+/// drive may come before a request. Then ask (the dock-request input): the machine must
+/// home out of the cone and lock, with no fault. Returns whether anything moved before
+/// the request.
+fn power_cycle(s: &mut Session, checks: &mut Vec<(String, bool, String)>) -> Result<bool, Halt> {
+    let engage = s.engage_um;
+    let deadline = s.now() + 60 * PS_PER_S;
+    let mut inserting = false;
+    while s.now() < deadline {
+        s.auto_dock(1);
+        s.run_for(PS_PER_MS)?;
+        if s.machine().axis.pos_um() >= (engage + 10_000) as f64 {
+            inserting = true;
+            break;
+        }
+    }
+    let t_reset = s.now();
+    s.board.reset_pin();
+    let steps = |x: &Session| {
+        let t = x.machine().axis.step_timing();
+        t.pulses_pos + t.pulses_neg + t.pulses_disabled
+    };
+    let pulses0 = steps(s);
+    let pos0 = s.machine().axis.pos_um();
+    s.run_for(5 * PS_PER_S)?;
+    let edges = &s.board.soc().edges;
+    let moved_pins = edges.iter().any(|e| {
+        e.t_ps > t_reset
+            && match e.signal {
+                crate::world::Signal::EnN => !e.high,
+                crate::world::Signal::LockIn1 | crate::world::Signal::LockIn2 => e.high,
+                _ => false,
+            }
+    });
+    let moved = moved_pins || steps(s) != pulses0 || s.machine().axis.pos_um() != pos0;
+    checks.push((
+        "in the cone at the reset".into(),
+        inserting,
+        format!(
+            "carriage at {:.3} mm (engagement at {:.3} mm)",
+            pos0 / 1000.0,
+            engage as f64 / 1000.0
+        ),
+    ));
+    checks.push((
+        "no motion after the reset without a request".into(),
+        !moved,
+        format!(
+            "{} step pulses, EN/lock edges after the reset: {}",
+            steps(s) - pulses0,
+            moved_pins
+        ),
+    ));
+    // The request: the dock-request input.
+    s.press_dock();
+    let deadline = s.now() + 60 * PS_PER_S;
+    let homed = s.run_until(deadline, |x| {
+        x.machine().axis.pos_um() <= 0.0
+            && x.machine().lock.fraction_locked() >= 1.0
+            && !x.machine().axis.enabled()
+    })?;
+    checks.push((
+        "homes out of the cone on request".into(),
+        homed,
+        format!("carriage at {:.3} mm", s.machine().axis.pos_um() / 1000.0),
+    ));
+    Ok(moved)
 }
 
 /// Boot, make the firmware write a record (a latched fault writes a counter snapshot),
