@@ -47,6 +47,7 @@ mod flash;
 mod options;
 mod step;
 
+use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, Ordering};
 
 use cortex_m_rt::{exception, ExceptionFrame};
@@ -233,8 +234,10 @@ mod app {
 
     #[shared]
     struct Shared {
-        ctrl: Controller<Board>,
-        kernel: SafetyKernel<BoardAdc>,
+        // In statics of init's (below), shared by reference: returned by value they
+        // would be moved through init's stack, KiBs each.
+        ctrl: &'static mut Controller<Board>,
+        kernel: &'static mut SafetyKernel<BoardAdc>,
     }
 
     #[local]
@@ -245,7 +248,7 @@ mod app {
         step_gen: step::StepGen,
         console_isr: console::ConsoleIsr,
         term: console::BoardConsole,
-        console: Console,
+        entropy: [u8; 32],
         dock_request: PC4<Input>,
         tim2: pac::TIM2,
     }
@@ -254,6 +257,8 @@ mod app {
         events: Queue<KernelEvent, 16> = Queue::new(),
         rx_ring: Queue<u8, 257> = Queue::new(),
         tx_ring: Queue<u8, 1025> = Queue::new(),
+        ctrl_slot: MaybeUninit<Controller<Board>> = MaybeUninit::uninit(),
+        kernel_slot: MaybeUninit<SafetyKernel<BoardAdc>> = MaybeUninit::uninit(),
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         // 1. Motors safe before anything else, before clocks.
@@ -339,12 +344,19 @@ mod app {
             wdg: BoardWatchdog(iwdg),
         };
         let cfg = ControllerConfig::new(DEFAULT_SAMPLE_RATE_SPS, DEFAULT_CALIBRATION);
-        let Ok(mut ctrl) = Controller::new(parts, cfg) else {
-            halt_safe()
+        let ctrl = match Controller::new(parts, cfg) {
+            Ok(c) => cx.local.ctrl_slot.write(c),
+            Err(_) => halt_safe(),
         };
         let rate_sps = ctrl.sample_rate_sps();
         let now = clock::now_us();
-        let mut kernel = SafetyKernel::new(adc, cfg.guard, rate_sps, ctrl.calibration(), now);
+        let kernel = cx.local.kernel_slot.write(SafetyKernel::new(
+            adc,
+            cfg.guard,
+            rate_sps,
+            ctrl.calibration(),
+            now,
+        ));
         kernel.configure(ctrl.kernel_config(), now);
         defmt::info!(
             "docking-controller {} booted; motors safe; HX711 at {} SPS; BOR {}",
@@ -397,7 +409,7 @@ mod app {
                     tx_out,
                 },
                 term: console::BoardConsole { rx_out, tx_in },
-                console: Console::new(entropy()),
+                entropy: entropy(),
                 dock_request,
                 tim2,
             },
@@ -462,9 +474,18 @@ mod app {
 
     /// Everything that may wait: console commands, flash, the log, the dock-request
     /// input. Sleeps when there is nothing to do.
-    #[idle(shared = [ctrl], local = [term, console, dock_request])]
+    #[idle(shared = [ctrl], local = [
+        term,
+        entropy,
+        dock_request,
+        // In a static (it holds the 8 KiB output ring): returned from init it would be
+        // moved through init's stack.
+        console: Console = Console::new([0; 32]),
+    ])]
     fn idle(mut cx: idle::Context) -> ! {
+        cx.local.console.seed(*cx.local.entropy);
         let mut request_low_since: Option<u64> = None;
+        let mut stack_checked_us = 0u64;
         let mut request_latched = false;
         loop {
             // Sleep until there is work: the control task signals after each step (at
@@ -494,8 +515,16 @@ mod app {
                 request_low_since = None;
                 request_latched = false;
             }
+            // The stack's high-water mark, once a second (a walk of the unused part).
+            let stack = (now_us.saturating_sub(stack_checked_us) >= 1_000_000).then(|| {
+                stack_checked_us = now_us;
+                crash::stack_usage()
+            });
             let (term, console) = (&mut *cx.local.term, &mut *cx.local.console);
             cx.shared.ctrl.lock(|ctrl| {
+                if let Some((used, size)) = stack {
+                    ctrl.set_stack_usage(used, size);
+                }
                 if let Some(r) = request {
                     ctrl.request(r);
                 }

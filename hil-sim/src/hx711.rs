@@ -386,11 +386,18 @@ impl<S: ForceSource> SimHx711<S> {
         self.model.borrow().cfg
     }
 
-    /// Time of the next conversion completion, ns (for an event-driven scene loop).
+    /// Time of the next conversion completion, ns (for an event-driven scene loop);
+    /// `u64::MAX` while powered down (SCK high > 60 µs): none is due until SCK falls.
     pub fn next_conversion_ns(&self) -> u64 {
         let now = self.clock.now_ns();
         let mut m = self.model.borrow_mut();
         m.catch_up(now);
+        if m.sck_high_since
+            .is_some_and(|t| now.saturating_sub(t) > POWER_DOWN_NS)
+        {
+            // Powered down: nothing converts until SCK goes low again.
+            return u64::MAX;
+        }
         m.next_conv_ns
     }
 
@@ -556,6 +563,25 @@ mod tests {
         assert!(d.is_high().unwrap(), "still settling");
         clk.advance_to_ns(t_reset + 50_000_000);
         assert!(d.is_low().unwrap());
+    }
+
+    #[test]
+    fn a_powered_down_part_announced_a_conversion_in_the_past() {
+        // An event loop waits for the next conversion: while the part is powered down
+        // (SCK held high), a time in the past would make it spin without time passing.
+        let (hx, clk) = part(0.0, 80);
+        let mut s = hx.pd_sck();
+        clk.advance_to_ns(45_000_000);
+        s.set_high().unwrap();
+        clk.advance_to_ns(70_000_000);
+        assert_eq!(hx.next_conversion_ns(), u64::MAX, "powered down");
+        s.set_low().unwrap();
+        let next = hx.next_conversion_ns();
+        assert!(
+            next > clk.now_ns(),
+            "{next} after power-up at {}",
+            clk.now_ns()
+        );
     }
 
     #[test]

@@ -8,8 +8,9 @@
 //! `memory.x`) and faults; exception entry cannot stack on an exhausted stack, so the
 //! core locks up until the watchdog resets it — no handler runs. It is found at the next
 //! boot instead: cortex-m-rt paints the stack at every reset (`paint-stack`), and before
-//! that, in `__pre_init`, the bottom word is looked at. If the last run had painted its
-//! stack ([`PAINTED`]) and that word is paint no more, the stack reached its bottom.
+//! that, in `__pre_init`, the guard zone at the bottom ([`STACK_GUARD_B`]) is looked at.
+//! If the last run had painted its stack ([`PAINTED`]) and a word there is paint no
+//! more, the stack reached its bottom.
 //!
 //! Layout of the block (`#[repr(C)]`, words):
 //!
@@ -19,7 +20,7 @@
 //!  | magic | crc | crash (44 B, diag.rs) | painted | overflow |
 //!  +-------+-----+-----------------------+---------+----------+
 //!  crc: CRC-32/ISO-HDLC of the 44 crash bytes; overflow: OVERFLOWED when __pre_init
-//!  found the stack's bottom word scrubbed
+//!  found paint scrubbed in the stack's guard zone
 //! ```
 
 use core::mem::MaybeUninit;
@@ -31,8 +32,14 @@ use docking_controller::diag::{Crash, CrashKind, CRASH_LEN};
 const MAGIC: u32 = 0xC4A5_4BAD;
 /// The last run painted its stack (set at boot, after cortex-m-rt painted it).
 pub const PAINTED: u32 = 0x57AC_0C0C;
-/// `__pre_init` found the stack's bottom word scrubbed.
+/// `__pre_init` found paint scrubbed in the stack's guard zone.
 pub const OVERFLOWED: u32 = 0x0F10_0D0D;
+/// The guard zone at the stack's bottom, bytes: a run whose stack reached into it is
+/// taken as overflowed. A push that would cross the bottom faults before it writes
+/// (the lowest address first), so the bottom word itself may still hold paint after an
+/// overflow; the exception frames the core then tries to stack (32 or 104 bytes) and
+/// the pushes before the faulting one land in the zone.
+pub const STACK_GUARD_B: u32 = 128;
 /// cortex-m-rt's stack paint.
 pub const STACK_PAINT: u32 = 0xCCCC_CCCC;
 
@@ -73,16 +80,21 @@ core::arch::global_asm!(
     "    cmp r1, r2",
     "    bne 1f",
     "    ldr r3, =_stack_end",
-    "    ldr r3, [r3]",
+    "    add r1, r3, #{guard}",
     "    ldr r2, ={paint}",
-    "    cmp r3, r2",
-    "    beq 1f",
-    "    ldr r1, ={overflowed}",
+    "2:  ldr r12, [r3], #4",
+    "    cmp r12, r2",
+    "    bne 3f",
+    "    cmp r3, r1",
+    "    blo 2b",
+    "    b 1f",
+    "3:  ldr r1, ={overflowed}",
     "    str r1, [r0, #56]", // overflow
     "1:  bx lr",
     painted = const PAINTED,
     paint = const STACK_PAINT,
     overflowed = const OVERFLOWED,
+    guard = const STACK_GUARD_B,
 );
 
 /// Record `c` (from the panic or HardFault handler: no allocation, no panic).

@@ -109,7 +109,9 @@ pub struct Console {
 
 impl Console {
     /// A console; `entropy` seeds the PIN salts (device ID, boot time… anything unique).
-    pub fn new(entropy: [u8; 32]) -> Self {
+    /// `const`: the board places it in a static, not on the init stack (it holds the
+    /// 8 KiB output ring).
+    pub const fn new(entropy: [u8; 32]) -> Self {
         Self {
             reader: LineReader::new(),
             auth: MaintenanceAuth::new(),
@@ -119,6 +121,12 @@ impl Console {
             dropped_replies: 0,
             rx_errors: 0,
         }
+    }
+
+    /// Seed the PIN salts with `entropy` (for a console built in a static before the
+    /// board could gather any).
+    pub fn seed(&mut self, entropy: [u8; 32]) {
+        self.entropy = entropy;
     }
 
     /// Replies dropped because the output ring was full.

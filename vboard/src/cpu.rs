@@ -113,6 +113,8 @@ pub struct Board {
     /// The image running.
     pub image: Image,
     rtt: Option<Rtt>,
+    /// A probe reads the RTT buffer (a detached probe reads nothing: the buffer fills).
+    probe_attached: bool,
     /// The defmt log, decoded.
     pub log: Vec<LogLine>,
     next_rtt_ps: u64,
@@ -416,6 +418,7 @@ impl Board {
             uc,
             image,
             rtt,
+            probe_attached: true,
             log: Vec::new(),
             next_rtt_ps: 0,
             sleeping: false,
@@ -796,6 +799,9 @@ impl Board {
 
     /// Drain the RTT buffer into the log.
     pub fn poll_rtt(&mut self) {
+        if !self.probe_attached {
+            return;
+        }
         let Some(rtt) = self.rtt.as_mut() else {
             return;
         };
@@ -1057,6 +1063,39 @@ impl Board {
                 h.set(h.get() + 1);
             });
         hits
+    }
+
+    /// An imprecise bus error now (a write buffered to a peripheral that errs, a glitch
+    /// on the bus): asynchronous, so it is taken at the current instruction as the core
+    /// would, escalated to HardFault (no configurable fault is enabled). Wakes a
+    /// sleeping core. For proving the HardFault path; a locked-up core ignores it.
+    pub fn inject_bus_fault(&mut self) {
+        if self.uc.get_data().locked_up {
+            return;
+        }
+        let pc = reg(&self.uc, RegisterARM::PC);
+        self.sleeping = false;
+        fault(
+            &mut self.uc,
+            exc::BUS_FAULT,
+            1 << 10,
+            pc,
+            "imprecise bus error (injected)",
+        );
+    }
+
+    /// Detach the probe: nothing reads the RTT buffer any more, and the log stops.
+    pub fn detach_probe(&mut self) {
+        self.probe_attached = false;
+    }
+
+    /// Write the main stack pointer, as a debugger would (for proving what a stack
+    /// overflow does: the next exception stacks from there).
+    pub fn set_msp(&mut self, sp: u32) {
+        set(&mut self.uc, RegisterARM::MSP, sp);
+        if reg(&self.uc, RegisterARM::CONTROL) & 2 == 0 {
+            set(&mut self.uc, RegisterARM::SP, sp);
+        }
     }
 
     /// Read a word of memory (RAM, flash) as a probe would.
