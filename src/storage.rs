@@ -21,7 +21,8 @@
 //! * **Erases only in `append` and `maintain`**, both documented "call only while the
 //!   machine is idle": a sector erase stalls the STM32F4 CPU for ~1–2 s.
 //! * **Wear levelling.** Sectors are used round-robin, so their erase counts differ by at
-//!   most one (plus erases redone after power cuts).
+//!   most one (plus erases redone after power cuts, and the first erase of a new chip's
+//!   blank sectors).
 //! * No heap, no panics, no `unsafe`; about 1 KiB of stack in a sector move.
 //!
 //! # Why not `sequential-storage`
@@ -49,7 +50,8 @@
 //! ```
 //!
 //! * `seq`: global record number, strictly increasing over the life of the log.
-//! * `kind`: `0..16`; `len`: payload bytes used, `0..=48`.
+//! * `kind`: `0..16` (15 is the log's own, [`ERASED_KIND`]); `len`: payload bytes used,
+//!   `0..=48`.
 //! * `carry`: `0xFF` for a record written by [`RecordLog::append`]; `n` in `1..=16`
 //!   for a copy carried forward into a new sector as one of a batch of `n` (below).
 //! * `commit`: programmed **last, in its own write**, once the rest of the slot is in
@@ -77,15 +79,30 @@
 //!
 //! When the current sector is full, `append` moves to the next sector (round-robin):
 //! 1. it reads the newest valid record of every kind (from any sector) into RAM;
-//! 2. if the next sector is not blank (every byte 0xFF), it erases it — its contents
-//!    are older than the current sector's, whose carried batch and appends hold the
-//!    newest record of every kind;
-//! 3. it writes those records to slots `0..n` of the next sector, oldest first, with new
+//! 2. unless [`RecordLog::maintain`] erased the next sector and certified it (below),
+//!    it erases it — its contents are older than the current sector's, whose carried
+//!    batch and appends hold the newest record of every kind;
+//! 3. it writes those records (all but the erase certificate) to slots `0..n` of the
+//!    next sector, oldest first, with new
 //!    `seq` numbers and `carry = n`, and only then makes that sector current in RAM;
 //! 4. it writes the new record.
 //!
 //! [`RecordLog::needs_maintenance`] / [`RecordLog::maintain`] let the idle loop do step 2
 //! early, so that `append` rarely erases.
+//!
+//! # Interrupted erases
+//!
+//! A sector erase cut short by a reset or a power cut can leave cells that read 0xFF
+//! without the margin a completed erase verifies; data programmed there may not be
+//! retained. So a sector is never trusted because it reads blank: `maintain` erases the
+//! next sector (blank or not) and then appends a certificate — a record of the log's
+//! own kind [`ERASED_KIND`] naming that sector — to the current sector. The move skips
+//! its erase only when the newest certificate is in the current sector, names the next
+//! one, and that sector reads blank; anything else (no certificate, the erase cut before
+//! its certificate was written, a certificate from an earlier round, which lies in an
+//! older sector) erases again. Certificates are not carried. The one sector trusted
+//! without an erase is sector 0 of a region that holds no record at all (a new chip,
+//! or after a verified mass erase by the probe).
 //!
 //! # Why a power cut loses nothing older
 //!
@@ -124,6 +141,9 @@ pub const SLOT_SIZE: usize = 64;
 pub const PAYLOAD_MAX: usize = 48;
 /// Number of record kinds; a kind is `0..MAX_KINDS`.
 pub const MAX_KINDS: u8 = 16;
+/// The log's own kind: the certificate of a completed pre-erase (payload: the sector
+/// erased, one byte). [`RecordLog::append`] refuses it.
+pub const ERASED_KIND: u8 = MAX_KINDS - 1;
 /// Fewest slots a sector must have: a full carried batch plus the record being appended.
 pub const MIN_SLOTS_PER_SECTOR: usize = MAX_KINDS as usize + 1;
 
@@ -194,7 +214,7 @@ pub enum StorageError<E> {
     Flash(E),
     /// Payload longer than `PAYLOAD_MAX` = 48 bytes.
     TooLarge,
-    /// Kind not in `0..MAX_KINDS`.
+    /// Kind not in `0..MAX_KINDS - 1` (the last is the log's own).
     BadKind,
     /// Region unusable: fewer than 2 sectors, a sector not a whole number of at least
     /// `MIN_SLOTS_PER_SECTOR` slots, `WRITE_SIZE`/`READ_SIZE` not dividing 64, or more
@@ -211,7 +231,7 @@ impl<E: core::fmt::Debug> core::fmt::Display for StorageError<E> {
         match self {
             Self::Flash(e) => write!(f, "flash error: {e:?}"),
             Self::TooLarge => f.write_str("record payload longer than 48 bytes"),
-            Self::BadKind => f.write_str("record kind must be 0..16"),
+            Self::BadKind => f.write_str("record kind must be 0..15"),
             Self::Geometry => f.write_str(
                 "flash region unusable: need >= 2 sectors of >= 17 64-byte slots, \
                  WRITE_SIZE and READ_SIZE dividing 64, <= 4 GiB",
@@ -240,8 +260,9 @@ pub struct RecordLog<F: NorFlash> {
     next_seq: Option<u32>,
     /// Byte offset of the newest valid record of each kind.
     newest: [Option<u32>; KINDS],
-    /// The sector after `cur` is known to be erased.
-    next_blank: bool,
+    /// The sector after `cur` is known to be erased, by an erase that completed: a
+    /// certificate for it is in `cur` (see "Interrupted erases").
+    next_ready: bool,
 }
 
 /// Contents of one slot.
@@ -470,7 +491,7 @@ impl<F: NorFlash> RecordLog<F> {
             next_slot: 0,
             next_seq: Some(0),
             newest: [None; KINDS],
-            next_blank: false,
+            next_ready: false,
         };
         let report = log.scan()?;
         info!(
@@ -549,13 +570,21 @@ impl<F: NorFlash> RecordLog<F> {
             };
             *slot = pick.map(|f| f.offset);
         }
-        self.next_blank = self.sector_is_blank(self.next_sector())?;
+        self.next_ready =
+            self.certified(self.next_sector())? && self.sector_is_blank(self.next_sector())?;
         Ok(report)
     }
 
     /// Append a record; may move to (and erase) the next sector: call only while the
     /// machine is idle. Returns the record's `seq`.
     pub fn append(&mut self, kind: u8, data: &[u8]) -> Result<u32, StorageError<F::Error>> {
+        if kind == ERASED_KIND {
+            return Err(StorageError::BadKind);
+        }
+        self.append_any(kind, data)
+    }
+
+    fn append_any(&mut self, kind: u8, data: &[u8]) -> Result<u32, StorageError<F::Error>> {
         let k = kind_index(kind)?;
         if data.len() > PAYLOAD_MAX {
             return Err(StorageError::TooLarge);
@@ -626,21 +655,29 @@ impl<F: NorFlash> RecordLog<F> {
     }
 
     /// True when the next sector is not known to be erased and the current one is at
-    /// least 90 % full; [`Self::maintain`] then erases it so that `append` rarely has to.
+    /// least 90 % full, with a slot left for the erase certificate; [`Self::maintain`]
+    /// then erases it so that `append` rarely has to. (A full current sector — after a
+    /// move that was cut short — leaves the erase to the next append's move.)
     pub fn needs_maintenance(&self) -> bool {
-        !self.next_blank && self.next_slot * 10 >= self.slots_per_sector * 9
+        !self.next_ready
+            && self.next_slot * 10 >= self.slots_per_sector * 9
+            && self.next_slot < self.slots_per_sector
     }
 
-    /// Erase the next sector if [`Self::needs_maintenance`]; call only while the machine
-    /// is idle (an erase stalls the STM32F4 CPU for ~1–2 s).
+    /// Erase the next sector if [`Self::needs_maintenance`], and certify the completed
+    /// erase with a record in the current sector; call only while the machine is idle
+    /// (an erase stalls the STM32F4 CPU for ~1–2 s). A next sector that merely reads
+    /// blank is erased all the same: an erase cut short can leave it reading 0xFF.
     pub fn maintain(&mut self) -> Result<(), StorageError<F::Error>> {
         if !self.needs_maintenance() {
             return Ok(());
         }
         let next = self.next_sector();
+        // (The erase certificate is not carried: it may lie there.)
         if self
             .newest
             .iter()
+            .take(usize::from(ERASED_KIND))
             .flatten()
             .any(|&o| o / self.sector_size == next)
         {
@@ -651,10 +688,10 @@ impl<F: NorFlash> RecordLog<F> {
             );
             return Ok(());
         }
-        if !self.sector_is_blank(next)? {
-            self.erase_sector(next)?;
-        }
-        self.next_blank = true;
+        self.erase_sector(next)?;
+        let sector = u8::try_from(next).map_err(|_| StorageError::LogicBug)?;
+        self.append_any(ERASED_KIND, &[sector])?;
+        self.next_ready = true;
         Ok(())
     }
 
@@ -703,7 +740,9 @@ impl<F: NorFlash> RecordLog<F> {
         let next = self.next_sector();
         // 1. The newest record of every kind, read while every sector is intact.
         let mut batch: heapless::Vec<Record, KINDS> = heapless::Vec::new();
-        for kind in 0..MAX_KINDS {
+        // (Not the erase certificate: it names the sector being moved into, and is
+        // spent once the move is done.)
+        for kind in 0..ERASED_KIND {
             if let Some(rec) = self.latest(kind)? {
                 batch.push(rec).map_err(|_| StorageError::LogicBug)?;
             }
@@ -719,8 +758,9 @@ impl<F: NorFlash> RecordLog<F> {
             }
         }
         let n = u8::try_from(batch.len()).map_err(|_| StorageError::LogicBug)?;
-        // 2. A blank next sector.
-        if !self.sector_is_blank(next)? {
+        // 2. A blank next sector: erased and certified by `maintain`, or erased now
+        // (even if it reads blank: see "Interrupted erases").
+        if !self.next_ready {
             self.erase_sector(next)?;
         }
         // 3. The carried batch, oldest first, in slots 0..n.
@@ -739,7 +779,7 @@ impl<F: NorFlash> RecordLog<F> {
         debug!("storage: moved to sector {}, carried {} records", next, n);
         self.cur = next;
         self.next_slot = u32::from(n);
-        self.next_blank = false;
+        self.next_ready = false;
         self.newest = moved;
         Ok(())
     }
@@ -840,9 +880,27 @@ impl<F: NorFlash> RecordLog<F> {
         Ok(true)
     }
 
+    /// Whether the newest erase certificate lies in the current sector and names
+    /// `sector` (a certificate in an older sector predates the move into the current
+    /// one, and with it any use of the sectors after).
+    fn certified(&mut self, sector: u32) -> Result<bool, StorageError<F::Error>> {
+        let Some(off) = self.newest.get(usize::from(ERASED_KIND)).copied().flatten() else {
+            return Ok(false);
+        };
+        if off / self.sector_size != self.cur {
+            return Ok(false);
+        }
+        Ok(match self.read_slot(off)? {
+            Slot::Valid { rec, .. } => {
+                rec.kind == ERASED_KIND && rec.data().first().map(|&b| u32::from(b)) == Some(sector)
+            }
+            _ => false,
+        })
+    }
+
     fn erase_sector(&mut self, sector: u32) -> Result<(), StorageError<F::Error>> {
         let from = sector * self.sector_size;
-        self.next_blank = false;
+        self.next_ready = false;
         self.flash
             .erase(from, from + self.sector_size)
             .map_err(StorageError::Flash)?;

@@ -12,6 +12,14 @@
 //!   fails with [`SimFlashError::PowerLost`] until [`SimFlash::power_on`]. An erase that
 //!   is cut leaves its sector partly erased: the first half reads 0xFF, the rest keeps
 //!   old data. An erase costs one unit of the budget.
+//! * **Marginal erase**: an erase stopped before its end ([`SimFlash::abort_erase`], a
+//!   cut) leaves the sector *marginal* until a complete erase: its cells may read 0xFF
+//!   without the margin the erase verifies (from 80 % of the erase time on, the whole
+//!   sector reads erased). Data programmed there is not retained: at the next power-on
+//!   every byte programmed into a marginal sector loses bit 0 (its CRC fails), and
+//!   [`SimFlash::marginal_programs`] counts the programs that went there.
+//! * **Write protection** ([`SimFlash::write_protect`], the option bytes' nWRP): every
+//!   program and erase fails with [`SimFlashError::Protected`], as on the part.
 
 use embedded_storage::nor_flash::{
     ErrorType, MultiwriteNorFlash, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
@@ -29,6 +37,8 @@ pub enum SimFlashError {
     OutOfBounds,
     /// Power was cut; nothing works until `power_on`.
     PowerLost,
+    /// The sector is write-protected (the controller's WRPERR).
+    Protected,
 }
 
 impl NorFlashError for SimFlashError {
@@ -36,7 +46,7 @@ impl NorFlashError for SimFlashError {
         match self {
             Self::NotAligned => NorFlashErrorKind::NotAligned,
             Self::OutOfBounds => NorFlashErrorKind::OutOfBounds,
-            Self::PowerLost => NorFlashErrorKind::Other,
+            Self::PowerLost | Self::Protected => NorFlashErrorKind::Other,
         }
     }
 }
@@ -51,6 +61,13 @@ pub struct SimFlash {
     budget: Option<u64>,
     powered: bool,
     bytes_written: u64,
+    /// Sectors whose last erase did not complete.
+    marginal: Vec<bool>,
+    /// Byte ranges programmed into a marginal sector (not retained over a power cycle).
+    weak: Vec<core::ops::Range<usize>>,
+    marginal_programs: u64,
+    protected: bool,
+    program_calls: u64,
 }
 
 impl SimFlash {
@@ -63,6 +80,11 @@ impl SimFlash {
             budget: None,
             powered: true,
             bytes_written: 0,
+            marginal: vec![false; sectors],
+            weak: Vec::new(),
+            marginal_programs: 0,
+            protected: false,
+            program_calls: 0,
         }
     }
 
@@ -91,10 +113,36 @@ impl SimFlash {
         !self.powered
     }
 
-    /// Restore power (a reboot); disarms any pending cut.
+    /// Restore power (a reboot); disarms any pending cut. What was programmed into a
+    /// marginal sector is not retained (bit 0 of every byte programmed there reads 0).
     pub fn power_on(&mut self) {
         self.powered = true;
         self.budget = None;
+        for r in std::mem::take(&mut self.weak) {
+            for b in &mut self.mem[r] {
+                *b &= 0xFE;
+            }
+        }
+    }
+
+    /// Programs into a marginally erased sector so far.
+    pub fn marginal_programs(&self) -> u64 {
+        self.marginal_programs
+    }
+
+    /// Whether sector `index`'s last erase did not complete.
+    pub fn is_marginal(&self, index: usize) -> bool {
+        self.marginal.get(index).copied().unwrap_or(false)
+    }
+
+    /// Write-protect the whole region (or lift it).
+    pub fn write_protect(&mut self, on: bool) {
+        self.protected = on;
+    }
+
+    /// Program calls so far, refused ones included.
+    pub fn program_calls(&self) -> u64 {
+        self.program_calls
     }
 
     /// Flip bits of stored bytes (radiation, retention loss): `mem[off] ^= mask`.
@@ -113,7 +161,16 @@ impl SimFlash {
     /// its own (the controller enforces its PSIZE): every bit can only be cleared, each
     /// byte spends one unit of an armed power-cut budget.
     pub fn program(&mut self, offset: u32, bytes: &[u8]) -> Result<(), SimFlashError> {
+        self.program_calls += 1;
         self.check(offset, bytes.len(), 1)?;
+        if self.protected {
+            return Err(SimFlashError::Protected);
+        }
+        if self.is_marginal(offset as usize / self.sector_size) {
+            self.marginal_programs += 1;
+            let o = offset as usize;
+            self.weak.push(o..o + bytes.len());
+        }
         for (i, b) in bytes.iter().enumerate() {
             let o = offset as usize + i;
             if !self.spend() {
@@ -132,23 +189,39 @@ impl SimFlash {
     pub fn erase_sector(&mut self, index: usize) -> Result<(), SimFlashError> {
         let from = index * self.sector_size;
         self.check(from as u32, self.sector_size, self.sector_size)?;
+        if self.protected {
+            return Err(SimFlashError::Protected);
+        }
         let range = from..from + self.sector_size;
         if !self.spend() {
             let half = range.start + self.sector_size / 2;
             self.mem[range.start..half].fill(0xFF);
+            self.marginal[index] = true;
             return Err(SimFlashError::PowerLost);
         }
+        self.weak
+            .retain(|r| r.end <= range.start || r.start >= range.end);
         self.mem[range].fill(0xFF);
         self.erase_counts[index] += 1;
+        self.marginal[index] = false;
         Ok(())
     }
 
     /// An erase of sector `index` stopped by a reset when `done_permille` of its time had
     /// passed: that fraction of the sector (from its start) reads erased, the rest keeps
-    /// its old data. Not counted as an erase.
+    /// its old data — from 800 ‰ on, all of it reads erased; either way the sector is
+    /// marginal until a complete erase. Not counted as an erase.
     pub fn abort_erase(&mut self, index: usize, done_permille: u32) {
         let from = index * self.sector_size;
-        let n = self.sector_size * done_permille.min(1000) as usize / 1000;
+        if let Some(m) = self.marginal.get_mut(index) {
+            *m = true;
+        }
+        let permille = if done_permille >= 800 {
+            1000
+        } else {
+            done_permille
+        };
+        let n = self.sector_size * permille as usize / 1000;
         if let Some(part) = self.mem.get_mut(from..from + n) {
             part.fill(0xFF);
         }
@@ -271,11 +344,41 @@ mod tests {
         let mut tail = [0u8; 4];
         f.read(1020, &mut tail).unwrap();
         assert_eq!(tail, [0x11; 4], "second half keeps old data");
+        assert!(f.is_marginal(0));
         assert_eq!(
             f.erase_counts(),
             &[0, 0],
             "a cut erase is not counted as done"
         );
+        f.erase(0, 1024).unwrap();
+        assert!(!f.is_marginal(0), "a complete erase restores the margin");
+    }
+
+    #[test]
+    fn a_late_aborted_erase_reads_blank_but_does_not_retain() {
+        let mut f = SimFlash::new(2, 1024);
+        f.write(1020, &[0x11; 4]).unwrap();
+        f.abort_erase(0, 900);
+        let mut all = [0u8; 1024];
+        f.read(0, &mut all).unwrap();
+        assert!(all.iter().all(|&b| b == 0xFF), "reads blank");
+        f.write(0, &[0x55; 4]).unwrap();
+        assert_eq!(f.marginal_programs(), 1);
+        f.power_on();
+        let mut b = [0u8; 4];
+        f.read(0, &mut b).unwrap();
+        assert_eq!(b, [0x54; 4], "not retained");
+    }
+
+    #[test]
+    fn write_protection_refuses_programs_and_erases() {
+        let mut f = SimFlash::new(2, 1024);
+        f.write_protect(true);
+        assert_eq!(f.write(0, &[0; 4]), Err(SimFlashError::Protected));
+        assert_eq!(f.erase(0, 1024), Err(SimFlashError::Protected));
+        assert_eq!(f.program_calls(), 1);
+        f.write_protect(false);
+        f.write(0, &[0; 4]).unwrap();
     }
 }
 

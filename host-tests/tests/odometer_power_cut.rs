@@ -17,7 +17,7 @@ use hil_sim::flash::{SharedFlash, SimFlash};
 use hil_sim::rig::{Rig, RigOptions};
 use hil_sim::rng::Rng;
 
-const FILLER_KIND: u8 = 15;
+const FILLER_KIND: u8 = 14;
 
 fn opts() -> RigOptions {
     RigOptions::new(80)
