@@ -364,7 +364,10 @@ mod app {
             rate_sps,
             bor
         );
-        ctrl.boot(cause, crashed);
+        let journals = crash::journal_take();
+        let journals: heapless::Vec<_, 2> = journals.into_iter().flatten().collect();
+        ctrl.boot(cause, crashed, &journals);
+        crash::journal_write(&ctrl.journal());
         let (used, size) = crash::stack_usage();
         ctrl.set_stack_usage(used, size);
 
@@ -468,6 +471,8 @@ mod app {
             }
             let cfg = ctrl.kernel_config();
             cx.shared.kernel.lock(|k| k.configure(cfg, now));
+            // What a reset must not lose (the flash snapshot waits for a rest).
+            crash::journal_write(&ctrl.journal());
         });
         IDLE_WORK.store(true, Ordering::Relaxed);
     }

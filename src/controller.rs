@@ -33,7 +33,9 @@ use crate::hal::{StepPulses, StopLatch, Watchdog};
 use crate::hx711::Calibration;
 use crate::lock::{LockActuator, LockCmd};
 use crate::material::Material;
-use crate::odometer::{self, restore, CycleSummary, Odometer, StateRecord, WearConfig, WearLevel};
+use crate::odometer::{
+    self, restore, CycleSummary, Journal, Odometer, StateRecord, WearConfig, WearLevel,
+};
 use crate::profile::{ContactPhase, BOUNDARY_UM, STROKE_UM};
 use crate::propulsion::Propulsion;
 use crate::safety::{GuardMode, KernelConfig, KernelEvent};
@@ -260,6 +262,9 @@ const JUMP_MID_MN: i32 = 156_700;
 const EVENT_QUEUE: usize = 32;
 /// Fault records kept.
 const FAULTS_KEPT: usize = 16;
+/// Tries a counter snapshot (or a sector pre-erase) gets, one per rest, before the
+/// controller raises [`FaultKind::Storage`].
+pub const STORAGE_ATTEMPTS: u8 = 3;
 
 /// The docking controller.
 pub struct Controller<B: Bsp> {
@@ -313,6 +318,12 @@ pub struct Controller<B: Bsp> {
     /// The pending snapshot ends a cycle (a history entry).
     persist_cycle_end: bool,
     storage_errors: u32,
+    /// Failed record writes (or erases) in a row, up to [`STORAGE_ATTEMPTS`].
+    storage_failures: u8,
+    /// The flash refused [`STORAGE_ATTEMPTS`] times: no more tries until a fault clear.
+    storage_blocked: bool,
+    /// A storage fault waits for the sequencer (raised at the next step it can latch).
+    storage_fault_due: bool,
     /// Resets by cause since commissioning (from flash).
     resets: ResetCounts,
     /// This boot's reset cause (`None` until the board reports it).
@@ -538,6 +549,9 @@ impl<B: Bsp> Controller<B> {
             persist_pending: false,
             persist_cycle_end: false,
             storage_errors: 0,
+            storage_failures: 0,
+            storage_blocked: false,
+            storage_fault_due: false,
             resets,
             last_reset: None,
             last_crash,
@@ -575,22 +589,39 @@ impl<B: Bsp> Controller<B> {
         }
     }
 
-    /// Background work, off the control step: write the pending counter snapshot and
-    /// pre-erase the next odometer sector if due — only while every motor is off (Idle,
-    /// Faulted): a flash erase stalls the CPU for up to 2 s. The board runs it at its
-    /// lowest priority; the rig after each step.
+    /// Background work, off the control step: count the load–distance of a cycle cut
+    /// short, write the pending counter snapshot and pre-erase the next odometer sector
+    /// if due — only at rest (power-up, idle, faulted) with every motor off: a flash
+    /// erase stalls the CPU for up to 2 s. The board runs it at its lowest priority; the
+    /// rig after each step.
     pub fn background(&mut self) {
-        if matches!(self.seq.state(), State::Idle | State::Faulted { .. })
-            && !self.prop.is_enabled()
+        if matches!(
+            self.seq.state(),
+            State::PowerUp | State::Idle | State::Faulted { .. }
+        ) && !self.prop.is_enabled()
             && self.lock.cmd() == LockCmd::Off
         {
+            // A cycle that ended in a fault (or a recovery that touched the cone) left
+            // load–distance no completed cycle will count: it is the cone's now.
+            let w = self.odo.fold_pending();
+            if w > 0 {
+                info!("odometer: {} mN·µm of an unfinished cycle counted", w / 2);
+                self.persist_pending = true;
+            }
             self.persist();
         }
     }
 
-    /// Write the pending counter snapshot, and pre-erase the next sector if due.
+    /// Write the pending counter snapshot, and pre-erase the next sector if due. A
+    /// failure is retried at the next rest, [`STORAGE_ATTEMPTS`] times in all; then a
+    /// storage fault is raised and nothing more is tried until it is cleared (a retry at
+    /// every step would fill a sector with torn slots in seconds).
     fn persist(&mut self) {
+        if self.storage_blocked {
+            return;
+        }
         let Some(l) = self.log.as_mut() else { return };
+        let mut failed = false;
         if self.persist_pending {
             let rec = StateRecord::of(&self.odo, self.persist_cycle_end).to_bytes();
             match l.append(odometer::kind::STATE, &rec) {
@@ -599,20 +630,39 @@ impl<B: Bsp> Controller<B> {
                     self.persist_cycle_end = false;
                 }
                 Err(_) => {
-                    // Keep it pending: the next idle step retries (nothing is lost in RAM).
-                    self.storage_errors = self.storage_errors.saturating_add(1);
-                    error!("odometer: counter snapshot not written; will retry");
+                    // Kept pending (the counters stay in RAM and in the RAM journal).
+                    failed = true;
+                    error!("odometer: counter snapshot not written");
                 }
             }
         }
-        if !self.persist_pending && l.needs_maintenance() && l.maintain().is_err() {
-            self.storage_errors = self.storage_errors.saturating_add(1);
+        if !self.persist_pending && !failed && l.needs_maintenance() && l.maintain().is_err() {
+            failed = true;
+            error!("odometer: sector pre-erase failed");
+        }
+        if !failed {
+            if !self.persist_pending {
+                self.storage_failures = 0;
+            }
+            return;
+        }
+        self.storage_errors = self.storage_errors.saturating_add(1);
+        self.storage_failures = self.storage_failures.saturating_add(1);
+        if self.storage_failures >= STORAGE_ATTEMPTS {
+            error!(
+                "odometer: flash failed {} times in a row; storage fault",
+                self.storage_failures
+            );
+            self.storage_blocked = true;
+            self.storage_fault_due = true;
         }
     }
 
     /// At boot, before the first step (every motor off): count the reset `cause` in
-    /// flash, and store and report `crash` if the last run ended in one.
-    pub fn boot(&mut self, cause: ResetCause, crash: Option<Crash>) {
+    /// flash, store and report `crash` if the last run ended in one, and take back from
+    /// `journals` (the RAM journals the last run left that survived) what the flash
+    /// snapshot does not hold yet.
+    pub fn boot(&mut self, cause: ResetCause, crash: Option<Crash>, journals: &[Journal]) {
         self.resets.count(cause);
         self.last_reset = Some(cause);
         info!("reset cause: {}", cause.name());
@@ -627,6 +677,18 @@ impl<B: Bsp> Controller<B> {
             );
             self.last_crash = Some(c);
         }
+        let before = self.odo.journal();
+        let w: u64 = journals.iter().map(|j| self.odo.recover(j)).sum();
+        {
+            if self.odo.journal() != before {
+                warn!(
+                    "odometer: {} mN·µm and {} cycle(s) the reset cut off recovered from RAM",
+                    w / 2,
+                    self.odo.cone().cycles.saturating_sub(before.cone_cycles)
+                );
+                self.persist_pending = true;
+            }
+        }
         if let Some(l) = self.log.as_mut() {
             let mut ok = l
                 .append(odometer::kind::RESETS, &self.resets.to_bytes())
@@ -638,6 +700,12 @@ impl<B: Bsp> Controller<B> {
                 self.storage_errors = self.storage_errors.saturating_add(1);
             }
         }
+    }
+
+    /// The counters a reset must not lose, for the board's RAM journal (after every
+    /// step).
+    pub fn journal(&self) -> Journal {
+        self.odo.journal()
     }
 
     /// The board's measurement of the stack: deepest use and size, bytes.
@@ -853,6 +921,13 @@ impl<B: Bsp> Controller<B> {
         if request == Some(Request::ClearFault) && matches!(state, State::Faulted { .. }) {
             // The kernel forgets its sample history and restarts its timeout.
             self.clear_epoch = self.clear_epoch.wrapping_add(1);
+            // The flash gets another STORAGE_ATTEMPTS tries.
+            self.storage_blocked = false;
+            self.storage_failures = 0;
+            self.storage_fault_due = false;
+        } else if self.storage_fault_due && !matches!(state, State::Faulted { .. }) {
+            self.storage_fault_due = false;
+            fault = fault.or(Some(FaultKind::Storage));
         }
         let inputs = Inputs {
             now_ms,

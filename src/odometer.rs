@@ -349,6 +349,55 @@ impl Odometer {
         }
     }
 
+    /// A cycle cut short (a fault, an overload): the load–distance it put on the cone so
+    /// far goes to the cone and the lifetime totals now, without counting a cycle, so
+    /// that the next snapshot carries it. Returns the amount, Q63.1.
+    pub fn fold_pending(&mut self) -> u64 {
+        let w = core::mem::take(&mut self.pending_q1);
+        if w > 0 {
+            self.cone.w_q1 = self.cone.w_q1.saturating_add(w);
+            self.life.w_q1 = self.life.w_q1.saturating_add(w);
+            self.refresh();
+        }
+        w
+    }
+
+    /// What a reset must not lose: the counters as they are now, the cycle in progress
+    /// included (see [`Journal`]).
+    pub fn journal(&self) -> Journal {
+        Journal {
+            cone_id: self.cone.id,
+            cone_cycles: self.cone.cycles,
+            cone_w_q1: self.cone.w_q1.saturating_add(self.pending_q1),
+            life_cycles: self.life.cycles,
+            life_w_q1: self.life.w_q1.saturating_add(self.pending_q1),
+        }
+    }
+
+    /// After a reset: take what the RAM journal knew beyond the restored counters (the
+    /// load–distance of a cycle the reset cut short, or a cycle completed but not yet
+    /// written). Every counter only grows: each is the larger of the two, so applying
+    /// a journal twice changes nothing. A journal of another cone is ignored. Returns
+    /// the cone load–distance recovered, Q63.1 (0: nothing changed).
+    pub fn recover(&mut self, j: &Journal) -> u64 {
+        if j.cone_id != self.cone.id {
+            return 0;
+        }
+        let gained = j.cone_w_q1.saturating_sub(self.cone.w_q1);
+        let changed = gained > 0
+            || j.cone_cycles > self.cone.cycles
+            || j.life_cycles > self.life.cycles
+            || j.life_w_q1 > self.life.w_q1;
+        if changed {
+            self.cone.w_q1 = self.cone.w_q1.max(j.cone_w_q1);
+            self.cone.cycles = self.cone.cycles.max(j.cone_cycles);
+            self.life.w_q1 = self.life.w_q1.max(j.life_w_q1);
+            self.life.cycles = self.life.cycles.max(j.life_cycles);
+            self.refresh();
+        }
+        gained
+    }
+
     /// Count an overload trip with its force.
     pub fn record_overload(&mut self, force_mn: i32) {
         self.life.overload_events = self.life.overload_events.saturating_add(1);
@@ -587,6 +636,100 @@ pub fn cone_from_bytes(b: &[u8]) -> Option<Cone> {
     })
 }
 
+/// The counters as a reset must find them: kept by the board in RAM that no reset
+/// initialises, rewritten after every control step, read back at boot
+/// ([`Odometer::recover`]). The flash snapshot is written only at rest (an erase or a
+/// program stalls the CPU); the journal covers a reset between (watchdog, pin, crash,
+/// brown-out with the supply still holding SRAM). A power cut loses SRAM and with it
+/// at most the cycle in progress.
+///
+/// In RAM, 16 words: a magic word, then every field followed by its bitwise complement
+/// (a field of a torn update, or SRAM that lost power, fails the check):
+///
+/// ```text
+///  word  0       1..3        3..5           5..9            9..11           11..15
+///       +-------+-----------+--------------+---------------+---------------+---------------+
+///       | magic | id, !id   | cone_cycles, | cone_w_q1 lo, | life_cycles,  | life_w_q1 lo, |
+///       |       | (u16 in   | !cone_cycles | hi, !lo, !hi  | !life_cycles  | hi, !lo, !hi  |
+///       |       |  a word)  |              |               |               |               |
+///       +-------+-----------+--------------+---------------+---------------+---------------+
+///  word 15: JOURNAL_MAGIC again (written last)
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Journal {
+    /// Cone the per-cone counters belong to.
+    pub cone_id: u16,
+    /// Cone cycles completed.
+    pub cone_cycles: u32,
+    /// Cone load–distance, the cycle in progress included, Q63.1 mN·µm.
+    pub cone_w_q1: u64,
+    /// Lifetime cycles completed.
+    pub life_cycles: u32,
+    /// Lifetime load–distance, the cycle in progress included, Q63.1 mN·µm.
+    pub life_w_q1: u64,
+}
+
+/// Words of a [`Journal`] in RAM.
+pub const JOURNAL_WORDS: usize = 16;
+/// The journal's magic word (first and last).
+pub const JOURNAL_MAGIC: u32 = 0x70DC_1A11;
+
+impl Journal {
+    /// The RAM image.
+    pub fn to_words(&self) -> [u32; JOURNAL_WORDS] {
+        let (cw, lw) = (self.cone_w_q1, self.life_w_q1);
+        let f = [
+            self.cone_id as u32,
+            self.cone_cycles,
+            cw as u32,
+            (cw >> 32) as u32,
+            self.life_cycles,
+            lw as u32,
+            (lw >> 32) as u32,
+        ];
+        [
+            JOURNAL_MAGIC,
+            f[0],
+            !f[0],
+            f[1],
+            !f[1],
+            f[2],
+            f[3],
+            !f[2],
+            !f[3],
+            f[4],
+            !f[4],
+            f[5],
+            f[6],
+            !f[5],
+            !f[6],
+            JOURNAL_MAGIC,
+        ]
+    }
+
+    /// From a RAM image; `None` unless every check holds.
+    pub fn from_words(w: &[u32; JOURNAL_WORDS]) -> Option<Self> {
+        let [m0, id, nid, cc, ncc, cwl, cwh, ncwl, ncwh, lc, nlc, lwl, lwh, nlwl, nlwh, m1] = *w;
+        let ok = m0 == JOURNAL_MAGIC
+            && m1 == JOURNAL_MAGIC
+            && id == !nid
+            && id <= u16::MAX as u32
+            && cc == !ncc
+            && cwl == !ncwl
+            && cwh == !ncwh
+            && lc == !nlc
+            && lwl == !nlwl
+            && lwh == !nlwh;
+        ok.then_some(Self {
+            cone_id: id as u16,
+            cone_cycles: cc,
+            cone_w_q1: (cwh as u64) << 32 | cwl as u64,
+            life_cycles: lc,
+            life_w_q1: (lwh as u64) << 32 | lwl as u64,
+        })
+    }
+}
+
 /// Rebuild an odometer from the latest cone and state records (either may be absent:
 /// a fresh machine starts with cone 1 of `default_material`). State records of another
 /// cone than the latest cone record (a cut between the two writes of a replacement)
@@ -637,6 +780,65 @@ mod tests {
             e_at_depth_q32(u32::MAX) > e_at_depth_q32(5_000_000),
             "no overflow at the top"
         );
+    }
+
+    #[test]
+    fn a_cut_short_cycle_lost_its_load_distance() {
+        let mut o = nominal(10);
+        let w0 = o.cone().w_q1;
+        for (i, f) in [(0, 10_000), (500, 20_000), (1_000, 30_000)] {
+            o.on_contact_sample(i, f);
+        }
+        let pending = o.pending_q1();
+        assert!(pending > 0);
+        // A fault ends the cycle early: its wear is the cone's, no cycle is counted.
+        assert_eq!(o.fold_pending(), pending);
+        assert_eq!(o.cone().w_q1, w0 + pending);
+        assert_eq!(o.cone().cycles, 10);
+        assert_eq!(o.pending_q1(), 0);
+        assert_eq!(o.fold_pending(), 0, "folded once");
+    }
+
+    #[test]
+    fn a_reset_mid_cycle_lost_its_load_distance() {
+        let mut before = nominal(10);
+        before.on_contact_sample(0, 10_000);
+        before.on_contact_sample(2_000, 50_000);
+        let j = before.journal();
+        let words = j.to_words();
+        assert_eq!(Journal::from_words(&words), Some(j));
+        // Rebooted from the flash snapshot (10 cycles, no pending wear).
+        let mut after = nominal(10);
+        let gained = after.recover(&j);
+        assert_eq!(gained, before.pending_q1());
+        assert_eq!(after.cone().w_q1, before.journal().cone_w_q1);
+        assert!(after.wear_nm() >= before.wear_nm());
+        // Twice is once; a stale journal never takes anything back.
+        assert_eq!(after.recover(&j), 0);
+        let mut stale = j;
+        stale.cone_w_q1 = 0;
+        stale.cone_cycles = 0;
+        assert_eq!(after.recover(&stale), 0);
+        assert_eq!(after.cone().w_q1, j.cone_w_q1);
+        // Another cone's journal is not this cone's wear.
+        let mut other = nominal(10);
+        let mut j2 = j;
+        j2.cone_id = 2;
+        assert_eq!(other.recover(&j2), 0);
+        assert_eq!(other.cone().w_q1, nominal(10).cone().w_q1);
+    }
+
+    #[test]
+    fn a_torn_or_powered_off_journal_is_refused() {
+        let j = nominal(3).journal();
+        let w = j.to_words();
+        for i in 0..JOURNAL_WORDS {
+            let mut t = w;
+            t[i] ^= 1 << (i % 32);
+            assert_eq!(Journal::from_words(&t), None, "word {i} flipped");
+        }
+        assert_eq!(Journal::from_words(&[0; JOURNAL_WORDS]), None);
+        assert_eq!(Journal::from_words(&[u32::MAX; JOURNAL_WORDS]), None);
     }
 
     #[test]

@@ -72,6 +72,10 @@ pub enum FaultKind {
     /// A pulling force beyond the tension limit, or a load cell bridge wired in reverse
     /// (compression reading negative).
     Tension,
+    /// The odometer's flash refused a record [`crate::controller::STORAGE_ATTEMPTS`]
+    /// times in a row: wear would go unrecorded, so no new cycle starts (the counters
+    /// are kept in RAM; clearing the fault tries again).
+    Storage,
 }
 
 impl FaultKind {
@@ -90,6 +94,7 @@ impl FaultKind {
             Self::SwitchConflict => "switch_conflict",
             Self::Io => "io",
             Self::Tension => "tension",
+            Self::Storage => "storage",
         }
     }
 
@@ -113,6 +118,7 @@ impl FaultKind {
             9 => Self::SwitchConflict,
             10 => Self::Io,
             11 => Self::Tension,
+            12 => Self::Storage,
             _ => return None,
         })
     }
@@ -1063,6 +1069,7 @@ mod tests {
         assert_eq!(FaultKind::from_code(0), Some(FaultKind::Overload));
         assert_eq!(FaultKind::from_code(10), Some(FaultKind::Io));
         assert_eq!(FaultKind::from_code(11), Some(FaultKind::Tension));
-        assert_eq!(FaultKind::from_code(12), None);
+        assert_eq!(FaultKind::from_code(12), Some(FaultKind::Storage));
+        assert_eq!(FaultKind::from_code(13), None);
     }
 }

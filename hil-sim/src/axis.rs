@@ -39,6 +39,9 @@ pub enum AxisFault {
     HomeSwitchDead,
     /// The end switch never closes.
     EndSwitchDead,
+    /// The end switch reads closed wherever the carriage is (an overtravel the model's
+    /// geometry does not produce: a misadjusted stop, a bent actuator).
+    EndSwitchClosed,
 }
 
 /// One driver-enable edge.
@@ -94,6 +97,8 @@ pub struct AxisModel {
     enabled: Cell<bool>,
     last_ns: Cell<u64>,
     fault: Cell<AxisFault>,
+    /// Reads of the end switch still to come out closed (electrical noise).
+    end_noise_reads: Cell<u32>,
     edges: RefCell<Vec<EnableEdge>>,
     /// Total carriage travel, steps (both directions).
     travel_steps: Cell<u64>,
@@ -224,6 +229,7 @@ impl SimAxis {
             enabled: Cell::new(false),
             last_ns: Cell::new(clock.now_ns()),
             fault: Cell::new(AxisFault::None),
+            end_noise_reads: Cell::new(0),
             edges: RefCell::new(Vec::new()),
             travel_steps: Cell::new(0),
             um_per_step: 1000.0 / cfg.steps_per_mm as f64,
@@ -274,6 +280,11 @@ impl SimAxis {
     /// Inject or clear a fault.
     pub fn set_fault(&self, fault: AxisFault) {
         self.now().fault.set(fault);
+    }
+
+    /// Electrical noise on the end-switch line: its next `reads` reads see it closed.
+    pub fn glitch_end_switch(&self, reads: u32) {
+        self.now().end_noise_reads.set(reads);
     }
 
     /// Driver-enable edges so far.
@@ -394,7 +405,16 @@ impl embedded_hal::digital::InputPin for AxisPin {
         let pos = m.pos_steps.get();
         Ok(match self.1 {
             PinRole::Home => !(m.fault.get() != AxisFault::HomeSwitchDead && pos <= 0),
-            PinRole::End => !(m.fault.get() != AxisFault::EndSwitchDead && pos >= m.end_steps),
+            PinRole::End => {
+                let noise = m.end_noise_reads.get();
+                m.end_noise_reads.set(noise.saturating_sub(1));
+                let closed = match m.fault.get() {
+                    AxisFault::EndSwitchDead => false,
+                    AxisFault::EndSwitchClosed => true,
+                    _ => pos >= m.end_steps,
+                };
+                !(closed || noise > 0)
+            }
             PinRole::EnableN => !m.enabled.get(),
             PinRole::Dir => m.dir_positive.get(),
             PinRole::Step => m.step_high.get(),

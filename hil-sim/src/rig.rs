@@ -255,6 +255,9 @@ pub struct ForceScript {
     pub spike_n: f64,
     /// Offset added to every conversion (a shifted bridge: implausible tare), N.
     pub offset_n: f64,
+    /// The bridge wired in reverse (its signal leads swapped): compression reads as
+    /// tension.
+    pub reversed: bool,
 }
 
 /// What the rig's load cell measures: N3 of Eq. 7 at the carriage's position (the
@@ -314,7 +317,11 @@ impl ForceSource for ProfileForce {
         if !s.spikes_at.is_empty() && s.spikes_at.binary_search(&n).is_ok() {
             f += s.spike_n;
         }
-        f
+        if s.reversed {
+            -f
+        } else {
+            f
+        }
     }
 }
 

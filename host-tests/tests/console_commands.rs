@@ -58,7 +58,9 @@ fn read_commands_in_text_and_json() {
 
     let w = r.command("wear", 10);
     assert!(
-        w.starts_with("cone=1 material=zqsn5-2 ") && w.contains(" cycles=3 wear_mm=0.00"),
+        w.starts_with("cone=1 material=zqsn5-2 ")
+            && w.contains(" cycles=3 load_distance_nmm=")
+            && w.contains(" wear_mm=0.00"),
         "{w}"
     );
     let w = json(&r.command("wear --json", 10));
@@ -67,6 +69,9 @@ fn read_commands_in_text_and_json() {
     assert_eq!(w["lifetime_cycles"], 3);
     let wear_mm = w["wear_mm"].as_f64().unwrap();
     assert!(wear_mm > 0.005 && wear_mm < 0.01, "{wear_mm}");
+    // The cone's total: three cycles of ≈ 8 087 N·mm each (Eq. 7 over the stroke).
+    let ld = w["load_distance_nmm"].as_f64().unwrap();
+    assert!((24_000.0..24_600.0).contains(&ld), "{ld}");
     assert!(w["remaining_cycles"].as_u64().unwrap() > 45_000);
 
     let h = r.command("history 2", 10);

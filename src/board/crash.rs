@@ -1,4 +1,5 @@
-//! Crash records that survive the reset, and the stack's deepest use.
+//! What survives a reset in RAM: crash records, the odometer's journal; and the stack's
+//! deepest use.
 //!
 //! A panic or a HardFault writes a [`Crash`] (what and where) into [`CRASH_BLOCK`], in
 //! `.uninit` RAM that no reset initialises, then resets the MCU; the next boot finds it
@@ -12,7 +13,11 @@
 //! If the last run had painted its stack ([`PAINTED`]) and a word there is paint no
 //! more, the stack reached its bottom.
 //!
-//! Layout of the block (`#[repr(C)]`, words):
+//! The odometer's journal ([`ODO_JOURNAL`], format in
+//! `docking_controller::odometer::Journal`) keeps the counters of the cycle in progress
+//! through a reset; the flash snapshot is written only at rest.
+//!
+//! Layout of the crash block (`#[repr(C)]`, words):
 //!
 //! ```text
 //!  0       4     8                       52        56         60
@@ -27,6 +32,7 @@ use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 
 use docking_controller::diag::{Crash, CrashKind, CRASH_LEN};
+use docking_controller::odometer::{Journal, JOURNAL_WORDS};
 
 /// A crash is recorded.
 const MAGIC: u32 = 0xC4A5_4BAD;
@@ -151,5 +157,44 @@ pub fn stack_usage() -> (u32, u32) {
             a += 4;
         }
         (top - a, top - bottom)
+    }
+}
+
+/// The odometer's RAM journal ([`Journal`]): two slots, written alternately after every
+/// control step, so that a reset in the middle of one update leaves the other (one step
+/// older) whole. In `.uninit` RAM, like the crash block.
+#[no_mangle]
+#[link_section = ".uninit.ODO_JOURNAL"]
+static mut ODO_JOURNAL: MaybeUninit<[[u32; JOURNAL_WORDS]; 2]> = MaybeUninit::uninit();
+
+/// The slot the next [`journal_write`] goes to.
+static mut JOURNAL_NEXT: usize = 0;
+
+/// Keep `j` in the journal (from the control task only: one writer).
+pub fn journal_write(j: &Journal) {
+    let words = j.to_words();
+    // SAFETY: the control task is the only writer (and `journal_take` runs in init,
+    // before it); raw volatile word writes into the `.uninit` block, no reference made.
+    unsafe {
+        let next = addr_of_mut!(JOURNAL_NEXT);
+        let slot = next.read() & 1;
+        let base = (addr_of_mut!(ODO_JOURNAL) as *mut u32).add(slot * JOURNAL_WORDS);
+        for (i, w) in words.iter().enumerate() {
+            base.add(i).write_volatile(*w);
+        }
+        next.write(slot ^ 1);
+    }
+}
+
+/// At boot: the journals the last run left (either slot may be torn or, after a power
+/// cut, noise; the checks of [`Journal::from_words`] refuse those).
+pub fn journal_take() -> [Option<Journal>; 2] {
+    // SAFETY: init runs alone; raw reads of the block.
+    unsafe {
+        let b = addr_of_mut!(ODO_JOURNAL) as *mut [u32; JOURNAL_WORDS];
+        [
+            Journal::from_words(&b.read_volatile()),
+            Journal::from_words(&b.add(1).read_volatile()),
+        ]
     }
 }

@@ -549,12 +549,15 @@ impl Console {
         let (wear_nm, remaining, level) = (odo.wear_nm(), odo.remaining_cycles(), odo.level());
         let cfg = *odo.config();
         let warn_nm = (cfg.limit_nm as u64 * cfg.warn_pct as u64 / 100) as i64;
+        // The cone's load–distance (Q63.1 mN·µm) in thousandths of N·mm.
+        let cone_nmm_milli = (cone.w_q1 / 2_000).min(i64::MAX as u64) as i64;
         if json {
             self.reply_json(|j| {
                 j.u64("cone", cone.id as u64)?
                     .str("material", cone.material.name())?
                     .str("serial", cone.serial_str())?
                     .u64("cycles", cone.cycles as u64)?
+                    .fixed("load_distance_nmm", cone_nmm_milli, 3)?
                     .fixed("wear_mm", wear_nm as i64, 6)?
                     .u64("remaining_cycles", remaining as u64)?
                     .str("level", level.name())?
@@ -577,6 +580,7 @@ impl Console {
                     cone.serial_str(),
                     cone.cycles
                 )?;
+                kv_fixed(o, "load_distance_nmm", cone_nmm_milli, 3)?;
                 kv_fixed(o, "wear_mm", wear_nm as i64, 6)?;
                 write!(o, " remaining_cycles={remaining} level={}", level.name())?;
                 kv_fixed(o, "limit_mm", cfg.limit_nm as i64, 6)?;

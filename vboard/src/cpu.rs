@@ -730,8 +730,22 @@ impl Board {
         self.soc().now()
     }
 
-    /// Apply power (a power-on reset).
+    /// Apply power (a power-on reset). SRAM and CCM RAM come up holding noise, not what
+    /// the last run left (a pin, watchdog or software reset keeps them).
     pub fn power_on(&mut self) {
+        let mut x = 0x9E37_79B9_7F4A_7C15u64 ^ self.now();
+        for (base, len) in [(SRAM, SRAM_SIZE), (0x1000_0000, 0x1_0000)] {
+            let noise: Vec<u8> = (0..len)
+                .map(|_| {
+                    // xorshift64
+                    x ^= x << 13;
+                    x ^= x >> 7;
+                    x ^= x << 17;
+                    x as u8
+                })
+                .collect();
+            let _ = self.uc.mem_write(base as u64, &noise);
+        }
         self.reset(ResetCause::PowerOn);
     }
 

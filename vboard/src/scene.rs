@@ -94,7 +94,8 @@ pub struct Session {
     pub opts: Options,
     /// The log, interpreted.
     pub seen: Observed,
-    engage_um: i32,
+    /// Where the rod meets the cone (insertion depth 0), µm.
+    pub engage_um: i32,
     last_press_ps: Option<u64>,
     press_release_ps: Option<u64>,
 }

@@ -272,3 +272,83 @@ fn a_detached_probe_blocked_the_control_loop() {
     assert_eq!(s.machine().hx.stats().samples_missed, 0);
     assert_eq!(s.watchdog_resets(), 0);
 }
+
+/// Dock and stop `depth_um` into the insertion (the rod in the cone, the lock released).
+fn dock_to_depth(s: &mut Session, depth_um: f64) {
+    s.run_for(PS_PER_S).unwrap();
+    s.press_dock();
+    let target = s.engage_um as f64 + depth_um;
+    let t = s.now() + 60 * PS_PER_S;
+    let reached = s
+        .run_until(t, |x| {
+            x.machine().axis.pos_um() >= target && x.machine().lock.fraction_locked() <= 0.0
+        })
+        .unwrap();
+    assert!(reached, "did not reach {depth_um} µm into the insertion");
+}
+
+fn load_distance_nmm(s: &mut Session) -> f64 {
+    let w = json(&s.console_json("wear --json").unwrap());
+    w["load_distance_nmm"].as_f64().expect("load_distance_nmm")
+}
+
+#[test]
+fn a_reset_mid_insertion_lost_the_cycles_load_distance() {
+    let mut s = Session::new(Options::new()).expect("board");
+    dock_to_depth(&mut s, 10_000.0);
+    // The flash holds nothing of this cycle yet (it is written at rest); the RAM
+    // journal has it.
+    s.board.reset_pin();
+    s.run_for(2 * PS_PER_S).unwrap();
+    assert_eq!(s.reset_causes(), vec!["power_on", "pin"]);
+    assert!(
+        logged(&s, "recovered from RAM"),
+        "{:?}",
+        s.board.log.iter().map(|l| &l.msg).collect::<Vec<_>>()
+    );
+    let ld = load_distance_nmm(&mut s);
+    // Eq. 7 over the first 10 mm of the stroke: several hundred N·mm.
+    assert!(ld > 100.0, "{ld} N·mm");
+    // Written to flash at the first rest: a power cut now keeps it.
+    s.board.power_on();
+    s.run_for(2 * PS_PER_S).unwrap();
+    assert_eq!(load_distance_nmm(&mut s), ld);
+}
+
+#[test]
+fn a_power_cut_mid_insertion_loses_only_the_cycle_in_progress() {
+    // SRAM does not survive a power cut: the journal is noise, refused by its checks,
+    // and the board boots on the flash snapshot (the documented limit).
+    let mut s = Session::new(Options::new()).expect("board");
+    dock_to_depth(&mut s, 10_000.0);
+    s.board.power_on();
+    s.run_for(2 * PS_PER_S).unwrap();
+    assert_eq!(load_distance_nmm(&mut s), 0.0);
+    assert!(!logged(&s, "recovered from RAM"));
+    let w = json(&s.console_json("wear --json").unwrap());
+    assert_eq!(w["cycles"], 0);
+}
+
+#[test]
+fn a_write_protected_odometer_was_retried_at_every_step() {
+    let mut s = Session::new(Options::new()).expect("board");
+    s.run_for(PS_PER_S).unwrap();
+    // The odometer's sectors write-protected (a bad option byte): every program is a
+    // WRPERR.
+    for sector in [10, 11] {
+        s.board.soc_mut().flash.write_protect(sector, true);
+    }
+    s.press_dock();
+    let t = s.now() + 120 * PS_PER_S;
+    let faulted = s
+        .run_until(t, |x| x.seen.faults.iter().any(|f| f.kind == "storage"))
+        .unwrap();
+    assert!(faulted, "{:?}", s.seen.faults);
+    assert!(logged(&s, "flash failed 3 times in a row"));
+    s.run_for(2 * PS_PER_S).unwrap();
+    let f = json(&s.console_json("faults --json").unwrap());
+    assert_eq!(f["active"], "storage", "{f}");
+    let w = json(&s.console_json("wear --json").unwrap());
+    assert_eq!(w["cycles"], 1, "counted in RAM: {w}");
+    assert!(!s.machine().axis.enabled() && !s.machine().lock.driven());
+}

@@ -228,6 +228,18 @@ impl FlashCtl {
         self.optcr_nv
     }
 
+    /// Write-protect sector `sector` (clear its nWRP bit), or lift the protection, as a
+    /// probe programming the option bytes would. Takes effect at once.
+    pub fn write_protect(&mut self, sector: u32, on: bool) {
+        let bit = 1 << (16 + sector.min(11));
+        if on {
+            self.optcr_nv &= !bit;
+        } else {
+            self.optcr_nv |= bit;
+        }
+        self.optcr = (self.optcr & !bit) | (self.optcr_nv & bit);
+    }
+
     /// Flash wait states (ACR.LATENCY).
     pub fn latency(&self) -> u32 {
         self.acr & 7
