@@ -255,7 +255,7 @@ mod app {
 
     #[init(local = [
         events: Queue<KernelEvent, 16> = Queue::new(),
-        rx_ring: Queue<u8, 257> = Queue::new(),
+        rx_ring: Queue<u16, 257> = Queue::new(),
         tx_ring: Queue<u8, 1025> = Queue::new(),
         ctrl_slot: MaybeUninit<Controller<Board>> = MaybeUninit::uninit(),
         kernel_slot: MaybeUninit<SafetyKernel<BoardAdc>> = MaybeUninit::uninit(),
@@ -409,6 +409,7 @@ mod app {
                     rx,
                     tx,
                     rx_in,
+                    loss_pending: false,
                     tx_out,
                 },
                 term: console::BoardConsole { rx_out, tx_in },

@@ -1,6 +1,7 @@
 //! The simulated serial link: a [`ConsoleIo`] byte stream like the board's USART2 with
-//! its interrupt-fed receive ring (256 bytes: bytes beyond it are lost, an overrun) and a
-//! transmit ring drained by the terminal.
+//! its interrupt-fed receive ring (256 entries: bytes beyond it are lost, an overrun,
+//! and the loss is reported in their place as the board's ring does) and a transmit
+//! ring drained by the terminal.
 
 use std::collections::VecDeque;
 
@@ -14,7 +15,10 @@ pub const TX_RING: usize = 8192;
 /// The link, seen from both ends.
 #[derive(Debug, Default)]
 pub struct SimConsole {
-    rx: VecDeque<u8>,
+    /// Received bytes; `None` stands for lost input.
+    rx: VecDeque<Option<u8>>,
+    /// Input was lost and its entry is not queued yet.
+    loss_pending: bool,
     tx: VecDeque<u8>,
     /// Bytes lost to a full receive ring.
     pub rx_overruns: u64,
@@ -29,10 +33,15 @@ impl SimConsole {
     /// The terminal sends `bytes` (what does not fit in the ring is lost, counted).
     pub fn send(&mut self, bytes: &[u8]) {
         for &b in bytes {
-            if self.rx.len() < RX_RING {
-                self.rx.push_back(b);
+            if self.loss_pending && self.rx.len() < RX_RING {
+                self.rx.push_back(None);
+                self.loss_pending = false;
+            }
+            if !self.loss_pending && self.rx.len() < RX_RING {
+                self.rx.push_back(Some(b));
             } else {
                 self.rx_overruns += 1;
+                self.loss_pending = true;
             }
         }
     }
@@ -50,7 +59,17 @@ impl SimConsole {
 
 impl ConsoleIo for SimConsole {
     fn read_byte(&mut self) -> nb::Result<u8, ()> {
-        self.rx.pop_front().ok_or(nb::Error::WouldBlock)
+        match self.rx.pop_front() {
+            None => {
+                // The ring drained: a loss still pending takes its place now.
+                if std::mem::take(&mut self.loss_pending) {
+                    return Err(nb::Error::Other(()));
+                }
+                Err(nb::Error::WouldBlock)
+            }
+            Some(Some(b)) => Ok(b),
+            Some(None) => Err(nb::Error::Other(())),
+        }
     }
 
     fn write(&mut self, bytes: &[u8]) -> usize {

@@ -214,3 +214,36 @@ fn a_reset_mid_cycle_lost_its_load_distance() {
     let rebooted = Rig::with_flash(RigOptions::new(80), flash);
     assert_eq!(rebooted.ctrl.odometer().cone().w_q1, pending);
 }
+
+#[test]
+fn a_console_line_that_lost_bytes_was_executed() {
+    let mut rig = rig();
+    rig.console_enabled = true;
+    // A burst that fills the 256-entry receive ring: the first line (rejected) and
+    // "history 1" fit; "00" and the terminator are lost.
+    let mut burst = vec![b'x'; 246];
+    burst.push(b'\r');
+    burst.extend_from_slice(b"history 100\r\n");
+    assert_eq!(burst.len(), 260);
+    rig.term.send(&burst);
+    let mut out = Vec::new();
+    for _ in 0..50 {
+        rig.tick();
+        out.extend(rig.term.take_output());
+    }
+    // The next line ends the damaged one (its own terminator was lost).
+    rig.term.send(b"status\r\n");
+    for _ in 0..50 {
+        rig.tick();
+        out.extend(rig.term.take_output());
+    }
+    let out = String::from_utf8_lossy(&out);
+    assert!(rig.term.rx_overruns > 0);
+    assert!(
+        out.contains("error: input lost (receive error or overrun); line discarded"),
+        "{out}"
+    );
+    // The damaged line ("history 1" + "status") ran as nothing.
+    assert!(!out.contains("cycle="), "{out}");
+    assert!(!out.contains("state="), "{out}");
+}

@@ -19,7 +19,13 @@
 //!   A reported [`LineEvent::Line`] is never longer than `N` bytes and contains no CR,
 //!   LF or control character other than tab.
 //! * **Blank lines** (empty, or only spaces/tabs) produce no event.
-//! * **Error precedence** for one line: `TooLong`, then `ControlChar`, then `NotUtf8`.
+//! * **Lost input.** [`LineReader::lost`] (the UART lost a byte: overrun, framing,
+//!   noise, a full receive ring) spoils the line being assembled: it is discarded at
+//!   its terminator as [`LineError::InputLost`], never executed with a byte missing
+//!   (`history 100` must not run as `history 10`). A lost terminator merges two lines
+//!   into one spoiled line.
+//! * **Error precedence** for one line: `InputLost`, `TooLong`, then `ControlChar`, then
+//!   `NotUtf8`.
 //! * **Bounded work.** O(1) per byte, O(N) at a terminator; no allocation, no panic.
 
 use core::fmt;
@@ -48,6 +54,8 @@ pub enum LineError {
     NotUtf8,
     /// The line contained a control character or an escape sequence.
     ControlChar,
+    /// Bytes of the line were lost on the way in (receive error, full ring).
+    InputLost,
 }
 
 impl LineError {
@@ -57,6 +65,7 @@ impl LineError {
             Self::TooLong => "line too long; discarded",
             Self::NotUtf8 => "line is not valid UTF-8; discarded",
             Self::ControlChar => "control character or escape sequence in line; discarded",
+            Self::InputLost => "input lost (receive error or overrun); line discarded",
         }
     }
 }
@@ -101,6 +110,8 @@ pub struct LineReader<const N: usize> {
     overflow: bool,
     /// The current line contained a control character.
     control: bool,
+    /// Bytes of the current line were lost.
+    lost: bool,
     esc: Esc,
     /// The buffer still holds the line returned by the previous call.
     returned: bool,
@@ -131,6 +142,7 @@ impl<const N: usize> LineReader<N> {
             after_cr: false,
             overflow: false,
             control: false,
+            lost: false,
             esc: Esc::None,
             returned: false,
         }
@@ -147,8 +159,20 @@ impl<const N: usize> LineReader<N> {
         self.after_cr = false;
         self.overflow = false;
         self.control = false;
+        self.lost = false;
         self.esc = Esc::None;
         self.returned = false;
+    }
+
+    /// A byte was lost here (the UART reported an error, or its ring was full): the
+    /// line being assembled is spoiled.
+    pub fn lost(&mut self) {
+        if self.returned {
+            self.buf.clear();
+            self.returned = false;
+        }
+        self.lost = true;
+        self.after_cr = false;
     }
 
     /// Feed one received byte; returns an event when it ends a line.
@@ -253,9 +277,13 @@ impl<const N: usize> LineReader<N> {
     fn terminate(&mut self) -> Option<LineEvent<'_>> {
         let overflow = core::mem::replace(&mut self.overflow, false);
         let control = core::mem::replace(&mut self.control, false);
+        let lost = core::mem::replace(&mut self.lost, false);
         self.esc = Esc::None;
         // The buffer is cleared on the next push (the returned line borrows it).
         self.returned = true;
+        if lost {
+            return Some(LineEvent::Error(LineError::InputLost));
+        }
         if overflow {
             return Some(LineEvent::Error(LineError::TooLong));
         }
@@ -296,6 +324,25 @@ mod tests {
             }
         }
         out
+    }
+
+    #[test]
+    fn a_line_that_lost_a_byte_was_executed() {
+        let mut r = LineReader::<64>::new();
+        assert_eq!(feed(&mut r, b"history 1"), []);
+        r.lost(); // the UART dropped the "0"
+        assert_eq!(
+            feed(&mut r, b"0\r\nstatus\r\n"),
+            [Ev::E(LineError::InputLost), Ev::L("status".to_string())]
+        );
+        // A lost terminator: the two lines it separated are one spoiled line.
+        assert_eq!(feed(&mut r, b"wear"), []);
+        r.lost();
+        assert_eq!(feed(&mut r, b"faults\r\n"), [Ev::E(LineError::InputLost)]);
+        // Lost between the CR and LF of a pair: the LF ends the (empty) spoiled line.
+        assert_eq!(feed(&mut r, b"wear\r"), [Ev::L("wear".to_string())]);
+        r.lost();
+        assert_eq!(feed(&mut r, b"\n"), [Ev::E(LineError::InputLost)]);
     }
 
     #[test]

@@ -167,9 +167,10 @@ impl Console {
                 Ok(b) => b,
                 Err(nb::Error::WouldBlock) => break,
                 Err(nb::Error::Other(())) => {
-                    // Framing/overrun/noise: the byte is gone; the line will likely be
-                    // refused by the parser. Count it for the status.
+                    // Framing/overrun/noise/full ring: a byte is gone. The line it was
+                    // part of is discarded, never run with a byte missing.
                     self.rx_errors = self.rx_errors.saturating_add(1);
+                    self.reader.lost();
                     st.bytes_in += 1;
                     continue;
                 }
