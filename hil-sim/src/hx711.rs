@@ -137,8 +137,12 @@ pub struct Hx711Model<S = BoxedSource> {
     /// Ready time of the conversion now being read (for latency measurements).
     reading_ready_ns: u64,
     last_read: Option<(i32, u64)>,
-    /// The last [`RECENT`] conversions: (completion time ns, code, read out).
-    recent: std::collections::VecDeque<(u64, i32, bool)>,
+    /// The last [`RECENT`] conversions: (completion time ns, code, read out), a ring
+    /// (a fixed array: this runs at every conversion of a 45 000-cycle life run).
+    recent: [(u64, i32, bool); RECENT],
+    /// Next slot of `recent` to write; conversions written so far (capped at RECENT).
+    recent_next: usize,
+    recent_len: usize,
 }
 
 /// Conversions kept in [`SimHx711::recent_conversions`].
@@ -186,10 +190,11 @@ impl<S: ForceSource> Hx711Model<S> {
         }
         self.stats.conversions += 1;
         self.ready = Some((code, t));
-        if self.recent.len() == RECENT {
-            self.recent.pop_front();
+        if let Some(slot) = self.recent.get_mut(self.recent_next) {
+            *slot = (t, code, false);
         }
-        self.recent.push_back((t, code, false));
+        self.recent_next = (self.recent_next + 1) % RECENT;
+        self.recent_len = (self.recent_len + 1).min(RECENT);
         self.pulses = 0;
     }
 
@@ -217,8 +222,15 @@ impl<S: ForceSource> Hx711Model<S> {
     }
 
     fn mark_read(&mut self, t: u64) {
-        if let Some(c) = self.recent.iter_mut().rev().find(|c| c.0 == t) {
-            c.2 = true;
+        // Newest first: the one read is almost always the last conversion.
+        for back in 1..=self.recent_len {
+            let i = (self.recent_next + RECENT - back) % RECENT;
+            if let Some(c) = self.recent.get_mut(i) {
+                if c.0 == t {
+                    c.2 = true;
+                    return;
+                }
+            }
         }
     }
 
@@ -333,7 +345,9 @@ impl<S: ForceSource> SimHx711<S> {
             stats: Hx711Stats::default(),
             reading_ready_ns: 0,
             last_read: None,
-            recent: std::collections::VecDeque::with_capacity(RECENT),
+            recent: [(0, 0, false); RECENT],
+            recent_next: 0,
+            recent_len: 0,
         };
         m.next_conv_ns = now + m.settle_ns();
         Self {
@@ -373,7 +387,11 @@ impl<S: ForceSource> SimHx711<S> {
         let now = self.clock.now_ns();
         let mut m = self.model.borrow_mut();
         m.catch_up(now);
-        m.recent.iter().copied().collect()
+        (0..m.recent_len)
+            .rev()
+            .filter_map(|back| m.recent.get((m.recent_next + RECENT - 1 - back) % RECENT))
+            .copied()
+            .collect()
     }
 
     /// Counters so far.

@@ -59,6 +59,9 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
         adc: AdcMode::Pins,
         ..RigOptions::new(opts.rate_sps)
     });
+    // A board's boot: the reset cause counted and shown (`status`, `faults`).
+    rig.ctrl
+        .boot(docking_controller::diag::ResetCause::PowerOn, None, &[]);
     rig.console_enabled = true;
     driver.setup(rig.devices(), 1, opts.rate_sps, 1_000);
     let start = Instant::now();

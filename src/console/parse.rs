@@ -12,6 +12,8 @@
 //! history [N] [--json]                  N = 1..=100, default 10
 //! faults [--json]
 //! clear-fault
+//! home                                  power-up homing (out of the cone) and lock
+//! rate <10|80>                          the HX711's RATE pin setting, from the next boot
 //! cone replace <material> <serial>      material: zqsn5-2 | qsn6-6-3 | cf-peek
 //!                                       serial: 1..=20 chars of [A-Za-z0-9_-]
 //! measure <bore_diameter_mm>            20.000..=40.000, up to 3 decimals → bore_um
