@@ -62,6 +62,22 @@ impl Default for BoardConfig {
 
 const SRAM: u32 = 0x2000_0000;
 const SRAM_SIZE: u32 = 128 * 1024;
+/// R0–R12.
+const GP_REGS: [RegisterARM; 13] = [
+    RegisterARM::R0,
+    RegisterARM::R1,
+    RegisterARM::R2,
+    RegisterARM::R3,
+    RegisterARM::R4,
+    RegisterARM::R5,
+    RegisterARM::R6,
+    RegisterARM::R7,
+    RegisterARM::R8,
+    RegisterARM::R9,
+    RegisterARM::R10,
+    RegisterARM::R11,
+    RegisterARM::R12,
+];
 const CODE_LEN: u32 = ODOMETER_BASE - FLASH_BASE;
 const WFI: u16 = 0xBF30;
 
@@ -767,21 +783,7 @@ impl Board {
         let uc = &mut self.uc;
         let sp = read_u32(uc, 0).unwrap_or(0);
         let pc = read_u32(uc, 4).unwrap_or(0);
-        for r in [
-            RegisterARM::R0,
-            RegisterARM::R1,
-            RegisterARM::R2,
-            RegisterARM::R3,
-            RegisterARM::R4,
-            RegisterARM::R5,
-            RegisterARM::R6,
-            RegisterARM::R7,
-            RegisterARM::R8,
-            RegisterARM::R9,
-            RegisterARM::R10,
-            RegisterARM::R11,
-            RegisterARM::R12,
-        ] {
+        for r in GP_REGS {
             set(uc, r, 0);
         }
         set(uc, RegisterARM::XPSR, 1 << 24);
@@ -990,21 +992,6 @@ impl Board {
             Enable,
             Restore(RegisterARM),
         }
-        const REGS: [RegisterARM; 13] = [
-            RegisterARM::R0,
-            RegisterARM::R1,
-            RegisterARM::R2,
-            RegisterARM::R3,
-            RegisterARM::R4,
-            RegisterARM::R5,
-            RegisterARM::R6,
-            RegisterARM::R7,
-            RegisterARM::R8,
-            RegisterARM::R9,
-            RegisterARM::R10,
-            RegisterARM::R11,
-            RegisterARM::R12,
-        ];
         let code =
             &self.image.flash[..(self.image.flash_used as usize).min(self.image.flash.len())];
         let hw = |i: usize| {
@@ -1018,7 +1005,7 @@ impl Board {
                 (Some(0xB672), _) => sites.push((addr, Site::Disable)),
                 (Some(0xB662), _) => sites.push((addr, Site::Enable)),
                 (Some(h1), Some(0x8810)) if h1 & 0xFFF0 == 0xF380 => {
-                    if let Some(&r) = REGS.get((h1 & 0xF) as usize) {
+                    if let Some(&r) = GP_REGS.get((h1 & 0xF) as usize) {
                         sites.push((addr, Site::Restore(r)));
                     }
                 }
