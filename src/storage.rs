@@ -52,8 +52,9 @@
 //! * `seq`: global record number, strictly increasing over the life of the log.
 //! * `kind`: `0..16` (15 is the log's own, [`ERASED_KIND`]); `len`: payload bytes used,
 //!   `0..=48`.
-//! * `carry`: `0xFF` for a record written by [`RecordLog::append`]; `n` in `1..=16`
-//!   for a copy carried forward into a new sector as one of a batch of `n` (below).
+//! * `carry`: `0xFF` for a record written by [`RecordLog::append`]; `n` in
+//!   `1..=MAX_BATCH` (64) for a copy carried forward into a new sector as one of a batch
+//!   of `n` (below).
 //! * `commit`: programmed **last, in its own write**, once the rest of the slot is in
 //!   flash. With `WRITE_SIZE` > 4 the second write is the slot's last write unit
 //!   (`64 − WRITE_SIZE ..64`, the marker still at its end); with `WRITE_SIZE` = 64 the
@@ -62,7 +63,7 @@
 //! A slot is **blank** if all 64 bytes are 0xFF, otherwise **used**: a used slot is
 //! never programmed again, whether it is valid, torn or corrupt. It is **valid** if the
 //! commit marker is 0, the CRC matches, `len` ≤ 48, `kind` < 16 and `carry` is 0xFF or
-//! `1..=16`. The newest record of a kind is its valid slot with the highest `seq`.
+//! `1..=64`. The newest record of a kind is its valid slot with the highest `seq`.
 //!
 //! A sector fills from slot 0 upward; the first `n` slots of a sector that was moved
 //! into hold the carried batch:
@@ -78,7 +79,9 @@
 //! # Moving to the next sector
 //!
 //! When the current sector is full, `append` moves to the next sector (round-robin):
-//! 1. it reads the newest valid record of every kind (from any sector) into RAM;
+//! 1. it reads the newest valid record of every kind (from any sector) into RAM — the
+//!    newest *n* of a kind the log was opened to keep deeper ([`Keep`]: the
+//!    micrometer readings keep their history this way, whatever the log's depth);
 //! 2. unless [`RecordLog::maintain`] erased the next sector and certified it (below),
 //!    it erases it — its contents are older than the current sector's, whose carried
 //!    batch and appends hold the newest record of every kind;
@@ -129,7 +132,8 @@
 //! `open` reads every slot once, plus the next sector once more to learn whether it is
 //! erased, and keeps an index in RAM: current sector and write slot, next `seq`, and the
 //! offset of the newest record of each kind. `append` is two writes (64 bytes); a move
-//! adds a blank check of the next sector, maybe an erase, and ≤ 16 carried records.
+//! adds maybe an erase and the carried batch (≤ 15 records by default, ≤ 64 with a
+//! [`Keep`]; held in RAM during the move: 56 bytes each).
 //! `latest` reads one slot. `for_each_newest_first` reads backwards until it has `max`
 //! records.
 
@@ -144,8 +148,35 @@ pub const MAX_KINDS: u8 = 16;
 /// The log's own kind: the certificate of a completed pre-erase (payload: the sector
 /// erased, one byte). [`RecordLog::append`] refuses it.
 pub const ERASED_KIND: u8 = MAX_KINDS - 1;
-/// Fewest slots a sector must have: a full carried batch plus the record being appended.
+/// Fewest slots a sector must have with the default [`Keep`] (the newest record of
+/// each kind): a full carried batch plus the record being appended.
 pub const MIN_SLOTS_PER_SECTOR: usize = MAX_KINDS as usize + 1;
+/// Most records a move may carry (the sum of a [`Keep`]).
+pub const MAX_BATCH: usize = 64;
+
+/// How many of the newest records of each kind a move carries into the next sector
+/// (`0` counts as 1: the newest record of every kind is always carried). The default
+/// keeps one of each; a kind whose history matters beyond one sector's depth (the
+/// micrometer readings, say) keeps more. The sum may not exceed [`MAX_BATCH`], and a
+/// sector must hold the whole batch plus one record.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Keep(pub [u8; MAX_KINDS as usize]);
+
+impl Keep {
+    /// The newest record of each kind.
+    pub const ONE_EACH: Self = Self([1; MAX_KINDS as usize]);
+
+    /// Records kind `k` carries (at least 1): the depth of its history that every sector
+    /// move preserves.
+    pub fn of(&self, k: u8) -> usize {
+        usize::from(self.0.get(usize::from(k)).copied().unwrap_or(1).max(1))
+    }
+
+    /// Records a move carries at most (the certificate kind is never carried).
+    pub fn batch(&self) -> usize {
+        (0..ERASED_KIND).map(|k| self.of(k)).sum()
+    }
+}
 
 /// Bytes of a slot before the payload: seq, kind, len, carry, reserved.
 const HEADER_LEN: usize = 8;
@@ -263,6 +294,8 @@ pub struct RecordLog<F: NorFlash> {
     /// The sector after `cur` is known to be erased, by an erase that completed: a
     /// certificate for it is in `cur` (see "Interrupted erases").
     next_ready: bool,
+    /// Records of each kind a move carries.
+    keep: Keep,
 }
 
 /// Contents of one slot.
@@ -317,7 +350,7 @@ fn decode(bytes: &[u8; SLOT_SIZE]) -> Slot {
         && u32::from_le_bytes([c0, c1, c2, c3]) == body_crc(&head, &payload)
         && usize::from(len) <= PAYLOAD_MAX
         && kind < MAX_KINDS
-        && (carry == NOT_CARRIED || (1..=MAX_KINDS).contains(&carry));
+        && (carry == NOT_CARRIED || (1..=MAX_BATCH).contains(&usize::from(carry)));
     if !valid {
         return Slot::Invalid;
     }
@@ -461,12 +494,24 @@ impl<F: NorFlash> RecordLog<F> {
         flash: F,
         sector_size: usize,
     ) -> Result<(Self, OpenReport), StorageError<F::Error>> {
+        Self::open_keeping(flash, sector_size, Keep::ONE_EACH)
+    }
+
+    /// Open the log (as [`Self::open_with_sector_size`]) carrying `keep` records of each
+    /// kind at every move. A log must always be opened with the same `keep`.
+    pub fn open_keeping(
+        flash: F,
+        sector_size: usize,
+        keep: Keep,
+    ) -> Result<(Self, OpenReport), StorageError<F::Error>> {
         let sizes_ok = F::WRITE_SIZE > 0
             && SLOT_SIZE % F::WRITE_SIZE == 0
             && F::READ_SIZE > 0
             && SLOT_SIZE % F::READ_SIZE == 0
             && sector_size % SLOT_SIZE == 0
-            && sector_size / SLOT_SIZE >= MIN_SLOTS_PER_SECTOR;
+            && sector_size / SLOT_SIZE >= MIN_SLOTS_PER_SECTOR
+            && keep.batch() <= MAX_BATCH
+            && sector_size / SLOT_SIZE > keep.batch();
         if !sizes_ok {
             return Err(StorageError::Geometry);
         }
@@ -492,6 +537,7 @@ impl<F: NorFlash> RecordLog<F> {
             next_seq: Some(0),
             newest: [None; KINDS],
             next_ready: false,
+            keep,
         };
         let report = log.scan()?;
         info!(
@@ -695,6 +741,11 @@ impl<F: NorFlash> RecordLog<F> {
         Ok(())
     }
 
+    /// Records of each kind a move carries.
+    pub fn keep(&self) -> Keep {
+        self.keep
+    }
+
     /// The flash device.
     pub fn flash(&self) -> &F {
         &self.flash
@@ -738,17 +789,27 @@ impl<F: NorFlash> RecordLog<F> {
     /// failure leaves the current sector full and the next call starts over.
     fn move_to_next_sector(&mut self) -> Result<(), StorageError<F::Error>> {
         let next = self.next_sector();
-        // 1. The newest record of every kind, read while every sector is intact.
-        let mut batch: heapless::Vec<Record, KINDS> = heapless::Vec::new();
-        // (Not the erase certificate: it names the sector being moved into, and is
-        // spent once the move is done.)
+        // 1. The newest records of every kind (as many as `keep` says), read while
+        // every sector is intact. (Not the erase certificate: it names the sector being
+        // moved into, and is spent once the move is done.)
+        let mut batch: heapless::Vec<Record, MAX_BATCH> = heapless::Vec::new();
         for kind in 0..ERASED_KIND {
-            if let Some(rec) = self.latest(kind)? {
-                batch.push(rec).map_err(|_| StorageError::LogicBug)?;
+            if self.keep.of(kind) == 1 {
+                if let Some(rec) = self.latest(kind)? {
+                    batch.push(rec).map_err(|_| StorageError::LogicBug)?;
+                }
+                continue;
+            }
+            let mut full = false;
+            self.walk_newest_first(kind, self.keep.of(kind), |_, rec| {
+                full |= batch.push(*rec).is_err();
+            })?;
+            if full {
+                return Err(StorageError::LogicBug);
             }
         }
-        // At most 16 records: an insertion sort (the library sort costs ~2.5 KiB of
-        // flash on the target for nothing).
+        // At most MAX_BATCH records: an insertion sort (the library sort costs ~2.5 KiB
+        // of flash on the target for nothing).
         let recs = batch.as_mut_slice();
         for i in 1..recs.len() {
             let mut j = i;
@@ -764,7 +825,7 @@ impl<F: NorFlash> RecordLog<F> {
             self.erase_sector(next)?;
         }
         // 3. The carried batch, oldest first, in slots 0..n.
-        let mut moved = [None; KINDS];
+        let mut moved: [Option<u32>; KINDS] = [None; KINDS];
         for (index, old) in (0..).zip(&batch) {
             let rec = Record {
                 seq: self.take_seq()?,
@@ -788,8 +849,10 @@ impl<F: NorFlash> RecordLog<F> {
     ///
     /// Slots are visited newest first (current sector downward from the write slot, then
     /// the sectors before it). A record whose `seq` is not below every `seq` seen so far
-    /// is out of place (a copy from an unfinished move) and ignored. A carried copy is
-    /// followed, one record of its kind later, by its original: that one is skipped.
+    /// is out of place (a copy from an unfinished move) and ignored. The carried copies
+    /// of `kind` in a sector are the newest records of `kind` of the sectors before it,
+    /// in the same order: walking on into the next older sector, those originals (same
+    /// payload, in order) are skipped, the copies having been reported.
     fn walk_newest_first(
         &mut self,
         kind: u8,
@@ -798,7 +861,9 @@ impl<F: NorFlash> RecordLog<F> {
     ) -> Result<usize, StorageError<F::Error>> {
         let mut count = 0;
         let mut floor: Option<u32> = None;
-        let mut copy_of_next: Option<Record> = None;
+        // Payload digests of the carried copies of `kind` in the sector walked last,
+        // newest first: the originals expected in the sector walked next.
+        let mut copies: heapless::Vec<u32, MAX_BATCH> = heapless::Vec::new();
         for back in 0..self.sectors {
             if count >= max {
                 break;
@@ -809,6 +874,8 @@ impl<F: NorFlash> RecordLog<F> {
             } else {
                 self.slots_per_sector
             };
+            let expect = core::mem::take(&mut copies);
+            let mut matched = 0;
             for index in (0..top).rev() {
                 let offset = self.slot_offset(sector, index);
                 let Slot::Valid { rec, carry } = self.read_slot(offset)? else {
@@ -821,11 +888,18 @@ impl<F: NorFlash> RecordLog<F> {
                 if rec.kind != kind {
                     continue;
                 }
-                let is_original = copy_of_next.take().is_some_and(|c| c.data() == rec.data());
+                let digest = CRC32.checksum(rec.data());
                 if carry.is_some() {
-                    copy_of_next = Some(rec);
+                    // More copies than a batch holds cannot be: ignore the excess.
+                    let _ = copies.push(digest);
                 }
-                if is_original {
+                // The original of a copy reported from the sector before (an original
+                // that went bad is passed over).
+                if let Some(p) = expect
+                    .get(matched..)
+                    .and_then(|rest| rest.iter().position(|&d| d == digest))
+                {
+                    matched += p + 1;
                     continue;
                 }
                 f(offset, &rec);

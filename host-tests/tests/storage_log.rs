@@ -12,8 +12,8 @@ use std::fmt::Debug;
 use std::ops::Range;
 
 use docking_controller::storage::{
-    OpenReport, RecordLog, StorageError, ERASED_KIND, MAX_KINDS, MIN_SLOTS_PER_SECTOR, PAYLOAD_MAX,
-    SLOT_SIZE,
+    Keep, OpenReport, RecordLog, StorageError, ERASED_KIND, MAX_KINDS, MIN_SLOTS_PER_SECTOR,
+    PAYLOAD_MAX, SLOT_SIZE,
 };
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 use hil_sim::flash::{SimFlash, SimFlashError, SECTOR_SIZE};
@@ -144,15 +144,22 @@ impl<const W: usize> CutFlash for Checked<W> {
     }
 }
 
+thread_local! {
+    /// What `open` keeps per kind (a test that wants more than one sets it first).
+    static KEEP: std::cell::Cell<Keep> = const { std::cell::Cell::new(Keep::ONE_EACH) };
+}
+
 fn open<F: NorFlash>(flash: F, sector_size: usize) -> (RecordLog<F>, OpenReport) {
-    RecordLog::open_with_sector_size(flash, sector_size).expect("open fails only on read errors")
+    RecordLog::open_keeping(flash, sector_size, KEEP.with(|k| k.get()))
+        .expect("open fails only on read errors")
 }
 
 /// Power back on and reopen.
 fn reboot<F: CutFlash>(log: RecordLog<F>, sector_size: usize) -> (RecordLog<F>, OpenReport) {
+    let keep = log.keep();
     let mut flash = log.into_inner();
     flash.reboot();
-    open(flash, sector_size)
+    RecordLog::open_keeping(flash, sector_size, keep).expect("open fails only on read errors")
 }
 
 fn latest_data<F: NorFlash>(log: &mut RecordLog<F>, kind: u8) -> Option<Vec<u8>> {
@@ -192,6 +199,14 @@ fn check_log<F: NorFlash>(
         if want.is_empty() {
             continue;
         }
+        // The depth every move preserves is always there.
+        let kept = want.len().min(log.keep().of(kind));
+        assert_eq!(
+            history(log, kind, kept)[..],
+            want[..kept],
+            "kind {kind}: the {kept} kept records: {}",
+            ctx()
+        );
         let got = history(log, kind, walk_max);
         assert!(
             !got.is_empty() && got.len() <= want.len(),
@@ -591,6 +606,58 @@ fn power_cut_at_every_unit_of_a_scripted_run() {
     println!("3 sectors: {c:?}");
     assert!(
         c.moves_cut_everywhere >= 2 && c.unfinished_moves_seen > 0,
+        "{c:?}"
+    );
+}
+
+#[test]
+fn a_kind_kept_deep_keeps_its_history_through_sector_moves() {
+    // Kind 2 keeps its 10 newest records through every move (the micrometer readings'
+    // use); the other kinds the newest one. 30-slot sectors (the batch: at most 24).
+    let mut keep = Keep::ONE_EACH;
+    keep.0[2] = 10;
+    const SECTOR: usize = 30 * SLOT_SIZE;
+    let (mut log, _) = RecordLog::open_keeping(SimFlash::new(2, SECTOR), SECTOR, keep).unwrap();
+    let mut model: Vec<(u8, Vec<u8>)> = Vec::new();
+    let mut moves = 0;
+    for i in 0..400u16 {
+        let kind = [0, 2, 1, 2, 2][usize::from(i) % 5];
+        let data = unique_payload(i, usize::from(i) % 40);
+        let sector = log.current_sector();
+        log.append(kind, &data).unwrap();
+        moves += usize::from(log.current_sector() != sector);
+        model.push((kind, data));
+        let want = newest_first(model.iter(), 2);
+        let got = history(&mut log, 2, 10);
+        assert_eq!(got[..], want[..want.len().min(10)], "after append {i}");
+    }
+    assert!(moves > 20, "{moves} moves");
+    // And after a reboot.
+    let (mut log, report) = reboot(log, SECTOR);
+    assert_eq!(report.corrupt, 0);
+    assert_eq!(
+        history(&mut log, 2, 10)[..],
+        newest_first(model.iter(), 2)[..10]
+    );
+    // A keep that does not fit the sector is refused.
+    let mut big = Keep::ONE_EACH;
+    big.0[2] = 30;
+    assert!(RecordLog::open_keeping(SimFlash::new(2, SECTOR), SECTOR, big).is_err());
+}
+
+#[test]
+fn power_cut_with_a_kind_kept_deep() {
+    let mut keep = Keep::ONE_EACH;
+    keep.0[1] = 6;
+    keep.0[2] = 4;
+    KEEP.with(|k| k.set(keep));
+    const SECTOR: usize = 28 * SLOT_SIZE; // batch 22 + appends
+    let script = script(160, 3);
+    let flash = Checked::<4>::new(2, SECTOR);
+    let c = power_cut_campaign(flash, SECTOR, &script, 40, Cuts::All, After::Reboot);
+    println!("kept deep: {c:?}");
+    assert!(
+        c.moves_cut_everywhere >= 5 && c.unfinished_moves_seen > 0,
         "{c:?}"
     );
 }
