@@ -28,13 +28,15 @@ use heapless::Deque;
 
 use crate::config::MachineConfig;
 use crate::diag::{Crash, ResetCause, ResetCounts};
+use crate::estimate::{Estimate, Fit, Reading};
 use crate::guard::{GuardConfig, SensorFault, Verdict};
 use crate::hal::{StepPulses, StopLatch, Watchdog};
 use crate::hx711::Calibration;
 use crate::lock::{LockActuator, LockCmd};
 use crate::material::Material;
 use crate::odometer::{
-    self, restore, CycleSummary, Journal, Odometer, StateRecord, WearConfig, WearLevel,
+    self, restore, CycleSummary, Journal, Measurement, Odometer, RetiredCone, StateRecord,
+    WearConfig, WearLevel,
 };
 use crate::profile::{ContactPhase, BOUNDARY_UM, STROKE_UM};
 use crate::propulsion::Propulsion;
@@ -332,6 +334,10 @@ pub struct Controller<B: Bsp> {
     last_crash: Option<Crash>,
     /// Deepest stack use seen (bytes) and the stack's size, as the board measures it.
     stack: Option<(u32, u32)>,
+    /// The current cone's micrometer readings (not its baseline), oldest first.
+    readings: heapless::Vec<Measurement, { odometer::READINGS_KEPT }>,
+    /// The wear estimate's fit to them.
+    fit: Fit,
 }
 
 /// Why a maintenance action was refused.
@@ -347,6 +353,10 @@ pub enum MaintError {
     Storage,
     /// Not an HX711 rate (10 or 80 samples/s).
     BadRate,
+    /// The cone has a baseline already.
+    BaselineExists,
+    /// The cone has docked: its bore is no longer its bore when new.
+    BaselineAfterUse,
 }
 
 impl core::fmt::Display for MaintError {
@@ -356,6 +366,13 @@ impl core::fmt::Display for MaintError {
             Self::BadSerial => "serial must be 1-20 characters of A-Z a-z 0-9 _ -",
             Self::Storage => "could not write to the odometer flash; nothing changed",
             Self::BadRate => "the HX711 samples at 10 or 80 per second (its RATE pin)",
+            Self::BaselineExists => {
+                "the cone has its baseline already (a new cone: cone replace ... --bore)"
+            }
+            Self::BaselineAfterUse => {
+                "the cone has docked since it was installed: its bore is no longer its new \
+                 bore, so it cannot be the baseline (the nominal 26.000 mm stays assumed)"
+            }
         })
     }
 }
@@ -444,7 +461,7 @@ impl<B: Bsp> Controller<B> {
             LockActuator::new(parts.lock_in1, parts.lock_in2).map_err(|_| StartError::Pin)?;
         // The counters come back from flash; a log that cannot even be read leaves the
         // odometer in RAM (reported; nothing is written over what may still be there).
-        let (mut log, open_report) = match RecordLog::open(parts.flash) {
+        let (mut log, open_report) = match odometer::open_log(parts.flash) {
             Ok((log, report)) => (Some(log), report),
             Err(_) => (None, OpenReport::default()),
         };
@@ -500,6 +517,7 @@ impl<B: Bsp> Controller<B> {
             .and_then(|l| l.latest(odometer::kind::CRASH).ok().flatten())
             .and_then(|r| Crash::from_bytes(r.data()));
         let odo = restore(cfg.wear, cone, state, cfg.default_material);
+
         info!(
             "odometer: cone {} ({}), {} cycles, wear {} nm; lifetime {} cycles",
             odo.cone().id,
@@ -556,7 +574,10 @@ impl<B: Bsp> Controller<B> {
             last_reset: None,
             last_crash,
             stack: None,
+            readings: heapless::Vec::new(),
+            fit: Fit::prior(),
         };
+        me.load_readings();
         // The switches as they are now: the filter starts from them.
         if let (Ok(home), Ok(end), Ok(locked), Ok(released)) = (
             closed(&mut me.home),
@@ -891,7 +912,7 @@ impl<B: Bsp> Controller<B> {
         let mut request = self.pending.take();
         if request == Some(Request::StartCycle)
             && state == State::Idle
-            && self.odo.level() == WearLevel::Limit
+            && self.wear_level() == WearLevel::Limit
         {
             // Worn out: no new docking until the cone is replaced.
             request = None;
@@ -1135,7 +1156,9 @@ impl<B: Bsp> Controller<B> {
                 self.persist_pending = true;
             }
             SeqEvent::CycleCompleted(n) => {
-                let c = self.odo.complete_cycle();
+                let mut c = self.odo.complete_cycle();
+                // The level the machine acts on (the estimate's band, once measured).
+                c.level = self.wear_level();
                 info!(
                     "cycle {} completed: cone cycle {}, wear {} nm, remaining {} cycles",
                     n, c.cone_cycle, c.wear_nm, c.remaining_cycles
@@ -1198,7 +1221,7 @@ impl<B: Bsp> Controller<B> {
             peak_force_mn: self.peak_force_mn,
             wear_nm: self.odo.wear_nm(),
             remaining_cycles: self.odo.remaining_cycles(),
-            wear_level: self.odo.level(),
+            wear_level: self.wear_level(),
         }
     }
 
@@ -1215,6 +1238,18 @@ impl<B: Bsp> Controller<B> {
     /// snapshot are written before it returns; if the cone record cannot be written,
     /// nothing changes.
     pub fn replace_cone(&mut self, material: Material, serial: &str) -> Result<(), MaintError> {
+        self.replace_cone_measured(material, serial, None)
+    }
+
+    /// [`Self::replace_cone`] with the new cone's bore measured before its first
+    /// docking (`baseline_um`, µm): its measured wear is the bore's growth from it. The
+    /// old cone's summary is kept in flash ([`odometer::RetiredCone`]).
+    pub fn replace_cone_measured(
+        &mut self,
+        material: Material,
+        serial: &str,
+        baseline_um: Option<u32>,
+    ) -> Result<(), MaintError> {
         if !self.is_quiet() {
             return Err(MaintError::Moving);
         }
@@ -1228,7 +1263,27 @@ impl<B: Bsp> Controller<B> {
         }
         let mut next = self.odo.clone();
         next.replace_cone(material, serial);
+        if let Some(b) = baseline_um {
+            next.set_baseline(b);
+        }
+        let retired = RetiredCone {
+            cone: *self.odo.cone(),
+            model_nm: self.odo.wear_nm(),
+            measured_nm: self
+                .readings
+                .last()
+                .map(|m| m.wear_nm(self.baseline_or_nominal())),
+            readings: self.readings.len() as u32,
+        };
         if let Some(l) = self.log.as_mut() {
+            // The summary first: a cut before the cone record leaves the old cone
+            // installed, and its summary written again at the next replacement.
+            if l.append(odometer::kind::RETIRED, &retired.to_bytes())
+                .is_err()
+            {
+                self.storage_errors = self.storage_errors.saturating_add(1);
+                return Err(MaintError::Storage);
+            }
             let cone = odometer::cone_to_bytes(next.cone());
             let state = StateRecord::of(&next, false).to_bytes();
             if l.append(odometer::kind::CONE, &cone).is_err() {
@@ -1243,6 +1298,8 @@ impl<B: Bsp> Controller<B> {
             }
         }
         self.odo = next;
+        self.readings.clear();
+        self.refit();
         info!(
             "cone {} installed: {} serial {}",
             self.odo.cone().id,
@@ -1250,6 +1307,136 @@ impl<B: Bsp> Controller<B> {
             serial
         );
         Ok(())
+    }
+
+    /// The cone's baseline bore, or the nominal 26.000 mm when none was measured, µm.
+    pub fn baseline_or_nominal(&self) -> u32 {
+        self.odo
+            .cone()
+            .baseline()
+            .unwrap_or(odometer::NOMINAL_BORE_UM)
+    }
+
+    /// The current cone's readings from flash, oldest first (the log keeps the last 40
+    /// of all cones through its sector moves); then the fit.
+    fn load_readings(&mut self) {
+        let id = self.odo.cone().id;
+        let readings = &mut self.readings;
+        readings.clear();
+        if let Some(l) = self.log.as_mut() {
+            let _ =
+                l.for_each_newest_first(odometer::kind::MEASURE, odometer::READINGS_KEPT, |r| {
+                    if let Some(m) = Measurement::from_bytes(r.data()) {
+                        if m.cone_id == id && !m.baseline {
+                            let _ = readings.push(m);
+                        }
+                    }
+                });
+        }
+        readings.reverse();
+        self.refit();
+    }
+
+    fn refit(&mut self) {
+        let base = self.baseline_or_nominal();
+        let rs: heapless::Vec<Reading, { odometer::READINGS_KEPT }> =
+            self.readings.iter().map(|m| m.reading(base)).collect();
+        self.fit = Fit::new(&rs);
+    }
+
+    /// The current cone's micrometer readings, oldest first (its baseline excluded).
+    pub fn measurements(&self) -> &[Measurement] {
+        &self.readings
+    }
+
+    /// The wear estimate now: the model, taught by the cone's readings.
+    pub fn wear_estimate(&self) -> Estimate {
+        let cone = self.odo.cone();
+        self.fit.at(
+            self.odo.equivalent_cycles_q32(),
+            self.cfg.wear.limit_nm,
+            cone.material,
+        )
+    }
+
+    /// The wear level the machine acts on: the model's, or — once the cone has been
+    /// measured — the most worn of the model, the estimate's upper band and the last
+    /// reading itself, so that a cone the micrometer shows worn is not docked again on
+    /// the model's word (nor on the estimate's, which weighs one reading against the
+    /// rest: a reading past the limit stands until the cone is measured again).
+    pub fn wear_level(&self) -> WearLevel {
+        let model = self.odo.level();
+        let Some(last) = self.readings.last() else {
+            return model;
+        };
+        let measured = u32::try_from(last.wear_nm(self.baseline_or_nominal())).unwrap_or(0);
+        let high = self.wear_estimate().high_nm.max(measured);
+        let w = &self.cfg.wear;
+        let warn_nm = (w.limit_nm as u64 * w.warn_pct as u64 / 100) as u32;
+        let est = if high >= w.limit_nm {
+            WearLevel::Limit
+        } else if high >= warn_nm {
+            WearLevel::Warning
+        } else {
+            WearLevel::Ok
+        };
+        model.max(est)
+    }
+
+    /// Record a micrometer reading of the cone's bore (`bore_um`), or its `baseline`
+    /// (its bore when new: only before its first docking, and once). Refused while
+    /// anything moves. Returns the stored measurement.
+    pub fn add_measurement(
+        &mut self,
+        bore_um: u32,
+        baseline: bool,
+    ) -> Result<Measurement, MaintError> {
+        if !self.is_quiet() {
+            return Err(MaintError::Moving);
+        }
+        let cone = *self.odo.cone();
+        if baseline && cone.baseline().is_some() {
+            return Err(MaintError::BaselineExists);
+        }
+        if baseline && cone.cycles > 0 {
+            return Err(MaintError::BaselineAfterUse);
+        }
+        let m = Measurement {
+            bore_um,
+            lifetime_cycle: self.odo.lifetime().cycles,
+            cone_id: cone.id,
+            cone_cycle: cone.cycles,
+            model_nm: self.odo.wear_nm(),
+            baseline,
+        };
+        let Some(l) = self.log.as_mut() else {
+            return Err(MaintError::Storage);
+        };
+        if baseline {
+            let mut c = cone;
+            c.baseline_um = bore_um;
+            if l.append(odometer::kind::CONE, &odometer::cone_to_bytes(&c))
+                .is_err()
+            {
+                self.storage_errors = self.storage_errors.saturating_add(1);
+                return Err(MaintError::Storage);
+            }
+            self.odo.set_baseline(bore_um);
+        }
+        if l.append(odometer::kind::MEASURE, &m.to_bytes()).is_err() {
+            self.storage_errors = self.storage_errors.saturating_add(1);
+            if !baseline {
+                return Err(MaintError::Storage);
+            }
+        }
+        if !baseline {
+            if self.readings.is_full() {
+                self.readings.remove(0);
+            }
+            let _ = self.readings.push(m);
+        }
+        self.refit();
+        Ok(m)
     }
 
     /// Append a record of `kind` to the odometer log (maintenance records: PIN, audit,

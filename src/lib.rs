@@ -35,6 +35,7 @@ pub mod config;
 pub mod console;
 pub mod controller;
 pub mod diag;
+pub mod estimate;
 pub mod fixed;
 pub mod guard;
 pub mod hal;

@@ -173,6 +173,9 @@ pub struct Cone {
     pub cycles: u32,
     /// Load–distance on this cone, Q63.1 mN·µm.
     pub w_q1: u64,
+    /// The cone's own bore when new, µm (0: not measured; the nominal 26.000 mm is
+    /// assumed then). Measured wear is the bore's growth from it (reference §7).
+    pub baseline_um: u32,
 }
 
 impl Cone {
@@ -191,7 +194,13 @@ impl Cone {
             installed_at_cycle,
             cycles: 0,
             w_q1: 0,
+            baseline_um: 0,
         }
+    }
+
+    /// The baseline bore, µm, if one was measured.
+    pub fn baseline(&self) -> Option<u32> {
+        (self.baseline_um != 0).then_some(self.baseline_um)
     }
 
     /// The serial as text (lossy for non-UTF-8 garbage: empty).
@@ -414,6 +423,11 @@ impl Odometer {
         self.life.peak_force_mn = self.life.peak_force_mn.max(force_mn);
     }
 
+    /// Record the cone's baseline bore (its diameter when new), µm.
+    pub fn set_baseline(&mut self, baseline_um: u32) {
+        self.cone.baseline_um = baseline_um;
+    }
+
     /// Install a new cone: new per-cone counters; lifetime totals untouched. Any wear of
     /// an unfinished cycle belongs to the old cone and is dropped with it.
     pub fn replace_cone(&mut self, material: Material, serial: &str) -> &Cone {
@@ -503,6 +517,190 @@ pub mod kind {
     pub const CRASH: u8 = 8;
     /// Machine settings ([`crate::controller::Settings`]).
     pub const SETTINGS: u8 = 9;
+    /// A retired cone's summary ([`super::RetiredCone`]), written when it is replaced.
+    pub const RETIRED: u8 = 10;
+}
+
+/// What the odometer's log keeps through its sector moves: the last
+/// [`READINGS_KEPT`] micrometer readings and the last [`RETIRED_KEPT`] retired cones,
+/// the newest record of every other kind.
+// Indexing in a constant is evaluated by the compiler: out of bounds fails the build, it
+// cannot panic at run time.
+#[allow(clippy::indexing_slicing)]
+pub const LOG_KEEP: crate::storage::Keep = {
+    let mut k = crate::storage::Keep::ONE_EACH;
+    k.0[kind::MEASURE as usize] = READINGS_KEPT as u8;
+    k.0[kind::RETIRED as usize] = RETIRED_KEPT as u8;
+    k
+};
+/// Open the odometer's log on `flash` (one sector per erase sector) with [`LOG_KEEP`]:
+/// every user of the odometer's flash opens it this way.
+pub fn open_log<F: embedded_storage::nor_flash::NorFlash>(
+    flash: F,
+) -> Result<
+    (crate::storage::RecordLog<F>, crate::storage::OpenReport),
+    crate::storage::StorageError<F::Error>,
+> {
+    crate::storage::RecordLog::open_keeping(flash, F::ERASE_SIZE, LOG_KEEP)
+}
+
+/// Nominal bore of a new cone, µm (D2 = 26 mm, reference §2): assumed as the baseline of
+/// a cone whose own was not measured.
+pub const NOMINAL_BORE_UM: u32 = 26_000;
+
+/// Micrometer readings the log keeps (all cones together: the current cone's last 32
+/// at least, as a replacement adds a baseline or none).
+pub const READINGS_KEPT: usize = 40;
+/// Retired cones' summaries the log keeps (at 45 000 cycles a cone, centuries of use).
+pub const RETIRED_KEPT: usize = 8;
+
+/// A technician's bore reading (console `measure`), as persisted (19 bytes, little
+/// endian; records of 18 bytes, from before the flags byte, are readings):
+///
+/// ```text
+///  0 u32 bore_um   4 u32 lifetime cycle   8 u16 cone id   10 u32 cone cycle
+/// 14 u32 model wear nm (the odometer's at the time: it gives the reading's E)
+/// 18 u8  flags (bit 0: the cone's baseline, its bore when new)
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Measurement {
+    /// Bore diameter, µm.
+    pub bore_um: u32,
+    /// Lifetime cycle count when taken.
+    pub lifetime_cycle: u32,
+    /// The cone measured.
+    pub cone_id: u16,
+    /// The cone's cycle count when taken.
+    pub cone_cycle: u32,
+    /// The model's wear then, nm.
+    pub model_nm: u32,
+    /// The cone's baseline (bore when new), not a wear reading.
+    pub baseline: bool,
+}
+
+/// Bytes of a persisted [`Measurement`].
+pub const MEASUREMENT_LEN: usize = 19;
+
+impl Measurement {
+    /// Encode.
+    pub fn to_bytes(&self) -> [u8; MEASUREMENT_LEN] {
+        let mut b = [0u8; MEASUREMENT_LEN];
+        let mut put = |at: usize, v: &[u8]| {
+            if let Some(d) = b.get_mut(at..at + v.len()) {
+                d.copy_from_slice(v);
+            }
+        };
+        put(0, &self.bore_um.to_le_bytes());
+        put(4, &self.lifetime_cycle.to_le_bytes());
+        put(8, &self.cone_id.to_le_bytes());
+        put(10, &self.cone_cycle.to_le_bytes());
+        put(14, &self.model_nm.to_le_bytes());
+        put(18, &[self.baseline as u8]);
+        b
+    }
+
+    /// Decode (19 bytes, or 18 from before the flags byte).
+    pub fn from_bytes(b: &[u8]) -> Option<Self> {
+        if b.len() != MEASUREMENT_LEN && b.len() != MEASUREMENT_LEN - 1 {
+            return None;
+        }
+        Some(Self {
+            bore_um: u32::from_le_bytes(get(b, 0)?),
+            lifetime_cycle: u32::from_le_bytes(get(b, 4)?),
+            cone_id: u16::from_le_bytes(get(b, 8)?),
+            cone_cycle: u32::from_le_bytes(get(b, 10)?),
+            model_nm: u32::from_le_bytes(get(b, 14)?),
+            baseline: b.get(18).is_some_and(|f| f & 1 == 1),
+        })
+    }
+
+    /// Measured wear against `baseline_um`: the bore's growth (not halved: the wear is
+    /// one-sided, reference §7), nm.
+    pub fn wear_nm(&self, baseline_um: u32) -> i32 {
+        let d = self.bore_um as i64 - baseline_um as i64;
+        (d * 1000).clamp(i32::MIN as i64, i32::MAX as i64) as i32
+    }
+
+    /// As the estimator sees it.
+    pub fn reading(&self, baseline_um: u32) -> crate::estimate::Reading {
+        crate::estimate::Reading {
+            e_q32: e_at_depth_q32(self.model_nm),
+            wear_nm: self.wear_nm(baseline_um),
+        }
+    }
+}
+
+/// A retired cone's summary, as persisted (48 bytes, little endian):
+///
+/// ```text
+///  0 u16 cone id   2 u8 material   3 u8 serial_len   4 20 B serial
+/// 24 u32 installed at (lifetime cycle)   28 u32 cycles   32 u32 model wear nm
+/// 36 i32 last measured wear nm (i32::MIN: never measured)   40 u32 baseline µm (0: none)
+/// 44 u32 readings taken
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RetiredCone {
+    /// The cone (id, material, serial, installation, cycles, baseline).
+    pub cone: Cone,
+    /// The model's wear at retirement, nm.
+    pub model_nm: u32,
+    /// The last reading's measured wear, nm.
+    pub measured_nm: Option<i32>,
+    /// Readings taken on it.
+    pub readings: u32,
+}
+
+/// Bytes of a persisted [`RetiredCone`].
+pub const RETIRED_LEN: usize = 48;
+
+impl RetiredCone {
+    /// Encode.
+    pub fn to_bytes(&self) -> [u8; RETIRED_LEN] {
+        let mut b = [0u8; RETIRED_LEN];
+        let c = &self.cone;
+        let mut put = |at: usize, v: &[u8]| {
+            if let Some(d) = b.get_mut(at..at + v.len()) {
+                d.copy_from_slice(v);
+            }
+        };
+        put(0, &c.id.to_le_bytes());
+        put(2, &[c.material.code(), c.serial_len]);
+        put(4, &c.serial);
+        put(24, &c.installed_at_cycle.to_le_bytes());
+        put(28, &c.cycles.to_le_bytes());
+        put(32, &self.model_nm.to_le_bytes());
+        put(36, &self.measured_nm.unwrap_or(i32::MIN).to_le_bytes());
+        put(40, &c.baseline_um.to_le_bytes());
+        put(44, &self.readings.to_le_bytes());
+        b
+    }
+
+    /// Decode.
+    pub fn from_bytes(b: &[u8]) -> Option<Self> {
+        if b.len() != RETIRED_LEN {
+            return None;
+        }
+        let [material, serial_len] = get::<2>(b, 2)?;
+        if serial_len as usize > SERIAL_MAX {
+            return None;
+        }
+        let measured = i32::from_le_bytes(get(b, 36)?);
+        Some(Self {
+            cone: Cone {
+                id: u16::from_le_bytes(get(b, 0)?),
+                material: Material::from_code(material)?,
+                serial: get::<SERIAL_MAX>(b, 4)?,
+                serial_len,
+                installed_at_cycle: u32::from_le_bytes(get(b, 24)?),
+                cycles: u32::from_le_bytes(get(b, 28)?),
+                w_q1: 0,
+                baseline_um: u32::from_le_bytes(get(b, 40)?),
+            },
+            model_nm: u32::from_le_bytes(get(b, 32)?),
+            measured_nm: (measured != i32::MIN).then_some(measured),
+            readings: u32::from_le_bytes(get(b, 44)?),
+        })
+    }
 }
 
 /// Snapshot of every counter, as persisted (48 bytes, little endian):
@@ -601,7 +799,8 @@ impl StateRecord {
 }
 
 /// Encode a cone's identity: `u16 id | u8 material | u8 serial_len | 20 B serial |
-/// u32 installed_at_cycle | 4 B reserved`.
+/// u32 installed_at_cycle | u32 baseline bore µm` (0: none; records written before the
+/// baseline existed hold 0 there).
 pub fn cone_to_bytes(c: &Cone) -> [u8; CONE_LEN] {
     let mut b = [0u8; CONE_LEN];
     let mut put = |at: usize, v: &[u8]| {
@@ -613,6 +812,7 @@ pub fn cone_to_bytes(c: &Cone) -> [u8; CONE_LEN] {
     put(2, &[c.material.code(), c.serial_len]);
     put(4, &c.serial);
     put(24, &c.installed_at_cycle.to_le_bytes());
+    put(28, &c.baseline_um.to_le_bytes());
     b
 }
 
@@ -633,6 +833,7 @@ pub fn cone_from_bytes(b: &[u8]) -> Option<Cone> {
         installed_at_cycle: u32::from_le_bytes(get(b, 24)?),
         cycles: 0,
         w_q1: 0,
+        baseline_um: u32::from_le_bytes(get(b, 28)?),
     })
 }
 
@@ -939,6 +1140,9 @@ pub struct ReferenceRun {
     pub remaining_cycles: u32,
     /// The persisted counter snapshot.
     pub record: [u8; STATE_LEN],
+    /// The wear estimate fitted to a fixed set of readings (1.2 × the model, ± a few µm)
+    /// at the run's end: the estimator's arithmetic, host against target.
+    pub estimate: crate::estimate::Estimate,
 }
 
 /// A deterministic odometer workload in integers only — a load shaped like Eq. 7 (four
@@ -981,12 +1185,28 @@ pub fn reference_run(cycles: u32) -> ReferenceRun {
         }
         odo.complete_cycle();
     }
+    let readings: heapless::Vec<crate::estimate::Reading, 12> = (1..=12u64)
+        .map(|k| {
+            let e = k * 2_500;
+            let noise = (rnd() % 7_001) as i32 - 3_500;
+            crate::estimate::Reading {
+                e_q32: e << 32,
+                wear_nm: (depth_nm(e << 32) as i32).saturating_mul(6) / 5 + noise,
+            }
+        })
+        .collect();
+    let estimate = crate::estimate::Fit::new(&readings).at(
+        odo.equivalent_cycles_q32().saturating_add(20_000 << 32),
+        WearConfig::DEFAULT.limit_nm,
+        Material::ZQSn5_2,
+    );
     ReferenceRun {
         cycles,
         e_q32: odo.equivalent_cycles_q32(),
         wear_nm: odo.wear_nm(),
         remaining_cycles: odo.remaining_cycles(),
         record: StateRecord::of(&odo, true).to_bytes(),
+        estimate,
     }
 }
 
@@ -1000,6 +1220,11 @@ impl core::fmt::Display for ReferenceRun {
         for b in self.record {
             write!(f, "{b:02x}")?;
         }
-        Ok(())
+        let e = &self.estimate;
+        write!(
+            f,
+            " estimate={},{},{},{}",
+            e.wear_nm, e.low_nm, e.high_nm, e.remaining_cycles
+        )
     }
 }

@@ -133,7 +133,8 @@
 //! erased, and keeps an index in RAM: current sector and write slot, next `seq`, and the
 //! offset of the newest record of each kind. `append` is two writes (64 bytes); a move
 //! adds maybe an erase and the carried batch (≤ 15 records by default, ≤ 64 with a
-//! [`Keep`]; held in RAM during the move: 56 bytes each).
+//! [`Keep`]; located before the erase, read again as they are copied: 8 bytes of RAM
+//! each, plus a record held whole for each that survives only in the erased sector).
 //! `latest` reads one slot. `for_each_newest_first` reads backwards until it has `max`
 //! records.
 
@@ -153,6 +154,10 @@ pub const ERASED_KIND: u8 = MAX_KINDS - 1;
 pub const MIN_SLOTS_PER_SECTOR: usize = MAX_KINDS as usize + 1;
 /// Most records a move may carry (the sum of a [`Keep`]).
 pub const MAX_BATCH: usize = 64;
+/// Records a move can hold in RAM because they survive only in the sector it erases.
+const HELD_MAX: usize = 4;
+/// Marks a batch entry held in RAM (an offset never has it: regions are < 2 GiB).
+const HELD_BIT: u32 = 1 << 31;
 
 /// How many of the newest records of each kind a move carries into the next sector
 /// (`0` counts as 1: the newest record of every kind is always carried). The default
@@ -253,6 +258,9 @@ pub enum StorageError<E> {
     Geometry,
     /// All 2^32 sequence numbers used (at one record per second: after 136 years).
     SeqExhausted,
+    /// A move found more than a few of the records it must carry only in the sector it
+    /// has to erase (their copies went bad): it stops rather than lose them.
+    Unmovable,
     /// An internal invariant failed (a bug in this module).
     LogicBug,
 }
@@ -268,6 +276,9 @@ impl<E: core::fmt::Debug> core::fmt::Display for StorageError<E> {
                  WRITE_SIZE and READ_SIZE dividing 64, <= 4 GiB",
             ),
             Self::SeqExhausted => f.write_str("record sequence numbers exhausted"),
+            Self::Unmovable => {
+                f.write_str("records to carry survive only in the sector the move must erase")
+            }
             Self::LogicBug => f.write_str("internal error in the record log"),
         }
     }
@@ -787,33 +798,57 @@ impl<F: NorFlash> RecordLog<F> {
     /// Move to the next sector: erase it if needed, carry forward the newest record of
     /// every kind. RAM state changes only once the carried batch is complete, so a
     /// failure leaves the current sector full and the next call starts over.
+    // Out of line: only a move needs its frame (a few hundred bytes), not every append.
+    #[inline(never)]
     fn move_to_next_sector(&mut self) -> Result<(), StorageError<F::Error>> {
         let next = self.next_sector();
-        // 1. The newest records of every kind (as many as `keep` says), read while
-        // every sector is intact. (Not the erase certificate: it names the sector being
-        // moved into, and is spent once the move is done.)
-        let mut batch: heapless::Vec<Record, MAX_BATCH> = heapless::Vec::new();
+        // 1. Where the newest records of every kind are (as many as `keep` says), found
+        // while every sector is intact: (seq, offset). (Not the erase certificate: it
+        // names the sector being moved into, and is spent once the move is done.) A
+        // record that survives only in the sector about to be erased (its copies went
+        // bad) is held in RAM; a few at most.
+        let mut batch: heapless::Vec<(u32, u32), MAX_BATCH> = heapless::Vec::new();
+        let mut held: heapless::Vec<Record, HELD_MAX> = heapless::Vec::new();
+        let mut found: heapless::Vec<(u32, u32), MAX_BATCH> = heapless::Vec::new();
         for kind in 0..ERASED_KIND {
+            found.clear();
             if self.keep.of(kind) == 1 {
-                if let Some(rec) = self.latest(kind)? {
-                    batch.push(rec).map_err(|_| StorageError::LogicBug)?;
+                // The index (repaired by `latest` if its slot went bad).
+                if self.latest(kind)?.is_some() {
+                    if let Some(off) = self.newest.get(usize::from(kind)).copied().flatten() {
+                        let _ = found.push((0, off));
+                    }
                 }
-                continue;
+            } else {
+                let mut full = false;
+                self.walk_newest_first(kind, self.keep.of(kind), |off, _| {
+                    full |= found.push((0, off)).is_err();
+                })?;
+                if full {
+                    return Err(StorageError::LogicBug);
+                }
             }
-            let mut full = false;
-            self.walk_newest_first(kind, self.keep.of(kind), |_, rec| {
-                full |= batch.push(*rec).is_err();
-            })?;
-            if full {
-                return Err(StorageError::LogicBug);
+            for &(_, off) in &found {
+                let Slot::Valid { rec, .. } = self.read_slot(off)? else {
+                    return Err(StorageError::LogicBug);
+                };
+                let at = if off / self.sector_size == next {
+                    held.push(rec).map_err(|_| StorageError::Unmovable)?;
+                    HELD_BIT | (held.len() as u32 - 1)
+                } else {
+                    off
+                };
+                batch
+                    .push((rec.seq, at))
+                    .map_err(|_| StorageError::LogicBug)?;
             }
         }
-        // At most MAX_BATCH records: an insertion sort (the library sort costs ~2.5 KiB
-        // of flash on the target for nothing).
+        // At most MAX_BATCH entries: an insertion sort by seq (the library sort costs
+        // ~2.5 KiB of flash on the target for nothing).
         let recs = batch.as_mut_slice();
         for i in 1..recs.len() {
             let mut j = i;
-            while j > 0 && recs.get(j - 1).map(|r| r.seq) > recs.get(j).map(|r| r.seq) {
+            while j > 0 && recs.get(j - 1).map(|r| r.0) > recs.get(j).map(|r| r.0) {
                 recs.swap(j - 1, j);
                 j -= 1;
             }
@@ -826,10 +861,20 @@ impl<F: NorFlash> RecordLog<F> {
         }
         // 3. The carried batch, oldest first, in slots 0..n.
         let mut moved: [Option<u32>; KINDS] = [None; KINDS];
-        for (index, old) in (0..).zip(&batch) {
+        for (index, &(_, at)) in (0..).zip(&batch) {
+            let old = if at & HELD_BIT != 0 {
+                *held
+                    .get((at & !HELD_BIT) as usize)
+                    .ok_or(StorageError::LogicBug)?
+            } else {
+                match self.read_slot(at)? {
+                    Slot::Valid { rec, .. } => rec,
+                    _ => return Err(StorageError::LogicBug),
+                }
+            };
             let rec = Record {
                 seq: self.take_seq()?,
-                ..*old
+                ..old
             };
             let offset = self.slot_offset(next, index);
             self.program(offset, &rec, n)?;

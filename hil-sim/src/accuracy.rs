@@ -62,6 +62,7 @@
 use std::time::Instant;
 
 use docking_controller::controller::PollResult;
+use docking_controller::estimate::{Fit, Reading};
 use docking_controller::material::Material;
 use docking_controller::odometer::{
     depth_nm, e_at_depth_q32, equivalent_cycles_q32, wear_factor_q32, WearConfig, W_NOM_MN_UM,
@@ -440,6 +441,161 @@ pub struct AccuracyReport {
     pub rows: Vec<RateRow>,
     /// Fixed point vs `f64`, one per [`FIXED_CYCLES`].
     pub fixed: Vec<FixedReport>,
+    /// The wear estimate against cones that do not follow the model.
+    pub estimate: EstimateStudy,
+}
+
+/// A cone's true wear law (the wear estimate's test cases), µm after `m` nominal
+/// cycles.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WearLaw {
+    /// Eq. 17 itself (the model's reduced-order form).
+    Model,
+    /// Eq. 17 × 1.3 (a softer batch).
+    Scaled,
+    /// A flatter power law, exponent 0.33 instead of 0.3813, at the model's a.
+    Flatter,
+    /// A steeper one, 0.43, 20 % smaller.
+    Steeper,
+    /// Running-in: 25 µm in the first few hundred cycles, then 0.9 × Eq. 17.
+    RunningIn,
+}
+
+impl WearLaw {
+    /// Every law.
+    pub const ALL: [Self; 5] = [
+        Self::Model,
+        Self::Scaled,
+        Self::Flatter,
+        Self::Steeper,
+        Self::RunningIn,
+    ];
+
+    /// Name for reports.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Model => "model",
+            Self::Scaled => "scaled-1.3",
+            Self::Flatter => "exponent-0.33",
+            Self::Steeper => "exponent-0.43",
+            Self::RunningIn => "running-in",
+        }
+    }
+
+    /// Wear after `m` nominal cycles, µm.
+    pub fn um(self, m: f64) -> f64 {
+        let a = 13.72;
+        let m0 = m0_f64();
+        let model = depth_f64_nm(m) / 1000.0;
+        match self {
+            Self::Model => model,
+            Self::Scaled => 1.3 * model,
+            Self::Flatter => a * ((m + m0).powf(0.33) - m0.powf(0.33)),
+            Self::Steeper => 0.8 * a * ((m + m0).powf(0.43) - m0.powf(0.43)),
+            Self::RunningIn => 0.9 * model + 25.0 * (1.0 - (-m / 300.0).exp()),
+        }
+    }
+
+    /// A technician's reading at `m` cycles (nominal load: E = m): the truth, noise
+    /// σ = 3 µm, rounded to the micrometer's 1 µm.
+    pub fn reading(self, m: u32, rng: &mut crate::rng::Rng) -> Reading {
+        let y_um = (self.um(m as f64) + 3.0 * rng.normal()).round();
+        Reading {
+            e_q32: (m as u64) << 32,
+            wear_nm: (y_um * 1000.0) as i32,
+        }
+    }
+
+    /// Readings every 1 000 cycles up to `last`, seeded.
+    pub fn readings(self, last: u32, seed: u64) -> Vec<Reading> {
+        let mut rng = crate::rng::Rng::new(seed);
+        (1..=last / 1000)
+            .map(|k| self.reading(k * 1000, &mut rng))
+            .collect()
+    }
+}
+
+/// Where the estimate is judged, cycles.
+pub const ESTIMATE_AT: u32 = 30_000;
+/// Readings counts compared (the first k of one every 1 000 cycles).
+pub const ESTIMATE_READINGS: [usize; 6] = [0, 1, 3, 10, 20, 30];
+/// Seeds per case.
+pub const ESTIMATE_SEEDS: u64 = 20;
+
+/// One law, one readings count.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EstimateRow {
+    /// The true law.
+    pub law: WearLaw,
+    /// Readings used (every 1 000 cycles from 1 000).
+    pub readings: usize,
+    /// Mean |estimate − truth| at [`ESTIMATE_AT`], µm.
+    pub estimate_err_um: f64,
+    /// |model − truth| there, µm.
+    pub model_err_um: f64,
+    /// Mean band width there, µm.
+    pub band_um: f64,
+    /// Share of seeds whose band holds the truth, %.
+    pub inside_pct: f64,
+}
+
+/// The estimate study.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EstimateStudy {
+    /// Rows by law, then readings.
+    pub rows: Vec<EstimateRow>,
+    /// Host wall time of one fit over 30 readings, µs (median of 200).
+    pub update_us: f64,
+}
+
+/// Run the estimate study.
+pub fn estimate_study() -> EstimateStudy {
+    let mut rows = Vec::new();
+    for law in WearLaw::ALL {
+        let truth = law.um(ESTIMATE_AT as f64);
+        let model_err_um = (depth_f64_nm(ESTIMATE_AT as f64) / 1000.0 - truth).abs();
+        for k in ESTIMATE_READINGS {
+            let (mut err, mut band, mut inside) = (0.0, 0.0, 0);
+            for seed in 0..ESTIMATE_SEEDS {
+                let r = law.readings(ESTIMATE_AT, seed);
+                let est = Fit::new(&r[..k.min(r.len())]).at(
+                    (ESTIMATE_AT as u64) << 32,
+                    800_000,
+                    Material::ZQSn5_2,
+                );
+                let (w, lo, hi) = (
+                    est.wear_nm as f64 / 1000.0,
+                    est.low_nm as f64 / 1000.0,
+                    est.high_nm as f64 / 1000.0,
+                );
+                err += (w - truth).abs();
+                band += hi - lo;
+                inside += usize::from(lo <= truth && truth <= hi);
+            }
+            let n = ESTIMATE_SEEDS as f64;
+            rows.push(EstimateRow {
+                law,
+                readings: k,
+                estimate_err_um: err / n,
+                model_err_um,
+                band_um: band / n,
+                inside_pct: 100.0 * inside as f64 / n,
+            });
+        }
+    }
+    let r = WearLaw::Scaled.readings(ESTIMATE_AT, 1);
+    let mut times: Vec<f64> = (0..200)
+        .map(|_| {
+            let t = std::time::Instant::now();
+            std::hint::black_box(Fit::new(std::hint::black_box(&r)));
+            t.elapsed().as_secs_f64() * 1e6
+        })
+        .collect();
+    times.sort_by(f64::total_cmp);
+    EstimateStudy {
+        rows,
+        update_us: times[times.len() / 2],
+    }
 }
 
 /// Run everything: per-rate stroke errors and wall time, then the fixed-point
@@ -461,7 +617,11 @@ pub fn run() -> AccuracyReport {
         .iter()
         .map(|&n| fixed_vs_f64_from(base_q1, n))
         .collect();
-    AccuracyReport { rows, fixed }
+    AccuracyReport {
+        rows,
+        fixed,
+        estimate: estimate_study(),
+    }
 }
 
 impl AccuracyReport {
@@ -490,8 +650,29 @@ impl AccuracyReport {
             })
             .collect();
         let fixed: Vec<String> = self.fixed.iter().map(|f| f.to_json()).collect();
+        let est: Vec<String> = self
+            .estimate
+            .rows
+            .iter()
+            .map(|r| {
+                format!(
+                    "{{\"law\":\"{}\",\"readings\":{},\"estimate_err_um\":{:.3},\"model_err_um\":{:.3},\"band_um\":{:.3},\"inside_pct\":{:.1}}}",
+                    r.law.name(),
+                    r.readings,
+                    r.estimate_err_um,
+                    r.model_err_um,
+                    r.band_um,
+                    r.inside_pct
+                )
+            })
+            .collect();
+        let est = format!(
+            ",\"estimate\":{{\"at_cycles\":{ESTIMATE_AT},\"seeds\":{ESTIMATE_SEEDS},\"update_us_host\":{:.2},\"rows\":[{}]}}",
+            self.estimate.update_us,
+            est.join(",")
+        );
         format!(
-            "{{\"exact_stroke_n_mm\":{},\"dither_counts\":{},\"rates\":[{}],\"fixed\":{{\"material\":\"{}\",\"reference_rate_sps\":{},\"perturb_ppm\":{},\"seed\":{},\"runs\":[{}]}}}}",
+            "{{\"exact_stroke_n_mm\":{},\"dither_counts\":{},\"rates\":[{}],\"fixed\":{{\"material\":\"{}\",\"reference_rate_sps\":{},\"perturb_ppm\":{},\"seed\":{},\"runs\":[{}]}}{est}}}",
             EXACT_STROKE_N_MM,
             DITHER_COUNTS,
             rows.join(","),
@@ -564,6 +745,25 @@ impl AccuracyReport {
                 remaining
             );
         }
+        s += &format!(
+            "# wear estimate at {ESTIMATE_AT} cycles from the first k micrometer readings (one per 1 000 cycles, σ 3 µm, 1 µm resolution), mean over {ESTIMATE_SEEDS} seeds, against cones that follow other laws; the model alone beside it\n"
+        );
+        s += "law           |  k | estimate err µm | model err µm | band µm | truth in band %\n";
+        for r in &self.estimate.rows {
+            s += &format!(
+                "{:<13} | {:>2} | {:>15.1} | {:>12.1} | {:>7.1} | {:>15.0}\n",
+                r.law.name(),
+                r.readings,
+                r.estimate_err_um,
+                r.model_err_um,
+                r.band_um,
+                r.inside_pct
+            );
+        }
+        s += &format!(
+            "# one update (a fit over 30 readings): {:.1} µs on this host; on the Cortex-M4, instructions: `cd vboard && cargo run --release -- estimate-cost`\n",
+            self.estimate.update_us
+        );
         s
     }
 }

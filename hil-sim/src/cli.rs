@@ -16,7 +16,7 @@ impl std::fmt::Display for UsageError {
 }
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--json] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS]";
+pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--readings FILE.csv] [--json] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS]";
 
 /// Parse `--rate` as one of the HX711 rates.
 fn hx_rate(o: &Opts) -> Result<u32, UsageError> {
@@ -49,7 +49,11 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
 }
 
 fn life(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
-    let o = Opts::parse(args, &["cycles", "material", "at", "rate"], &["json"])?;
+    let o = Opts::parse(
+        args,
+        &["cycles", "material", "at", "rate", "readings"],
+        &["json"],
+    )?;
     if o.get("cycles").is_none() {
         return err("life needs --cycles N (N >= 1)");
     }
@@ -70,15 +74,87 @@ fn life(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
             v
         }
     };
+    let readings = match o.get("readings") {
+        None => Vec::new(),
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| UsageError(format!("--readings {path}: {e}")))?;
+            parse_readings(&text).map_err(|e| UsageError(format!("--readings {path}: {e}")))?
+        }
+    };
     let opts = crate::life::LifeOptions {
         cycles,
         material,
         at,
         rate_sps: hx_rate(&o)?,
+        readings,
     };
     let report = crate::life::run(&opts);
     print(out, &o, || report.to_json(), || report.to_text());
     Ok(())
+}
+
+/// A technician's readings: `cycle,bore_mm` lines (a `cycle,bore_mm` header, blank lines
+/// and `#` comments allowed), cycles strictly increasing from 0 (the baseline), bores
+/// 20.000–40.000 mm with at most 3 decimals.
+pub fn parse_readings(text: &str) -> Result<Vec<(u32, u32)>, String> {
+    let mut v: Vec<(u32, u32)> = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let n = i + 1;
+        let line = raw.trim();
+        if line.is_empty() || line.starts_with('#') || (v.is_empty() && line == "cycle,bore_mm") {
+            continue;
+        }
+        let Some((c, d)) = line.split_once(',') else {
+            return Err(format!("line {n}: expected 'cycle,bore_mm', got '{line}'"));
+        };
+        let cycle: u32 = c
+            .trim()
+            .parse()
+            .map_err(|_| format!("line {n}: bad cycle '{}'", c.trim()))?;
+        let bore_um = parse_mm(d.trim())
+            .filter(|b| (20_000..=40_000).contains(b))
+            .ok_or_else(|| {
+                format!(
+                    "line {n}: bore '{}' is not 20.000–40.000 mm with at most 3 decimals",
+                    d.trim()
+                )
+            })?;
+        match v.last() {
+            None if cycle != 0 => {
+                return Err(format!(
+                    "line {n}: the first reading is the baseline, at cycle 0 (got {cycle})"
+                ))
+            }
+            Some(&(last, _)) if cycle <= last => {
+                return Err(format!(
+                    "line {n}: cycles out of order ({cycle} after {last})"
+                ))
+            }
+            _ => {}
+        }
+        v.push((cycle, bore_um));
+    }
+    if v.is_empty() {
+        return Err("no readings".into());
+    }
+    Ok(v)
+}
+
+/// `26.012` → 26 012 µm (up to 3 decimals, no sign, no exponent).
+fn parse_mm(t: &str) -> Option<u32> {
+    let (i, f) = t.split_once('.').unwrap_or((t, ""));
+    if i.is_empty()
+        || i.len() > 3
+        || f.len() > 3
+        || !i.bytes().all(|b| b.is_ascii_digit())
+        || !f.bytes().all(|b| b.is_ascii_digit())
+    {
+        return None;
+    }
+    let whole: u32 = i.parse().ok()?;
+    let frac: u32 = format!("{f:0<3}").parse().ok()?;
+    Some(whole * 1000 + frac)
 }
 
 fn endurance(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {

@@ -434,8 +434,8 @@ impl MultiwriteNorFlash for SharedFlash {}
 pub fn fill_log_to_maintenance(flash: &SharedFlash) -> Result<(), String> {
     use docking_controller::material::Material;
     use docking_controller::odometer::{self, kind, StateRecord, WearConfig};
-    use docking_controller::storage::RecordLog;
-    let (mut log, _) = RecordLog::open(flash.clone()).map_err(|e| format!("open: {e}"))?;
+    let (mut log, _) =
+        docking_controller::odometer::open_log(flash.clone()).map_err(|e| format!("open: {e}"))?;
     let cone = odometer::Cone::new(1, Material::ZQSn5_2, "SN-1", 0);
     log.append(kind::CONE, &odometer::cone_to_bytes(&cone))
         .map_err(|e| format!("append: {e}"))?;

@@ -20,6 +20,10 @@ pub struct LifeOptions {
     pub at: Vec<u32>,
     /// Load-cell rate, SPS.
     pub rate_sps: u32,
+    /// A technician's micrometer readings to replay, `(cone cycle, bore µm)`, cycles
+    /// increasing, the first at cycle 0 (the cone's baseline). Entered on the console
+    /// (`measure`) when the run reaches each cycle.
+    pub readings: Vec<(u32, u32)>,
 }
 
 /// Default checkpoints: 1, 10, 100, … below N, and N.
@@ -40,6 +44,8 @@ pub struct LifePoint {
     pub wear_nm: u32,
     /// Remaining life, nominal cycles.
     pub remaining_cycles: u32,
+    /// The estimate taught by the readings so far (with `--readings`).
+    pub estimate: Option<docking_controller::estimate::Estimate>,
 }
 
 /// The run's result.
@@ -68,6 +74,9 @@ pub struct LifeReport {
     pub wall_time_s: f64,
 }
 
+/// The technician's PIN in a run with readings.
+const PIN: &str = "2468";
+
 /// Run it.
 pub fn run(opts: &LifeOptions) -> LifeReport {
     let started = Instant::now();
@@ -79,26 +88,52 @@ pub fn run(opts: &LifeOptions) -> LifeReport {
     let mut next_at = opts.at.iter().copied().peekable();
     let mut seen_cycles = 0u32;
     let mut limit_at: Option<u32> = None;
+    let mut readings = opts.readings.iter().copied().peekable();
+    let technician = !opts.readings.is_empty();
+    if technician {
+        // The technician's PIN (first use: allowed without maintenance mode).
+        let _ = rig.command(&format!("pin set {PIN}"), 100);
+    }
+    let mut checkpoint_due = false;
     loop {
         rig.tick();
-        let odo = rig.ctrl.odometer();
-        let cycles = odo.cone().cycles;
+        let cycles = rig.ctrl.odometer().cone().cycles;
         if cycles != seen_cycles {
             seen_cycles = cycles;
-            if limit_at.is_none() && odo.level() == WearLevel::Limit {
+            checkpoint_due = true;
+        }
+        let at_rest = rig.ctrl.state() == State::Idle && !rig.ctrl.persist_pending();
+        if at_rest {
+            // Readings due by now, through the console as a technician enters them.
+            while let Some(&(c, bore_um)) = readings.peek().filter(|r| r.0 <= cycles) {
+                readings.next();
+                let _ = rig.command(&format!("maint {PIN}"), 100);
+                let flag = if c == 0 { "--baseline " } else { "" };
+                let _ = rig.command(
+                    &format!("measure {flag}{}.{:03}", bore_um / 1000, bore_um % 1000),
+                    100,
+                );
+                let _ = rig.command("maint exit", 100);
+            }
+        }
+        if checkpoint_due && at_rest {
+            checkpoint_due = false;
+            if limit_at.is_none() && rig.ctrl.wear_level() == WearLevel::Limit {
                 limit_at = Some(cycles);
             }
+            let odo = rig.ctrl.odometer();
             while next_at.peek().is_some_and(|&c| c <= cycles) {
                 next_at.next();
                 points.push(LifePoint {
                     cycle: cycles,
                     wear_nm: odo.wear_nm(),
                     remaining_cycles: odo.remaining_cycles(),
+                    estimate: technician.then(|| rig.ctrl.wear_estimate()),
                 });
             }
         }
         match rig.ctrl.state() {
-            State::Idle if !rig.ctrl.persist_pending() => {
+            State::Idle if !rig.ctrl.persist_pending() && !checkpoint_due => {
                 if cycles >= opts.cycles || limit_at.is_some() {
                     break;
                 }
@@ -137,8 +172,17 @@ impl LifeReport {
             .points
             .iter()
             .map(|p| {
+                let est = p.estimate.map_or(String::new(), |e| {
+                    format!(
+                        ",\"wear_estimate_mm\":{},\"estimate_low_mm\":{},\"estimate_high_mm\":{},\"remaining_estimate_cycles\":{}",
+                        mm(e.wear_nm),
+                        mm(e.low_nm),
+                        mm(e.high_nm),
+                        e.remaining_cycles
+                    )
+                });
                 format!(
-                    "{{\"cycle\":{},\"wear_mm\":{},\"remaining_cycles\":{}}}",
+                    "{{\"cycle\":{},\"wear_mm\":{},\"remaining_cycles\":{}{est}}}",
                     p.cycle,
                     mm(p.wear_nm),
                     p.remaining_cycles
@@ -162,9 +206,24 @@ impl LifeReport {
 
     /// A table and a summary line.
     pub fn to_text(&self) -> String {
-        let mut s = String::from("cycle,wear_mm,remaining_cycles\n");
+        let estimates = self.points.iter().any(|p| p.estimate.is_some());
+        let mut s = String::from(if estimates {
+            "cycle,wear_mm,remaining_cycles,wear_estimate_mm,estimate_low_mm,estimate_high_mm,remaining_estimate_cycles\n"
+        } else {
+            "cycle,wear_mm,remaining_cycles\n"
+        });
         for p in &self.points {
-            s += &format!("{},{},{}\n", p.cycle, mm(p.wear_nm), p.remaining_cycles);
+            s += &format!("{},{},{}", p.cycle, mm(p.wear_nm), p.remaining_cycles);
+            if let Some(e) = p.estimate {
+                s += &format!(
+                    ",{},{},{},{}",
+                    mm(e.wear_nm),
+                    mm(e.low_nm),
+                    mm(e.high_nm),
+                    e.remaining_cycles
+                );
+            }
+            s += "\n";
         }
         if !self.not_reached.is_empty() {
             s += &format!(

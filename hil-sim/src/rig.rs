@@ -422,8 +422,7 @@ impl RigOptions {
 pub fn commission(flash: &SharedFlash, hx: &Hx711Config) {
     use docking_controller::controller::{calibration_to_bytes, Settings};
     use docking_controller::odometer::kind;
-    use docking_controller::storage::RecordLog;
-    if let Ok((mut log, _)) = RecordLog::open(flash.clone()) {
+    if let Ok((mut log, _)) = docking_controller::odometer::open_log(flash.clone()) {
         if log.latest(kind::CALIBRATION).ok().flatten().is_none() {
             let _ = log.append(
                 kind::CALIBRATION,

@@ -7,9 +7,9 @@ use docking_controller::odometer::W_NOM_Q1;
 use docking_controller::profile::{forces_at_depth_um, STROKE_UM};
 use docking_controller::propulsion::ARRIVAL_TOLERANCE_STEPS;
 use hil_sim::accuracy::{
-    e_limit_f64, fixed_vs_f64, fixed_vs_f64_from, measure_strokes, perturbed_cycles, q1_to_n_mm,
-    stroke_err_pct, stroke_integrals, AccuracyReport, RateRow, EXACT_STROKE_N_MM, PERTURB_PPM,
-    RATES_SPS,
+    e_limit_f64, estimate_study, fixed_vs_f64, fixed_vs_f64_from, measure_strokes,
+    perturbed_cycles, q1_to_n_mm, stroke_err_pct, stroke_integrals, AccuracyReport, RateRow,
+    EXACT_STROKE_N_MM, PERTURB_PPM, RATES_SPS,
 };
 
 #[test]
@@ -151,6 +151,7 @@ fn report_formats() {
             fixed_vs_f64_from(W_NOM_Q1, 45_000),
             fixed_vs_f64_from(W_NOM_Q1, 1_000_000),
         ],
+        estimate: estimate_study(),
     };
     let json = report.to_json();
     assert!(!json.contains('\n'), "{json}");
@@ -163,12 +164,25 @@ fn report_formats() {
         "\"cycles\":1000000",
         "\"depth_rel_diff\"",
         "\"remaining_fixed\":null",
+        "\"estimate\":{\"at_cycles\":30000",
+        "\"law\":\"running-in\",\"readings\":30,",
+        "\"update_us_host\"",
     ] {
         assert!(json.contains(key), "{key} missing: {json}");
     }
     let text = report.to_text();
     assert!(text.contains("rate_sps | insertion N·mm"), "{text}");
     assert!(text.contains("past the 0.8 mm limit"), "{text}");
+    assert!(
+        text.contains("law           |  k | estimate err µm"),
+        "{text}"
+    );
+    // With all 30 readings the estimate beats the model on every law that differs.
+    for r in &report.estimate.rows {
+        if r.readings == 30 && r.model_err_um > 10.0 {
+            assert!(r.estimate_err_um < r.model_err_um / 5.0, "{r:?}");
+        }
+    }
     assert_eq!(
         text.lines().filter(|l| l.starts_with("      80 |")).count(),
         1

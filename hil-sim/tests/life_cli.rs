@@ -79,3 +79,84 @@ fn bad_life_arguments_exit_2_with_one_line() {
         assert_eq!(err.lines().count(), 1, "{args:?}: {err}");
     }
 }
+
+/// Write `text` to a fresh file under the target directory; its path.
+fn readings_file(name: &str, text: &str) -> String {
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"));
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p.to_string_lossy().into_owned()
+}
+
+#[test]
+fn life_replays_a_technicians_readings() {
+    // A cone that wears 1.3× the model, read every 100 cycles, baseline 25.991 mm.
+    let model = |m: f64| 0.01372 * (m + 1.961_921_5).powf(0.3813) - 0.01774;
+    let mut csv = String::from("cycle,bore_mm\n0,25.991\n");
+    for m in (100..=400).step_by(100) {
+        csv += &format!("{m},{:.3}\n", 25.991 + 1.3 * model(m as f64));
+    }
+    let path = readings_file("readings-ok.csv", &csv);
+    let (code, out, err) = run(&[
+        "life",
+        "--cycles",
+        "400",
+        "--at",
+        "100,400",
+        "--readings",
+        &path,
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let p400 = &out[out.find("{\"cycle\":400,").unwrap()..];
+    let est = field(p400, "wear_estimate_mm");
+    let (lo, hi) = (
+        field(p400, "estimate_low_mm"),
+        field(p400, "estimate_high_mm"),
+    );
+    let truth = 1.3 * model(400.0);
+    assert!((est - truth).abs() < 0.003, "{est} vs {truth}");
+    assert!(lo <= truth && truth <= hi, "{lo}..{hi} vs {truth}");
+    assert!(
+        field(p400, "wear_mm") < est,
+        "the model alone is below the cone"
+    );
+    field(p400, "remaining_estimate_cycles");
+    // The text table carries the same columns.
+    let (code, out, _) = run(&[
+        "life",
+        "--cycles",
+        "100",
+        "--at",
+        "100",
+        "--readings",
+        &path,
+    ]);
+    assert_eq!(code, 0);
+    assert!(out.starts_with(
+        "cycle,wear_mm,remaining_cycles,wear_estimate_mm,estimate_low_mm,estimate_high_mm,remaining_estimate_cycles\n100,"
+    ));
+}
+
+#[test]
+fn bad_readings_files_exit_2_with_one_line() {
+    for (name, text) in [
+        ("empty.csv", ""),
+        ("no-baseline.csv", "100,26.010\n"),
+        ("order.csv", "0,26.000\n200,26.050\n100,26.040\n"),
+        ("same.csv", "0,26.000\n100,26.050\n100,26.051\n"),
+        ("range.csv", "0,26.000\n100,41.000\n"),
+        ("decimals.csv", "0,26.0001\n"),
+        ("garbage.csv", "0,26.000\nhello\n"),
+        ("sign.csv", "0,-26.000\n"),
+    ] {
+        let path = readings_file(name, text);
+        let (code, out, err) = run(&["life", "--cycles", "10", "--readings", &path]);
+        assert_eq!(code, 2, "{name}");
+        assert!(out.is_empty(), "{name}");
+        assert_eq!(err.lines().count(), 1, "{name}: {err}");
+    }
+    let (code, _, err) = run(&["life", "--cycles", "10", "--readings", "/nonexistent/r.csv"]);
+    assert_eq!(code, 2);
+    assert_eq!(err.lines().count(), 1, "{err}");
+}

@@ -186,11 +186,13 @@ fn state_changing_commands_need_maintenance_and_a_machine_at_rest() {
         w["lifetime_cycles"], 1,
         "lifetime totals survive a cone replacement"
     );
+    // The wear is the bore's growth, not halved (reference §7); with no baseline
+    // measured, from the nominal 26.000 mm, and the reply says so.
     let m = r.command("measure 26.050", 10);
     assert!(
         m.starts_with(
-            "ok: bore_mm=26.050 cone_cycle=0 measured_wear_mm=0.025000 model_wear_mm=0.000000"
-        ),
+            "ok: bore_mm=26.050 cone_cycle=0 measured_wear_mm=0.050000 model_wear_mm=0.000000"
+        ) && m.contains("baseline_assumed=yes"),
         "{m}"
     );
     assert!(r.command("clear-fault", 10).contains("no fault to clear"));

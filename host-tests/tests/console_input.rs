@@ -322,21 +322,24 @@ fn parse_cone_replace() {
         ok("cone replace zqsn5-2 SN-0001"),
         Command::ConeReplace {
             material: Material::ZQSn5_2,
-            serial: "SN-0001"
+            serial: "SN-0001",
+            bore_um: None
         }
     );
     assert_eq!(
         ok("cone replace qsn6-6-3 a_b-C9"),
         Command::ConeReplace {
             material: Material::QSn6_6_3,
-            serial: "a_b-C9"
+            serial: "a_b-C9",
+            bore_um: None
         }
     );
     assert_eq!(
         ok("cone\treplace  CF-PEEK   x"),
         Command::ConeReplace {
             material: Material::CfPeek,
-            serial: "x"
+            serial: "x",
+            bore_um: None
         }
     );
     let serial20 = "A".repeat(20);
@@ -344,7 +347,8 @@ fn parse_cone_replace() {
         ok(&format!("cone replace cf-peek {serial20}")),
         Command::ConeReplace {
             material: Material::CfPeek,
-            serial: &serial20
+            serial: &serial20,
+            bore_um: None
         }
     );
     assert_eq!(
@@ -376,17 +380,104 @@ fn parse_cone_replace() {
         err("cone replace cf-peek SN1 extra"),
         ParseError::ExtraArgument
     );
+    assert_eq!(
+        ok("cone replace qsn6-6-3 SN-2 --bore 26.012"),
+        Command::ConeReplace {
+            material: Material::QSn6_6_3,
+            serial: "SN-2",
+            bore_um: Some(26_012)
+        }
+    );
+    assert_eq!(
+        err("cone replace qsn6-6-3 SN-2 --bore"),
+        ParseError::MissingArgument("d0_mm")
+    );
+    assert_eq!(
+        err("cone replace qsn6-6-3 SN-2 --bore 41"),
+        ParseError::BadArgument("d0_mm")
+    );
+    assert_eq!(
+        err("cone replace qsn6-6-3 SN-2 --diameter 26"),
+        ParseError::UnknownOption
+    );
+}
+
+#[test]
+fn parse_measure_baseline() {
+    assert_eq!(
+        ok("measure --baseline 25.991"),
+        Command::Measure {
+            bore_um: 25_991,
+            baseline: true
+        }
+    );
+    assert_eq!(
+        err("measure --baseline"),
+        ParseError::MissingArgument("d0_mm")
+    );
+    assert_eq!(err("measure --bore 26"), ParseError::UnknownOption);
+    assert_eq!(err("measure 26 27"), ParseError::ExtraArgument);
+    assert_eq!(
+        err("measure"),
+        ParseError::MissingArgument("bore_diameter_mm")
+    );
+    assert_eq!(
+        ok("measurements --json"),
+        Command::Measurements { json: true }
+    );
 }
 
 #[test]
 fn parse_measure_fixed_point() {
-    assert_eq!(ok("measure 26.050"), Command::Measure { bore_um: 26_050 });
-    assert_eq!(ok("measure 26.05"), Command::Measure { bore_um: 26_050 });
-    assert_eq!(ok("measure 26.5"), Command::Measure { bore_um: 26_500 });
-    assert_eq!(ok("measure 26"), Command::Measure { bore_um: 26_000 });
-    assert_eq!(ok("measure 20.000"), Command::Measure { bore_um: 20_000 });
-    assert_eq!(ok("measure 40"), Command::Measure { bore_um: 40_000 });
-    assert_eq!(ok("measure 040.000"), Command::Measure { bore_um: 40_000 });
+    assert_eq!(
+        ok("measure 26.050"),
+        Command::Measure {
+            bore_um: 26_050,
+            baseline: false
+        }
+    );
+    assert_eq!(
+        ok("measure 26.05"),
+        Command::Measure {
+            bore_um: 26_050,
+            baseline: false
+        }
+    );
+    assert_eq!(
+        ok("measure 26.5"),
+        Command::Measure {
+            bore_um: 26_500,
+            baseline: false
+        }
+    );
+    assert_eq!(
+        ok("measure 26"),
+        Command::Measure {
+            bore_um: 26_000,
+            baseline: false
+        }
+    );
+    assert_eq!(
+        ok("measure 20.000"),
+        Command::Measure {
+            bore_um: 20_000,
+            baseline: false
+        }
+    );
+    assert_eq!(
+        ok("measure 40"),
+        Command::Measure {
+            bore_um: 40_000,
+            baseline: false
+        }
+    );
+    assert_eq!(
+        ok("measure 040.000"),
+        Command::Measure {
+            bore_um: 40_000,
+            baseline: false
+        }
+    );
     for bad in [
         "26.0501",
         "-26",
@@ -560,7 +651,7 @@ fn parse_error_messages_are_one_printable_line() {
         ("status --x", "unknown option; only --json is accepted"),
         (
             "clear-fault --json",
-            "--json only applies to help, version, status, wear, history, faults",
+            "--json only applies to help, version, status, wear, history, measurements, faults",
         ),
     ];
     for (line, text) in expected {
@@ -994,15 +1085,18 @@ fn check_command(cmd: &Command<'_>) -> Result<(), TestCaseError> {
     let is_pin = |p: &str| (4..=12).contains(&p.len()) && p.bytes().all(|b| b.is_ascii_digit());
     match *cmd {
         Command::History { n, .. } => prop_assert!((1..=100).contains(&n)),
-        Command::Measure { bore_um } => prop_assert!((20_000..=40_000).contains(&bore_um)),
+        Command::Measure { bore_um, .. } => prop_assert!((20_000..=40_000).contains(&bore_um)),
         Command::CalibrateSpan { force_mn } => {
             prop_assert!((1_000..=900_000).contains(&force_mn))
         }
-        Command::ConeReplace { serial, .. } => prop_assert!(
+        Command::ConeReplace {
+            serial, bore_um, ..
+        } => prop_assert!(
             (1..=20).contains(&serial.len())
                 && serial
                     .bytes()
                     .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+                && bore_um.is_none_or(|b| (20_000..=40_000).contains(&b))
         ),
         Command::Maint { pin } | Command::PinSet { pin } => {
             prop_assert!(is_pin(pin));
@@ -1168,12 +1262,12 @@ proptest! {
     #[test]
     fn prop_decimal_arguments_roundtrip(v in 20_000u32..=40_000, span in 1_000u32..=900_000) {
         let bore = format!("measure {}.{:03}", v / 1000, v % 1000);
-        prop_assert_eq!(ok(&bore), Command::Measure { bore_um: v });
+        prop_assert_eq!(ok(&bore), Command::Measure { bore_um: v, baseline: false });
         let f = format!("calibrate span {}.{:03}", span / 1000, span % 1000);
         prop_assert_eq!(ok(&f), Command::CalibrateSpan { force_mn: span });
         if v % 10 == 0 {
             let two = format!("measure {}.{:02}", v / 1000, (v % 1000) / 10);
-            prop_assert_eq!(ok(&two), Command::Measure { bore_um: v });
+            prop_assert_eq!(ok(&two), Command::Measure { bore_um: v, baseline: false });
         }
     }
 

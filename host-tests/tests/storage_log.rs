@@ -894,6 +894,33 @@ fn bit_flip_after_open_and_in_a_carried_copy() {
     );
 }
 
+#[test]
+fn a_record_whose_copy_rotted_is_carried_out_of_the_sector_being_erased() {
+    // Two sectors: the rotted copy's original lives in the very sector the next move
+    // erases; the move holds it in RAM across the erase.
+    let (mut log, _) = open(SimFlash::new(2, SMALL), SMALL);
+    log.append(5, b"config A").unwrap();
+    for i in 0..MIN_SLOTS_PER_SECTOR as u8 {
+        log.append(0, &[i]).unwrap();
+    }
+    assert_eq!(log.current_sector(), 1);
+    log.flash_mut().corrupt(SMALL + 10, 0x04);
+    for i in 0..MIN_SLOTS_PER_SECTOR as u8 {
+        log.append(0, &[100 + i]).unwrap();
+    }
+    assert_eq!(
+        log.current_sector(),
+        0,
+        "moved into the sector the original was in"
+    );
+    let (mut log, _) = reboot(log, SMALL);
+    assert_eq!(
+        latest_data(&mut log, 5).as_deref(),
+        Some(&b"config A"[..]),
+        "carried through RAM"
+    );
+}
+
 // --- 4. garbage ------------------------------------------------------------------------
 
 /// A small flash whose every byte is `fill(offset)`.

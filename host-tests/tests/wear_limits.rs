@@ -5,14 +5,13 @@ use docking_controller::controller::Event;
 use docking_controller::material::Material;
 use docking_controller::odometer::{self, Cone, Lifetime, StateRecord, WearLevel, W_NOM_Q1};
 use docking_controller::sequencer::{Request, State};
-use docking_controller::storage::RecordLog;
 use hil_sim::flash::{SharedFlash, SimFlash};
 use hil_sim::rig::{Rig, RigOptions};
 
 /// A flash holding one cone with `nominal_cycles` of nominal wear.
 fn flash_with_wear(nominal_cycles: u64) -> SharedFlash {
     let flash = SharedFlash::new(SimFlash::stm32f407_odometer());
-    let (mut log, _) = RecordLog::open(flash.clone()).unwrap();
+    let (mut log, _) = docking_controller::odometer::open_log(flash.clone()).unwrap();
     let cone = Cone::new(1, Material::ZQSn5_2, "OLD-1", 0);
     log.append(odometer::kind::CONE, &odometer::cone_to_bytes(&cone))
         .unwrap();

@@ -11,12 +11,16 @@
 //! wear [--json]
 //! history [N] [--json]                  N = 1..=100, default 10
 //! faults [--json]
+//! measurements [--json]                 the current cone's readings
 //! clear-fault
 //! home                                  power-up homing (out of the cone) and lock
 //! rate <10|80>                          the HX711's RATE pin setting, from the next boot
-//! cone replace <material> <serial>      material: zqsn5-2 | qsn6-6-3 | cf-peek
+//! cone replace <material> <serial> [--bore <d0_mm>]
+//!                                       material: zqsn5-2 | qsn6-6-3 | cf-peek
 //!                                       serial: 1..=20 chars of [A-Za-z0-9_-]
-//! measure <bore_diameter_mm>            20.000..=40.000, up to 3 decimals → bore_um
+//!                                       d0_mm: the new cone's bore, as below
+//! measure [--baseline] <bore_diameter_mm>
+//!                                       20.000..=40.000, up to 3 decimals → bore_um
 //! calibrate tare
 //! calibrate span <force_n>              known load, 1.000..=900.000, up to 3 decimals
 //!                                       → force_mn
@@ -94,6 +98,11 @@ pub enum Command<'a> {
         /// Reply in JSON.
         json: bool,
     },
+    /// `measurements [--json]`.
+    Measurements {
+        /// Reply in JSON.
+        json: bool,
+    },
     /// `faults [--json]`.
     Faults {
         /// Reply in JSON.
@@ -114,11 +123,15 @@ pub enum Command<'a> {
         material: Material,
         /// The new cone's serial number (1..=20 chars of `[A-Za-z0-9_-]`).
         serial: &'a str,
+        /// `--bore <d0_mm>`: the new cone's bore before its first docking, µm.
+        bore_um: Option<u32>,
     },
-    /// `measure <bore_diameter_mm>`.
+    /// `measure [--baseline] <bore_diameter_mm>`.
     Measure {
         /// Measured bore diameter, µm (20_000..=40_000).
         bore_um: u32,
+        /// `--baseline`: the cone's bore when new, not a wear reading.
+        baseline: bool,
     },
     /// `calibrate tare`.
     CalibrateTare,
@@ -151,6 +164,7 @@ impl Command<'_> {
             Self::Wear { .. } => "wear",
             Self::History { .. } => "history",
             Self::Faults { .. } => "faults",
+            Self::Measurements { .. } => "measurements",
             Self::ClearFault => "clear-fault",
             Self::Home => "home",
             Self::Rate { .. } => "rate",
@@ -186,6 +200,7 @@ impl Command<'_> {
             | Self::Status { json }
             | Self::Wear { json }
             | Self::History { json, .. }
+            | Self::Measurements { json }
             | Self::Faults { json } => *json,
             _ => false,
         }
@@ -206,17 +221,27 @@ impl fmt::Debug for Command<'_> {
                 .field("json", json)
                 .finish(),
             Self::Faults { json } => f.debug_struct("Faults").field("json", json).finish(),
+            Self::Measurements { json } => {
+                f.debug_struct("Measurements").field("json", json).finish()
+            }
             Self::ClearFault => f.write_str("ClearFault"),
             Self::Home => f.write_str("Home"),
             Self::Rate { sps } => f.debug_struct("Rate").field("sps", sps).finish(),
-            Self::ConeReplace { material, serial } => f
+            Self::ConeReplace {
+                material,
+                serial,
+                bore_um,
+            } => f
                 .debug_struct("ConeReplace")
                 .field("material", material)
                 .field("serial", serial)
+                .field("bore_um", bore_um)
                 .finish(),
-            Self::Measure { bore_um } => {
-                f.debug_struct("Measure").field("bore_um", bore_um).finish()
-            }
+            Self::Measure { bore_um, baseline } => f
+                .debug_struct("Measure")
+                .field("bore_um", bore_um)
+                .field("baseline", baseline)
+                .finish(),
             Self::CalibrateTare => f.write_str("CalibrateTare"),
             Self::CalibrateSpan { force_mn } => f
                 .debug_struct("CalibrateSpan")
@@ -284,7 +309,7 @@ fn hint(arg: &str) -> &'static str {
         "N" => "1..100",
         "material" => "zqsn5-2 | qsn6-6-3 | cf-peek",
         "serial" => "1-20 chars of A-Z a-z 0-9 _ -",
-        "bore_diameter_mm" => "20.000..40.000, up to 3 decimals",
+        "bore_diameter_mm" | "d0_mm" => "20.000..40.000, up to 3 decimals",
         "force_n" => "1.000..900.000, up to 3 decimals",
         "pin" | "new_pin" => "4-12 digits",
         "cone subcommand" => "replace",
@@ -305,16 +330,16 @@ impl fmt::Display for ParseError {
             Self::MissingArgument(a) => write!(f, "missing <{}> ({})", a, hint(a)),
             Self::BadArgument(a) => write!(f, "bad <{}>; expected {}", a, hint(a)),
             Self::ExtraArgument => f.write_str("too many arguments; type 'help'"),
-            Self::JsonNotSupported => {
-                f.write_str("--json only applies to help, version, status, wear, history, faults")
-            }
+            Self::JsonNotSupported => f.write_str(
+                "--json only applies to help, version, status, wear, history, measurements, faults",
+            ),
         }
     }
 }
 
 /// Tokens after the command word: positional arguments and the `--json` flag.
 struct Args<'a> {
-    pos: heapless::Vec<&'a str, 3>,
+    pos: heapless::Vec<&'a str, 5>,
     json: bool,
     unknown_option: bool,
 }
@@ -385,6 +410,7 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
             | "wear"
             | "history"
             | "faults"
+            | "measurements"
             | "clear-fault"
             | "home"
             | "rate"
@@ -404,6 +430,7 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
         "status" => Ok(Command::Status { json: a.report()? }),
         "wear" => Ok(Command::Wear { json: a.report()? }),
         "faults" => Ok(Command::Faults { json: a.report()? }),
+        "measurements" => Ok(Command::Measurements { json: a.report()? }),
         "history" => {
             if a.unknown_option {
                 return Err(ParseError::UnknownOption);
@@ -432,7 +459,7 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
             }
         }
         "cone" => {
-            a.action(3)?;
+            a.action(5)?;
             if a.get(0, "cone subcommand")? != "replace" {
                 return Err(ParseError::BadArgument("cone subcommand"));
             }
@@ -442,14 +469,34 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
             if !is_serial(serial) {
                 return Err(ParseError::BadArgument("serial"));
             }
-            Ok(Command::ConeReplace { material, serial })
+            let bore_um = match a.pos.get(3).copied() {
+                None => None,
+                Some("--bore") => Some(bore(a.get(4, "d0_mm")?, "d0_mm")?),
+                Some(t) if t.starts_with("--") => return Err(ParseError::UnknownOption),
+                Some(_) => return Err(ParseError::ExtraArgument),
+            };
+            Ok(Command::ConeReplace {
+                material,
+                serial,
+                bore_um,
+            })
         }
         "measure" => {
-            a.action(1)?;
-            let bore_um = parse_milli(a.get(0, "bore_diameter_mm")?)
-                .filter(|v| (BORE_MIN_UM..=BORE_MAX_UM).contains(v))
-                .ok_or(ParseError::BadArgument("bore_diameter_mm"))?;
-            Ok(Command::Measure { bore_um })
+            a.action(2)?;
+            match a.pos.as_slice() {
+                ["--baseline", d] => Ok(Command::Measure {
+                    bore_um: bore(d, "d0_mm")?,
+                    baseline: true,
+                }),
+                ["--baseline"] => Err(ParseError::MissingArgument("d0_mm")),
+                [t, ..] if t.starts_with("--") => Err(ParseError::UnknownOption),
+                [d] => Ok(Command::Measure {
+                    bore_um: bore(d, "bore_diameter_mm")?,
+                    baseline: false,
+                }),
+                [] => Err(ParseError::MissingArgument("bore_diameter_mm")),
+                _ => Err(ParseError::ExtraArgument),
+            }
         }
         "calibrate" => {
             a.action(2)?;
@@ -498,6 +545,13 @@ pub fn is_serial(s: &str) -> bool {
     (1..=SERIAL_MAX_LEN).contains(&s.len())
         && s.bytes()
             .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+}
+
+/// A bore diameter in mm (20.000..=40.000, up to 3 decimals), as µm.
+fn bore(t: &str, name: &'static str) -> Result<u32, ParseError> {
+    parse_milli(t)
+        .filter(|v| (BORE_MIN_UM..=BORE_MAX_UM).contains(v))
+        .ok_or(ParseError::BadArgument(name))
 }
 
 /// `history` count: 1..=3 ASCII digits, value 1..=100.

@@ -35,8 +35,6 @@ use crate::sequencer::{Request, State};
 pub const LINE_MAX: usize = 128;
 /// Output ring, bytes (holds `history 100 --json`).
 pub const OUT_CAP: usize = 8192;
-/// Nominal bore of a new cone, µm (D2 = 26 mm, reference §2).
-pub const NEW_BORE_UM: u32 = 26_000;
 
 /// Audited maintenance actions (the `action` byte of an audit record).
 pub mod action {
@@ -349,8 +347,12 @@ impl Console {
                 }
                 Err(e) => self.err(&e),
             },
-            Command::ConeReplace { material, serial } => {
-                match ctrl.replace_cone(material, serial) {
+            Command::ConeReplace {
+                material,
+                serial,
+                bore_um,
+            } => {
+                match ctrl.replace_cone_measured(material, serial, bore_um) {
                     Ok(()) => {
                         // material code | serial (≤ 20 bytes)
                         let mut detail = [0u8; 21];
@@ -365,12 +367,20 @@ impl Console {
                         }
                         self.audit(ctrl, action::CONE_REPLACE, now_ms, &detail);
                         let id = ctrl.odometer().cone().id;
-                        self.reply(|o| write!(o, "ok: cone {id} installed ({}, serial {serial}); cone counters start at zero\r\n", material.name()));
+                        self.reply(|o| {
+                            write!(o, "ok: cone {id} installed ({}, serial {serial}); cone counters start at zero;", material.name())?;
+                            match bore_um {
+                                Some(b) => kv_fixed(o, "baseline_bore_mm", b as i64, 3),
+                                None => o.write_str(" no baseline: the nominal 26.000 mm is assumed until `measure --baseline`"),
+                            }?;
+                            o.write_str("\r\n")
+                        });
                     }
                     Err(e) => self.err(&e),
                 }
             }
-            Command::Measure { bore_um } => self.measure(ctrl, bore_um, now_ms),
+            Command::Measure { bore_um, baseline } => self.measure(ctrl, bore_um, baseline, now_ms),
+            Command::Measurements { json } => self.measurements(ctrl, json),
             Command::CalibrateTare => match ctrl.calibrate_tare() {
                 Ok(c) => {
                     self.audit(
@@ -441,18 +451,19 @@ impl Console {
     }
 
     fn help(&mut self, json: bool) {
-        const CMDS: [&str; 16] = [
+        const CMDS: [&str; 17] = [
             "help [--json]",
             "version [--json]",
             "status [--json]",
             "wear [--json]",
             "history [N] [--json]",
             "faults [--json]",
+            "measurements [--json]",
             "clear-fault",
             "home",
             "rate <10|80>",
-            "cone replace <material> <serial>",
-            "measure <bore_diameter_mm>",
+            "cone replace <material> <serial> [--bore <d0_mm>]",
+            "measure [--baseline] <bore_diameter_mm>",
             "calibrate tare",
             "calibrate span <force_n>",
             "maint <pin>",
@@ -547,9 +558,16 @@ impl Console {
         let odo = ctrl.odometer();
         let cone = *odo.cone();
         let life = *odo.lifetime();
-        let (wear_nm, remaining, level) = (odo.wear_nm(), odo.remaining_cycles(), odo.level());
+        let (wear_nm, remaining) = (odo.wear_nm(), odo.remaining_cycles());
         let cfg = *odo.config();
         let warn_nm = (cfg.limit_nm as u64 * cfg.warn_pct as u64 / 100) as i64;
+        // The level acted on (the estimate's band once measured), the estimate, the
+        // last reading.
+        let level = ctrl.wear_level();
+        let est = ctrl.wear_estimate();
+        let base = ctrl.baseline_or_nominal();
+        let assumed = cone.baseline().is_none();
+        let measured = ctrl.measurements().last().map(|m| m.wear_nm(base) as i64);
         // The cone's load–distance (Q63.1 mN·µm) in thousandths of N·mm.
         let cone_nmm_milli = (cone.w_q1 / 2_000).min(i64::MAX as u64) as i64;
         if json {
@@ -569,6 +587,17 @@ impl Console {
                     .u64("overload_events", life.overload_events as u64)?
                     .u64("faults", life.faults as u64)?
                     .fixed("peak_force_n", life.peak_force_mn as i64, 3)?;
+                match measured {
+                    Some(m) => j.fixed("wear_measured_mm", m, 6)?,
+                    None => j.null("wear_measured_mm")?,
+                };
+                j.fixed("wear_estimate_mm", est.wear_nm as i64, 6)?
+                    .fixed("estimate_low_mm", est.low_nm as i64, 6)?
+                    .fixed("estimate_high_mm", est.high_nm as i64, 6)?
+                    .u64("remaining_estimate_cycles", est.remaining_cycles as u64)?
+                    .fixed("baseline_bore_mm", base as i64, 3)?
+                    .bool("baseline_assumed", assumed)?
+                    .u64("readings", ctrl.measurements().len() as u64)?;
                 Ok(())
             });
         } else {
@@ -592,6 +621,21 @@ impl Console {
                     life.cycles, life.cones_installed, life.overload_events, life.faults
                 )?;
                 kv_fixed(o, "peak_force_n", life.peak_force_mn as i64, 3)?;
+                match measured {
+                    Some(m) => kv_fixed(o, "wear_measured_mm", m, 6)?,
+                    None => o.write_str(" wear_measured_mm=none")?,
+                }
+                kv_fixed(o, "wear_estimate_mm", est.wear_nm as i64, 6)?;
+                kv_fixed(o, "estimate_low_mm", est.low_nm as i64, 6)?;
+                kv_fixed(o, "estimate_high_mm", est.high_nm as i64, 6)?;
+                write!(o, " remaining_estimate_cycles={}", est.remaining_cycles)?;
+                kv_fixed(o, "baseline_bore_mm", base as i64, 3)?;
+                write!(
+                    o,
+                    " baseline_assumed={} readings={}",
+                    if assumed { "yes" } else { "no" },
+                    ctrl.measurements().len()
+                )?;
                 o.write_str("\r\n")
             });
         }
@@ -733,44 +777,103 @@ impl Console {
         }
     }
 
-    fn measure<B: Bsp>(&mut self, ctrl: &mut Controller<B>, bore_um: u32, now_ms: u64) {
-        let odo = ctrl.odometer();
-        let (cycles, cone_id, cone_cycles, model_nm) = (
-            odo.lifetime().cycles,
-            odo.cone().id,
-            odo.cone().cycles,
-            odo.wear_nm(),
-        );
-        // Radial wear from the bore: (bore − new bore) / 2, in nm.
-        let measured_nm = (bore_um.saturating_sub(NEW_BORE_UM) as u64 * 1000 / 2) as i64;
-        // bore_um u32 | lifetime cycle u32 | cone id u16 | cone cycle u32 | model nm u32
-        let mut rec = [0u8; 18];
-        let fields: [&[u8]; 5] = [
-            &bore_um.to_le_bytes(),
-            &cycles.to_le_bytes(),
-            &cone_id.to_le_bytes(),
-            &cone_cycles.to_le_bytes(),
-            &model_nm.to_le_bytes(),
-        ];
-        let mut at = 0;
-        for f in fields {
-            if let Some(d) = rec.get_mut(at..at + f.len()) {
-                d.copy_from_slice(f);
+    fn measure<B: Bsp>(
+        &mut self,
+        ctrl: &mut Controller<B>,
+        bore_um: u32,
+        baseline: bool,
+        now_ms: u64,
+    ) {
+        let m = match ctrl.add_measurement(bore_um, baseline) {
+            Ok(m) => m,
+            Err(e) => {
+                self.err(&e);
+                return;
             }
-            at += f.len();
+        };
+        let mut detail = [0u8; 5];
+        let (b, f) = detail.split_at_mut(4);
+        b.copy_from_slice(&bore_um.to_le_bytes());
+        if let Some(f0) = f.first_mut() {
+            *f0 = baseline as u8;
         }
-        if let Err(e) = ctrl.store_record(kind::MEASURE, &rec) {
-            self.err(&e);
+        self.audit(ctrl, action::MEASURE, now_ms, &detail);
+        if baseline {
+            self.reply(|o| {
+                o.write_str("ok: baseline")?;
+                kv_fixed(o, "bore_mm", bore_um as i64, 3)?;
+                write!(o, " cone={} (its wear is measured from it)\r\n", m.cone_id)
+            });
             return;
         }
-        self.audit(ctrl, action::MEASURE, now_ms, &bore_um.to_le_bytes());
+        let base = ctrl.baseline_or_nominal();
+        let assumed = ctrl.odometer().cone().baseline().is_none();
+        let est = ctrl.wear_estimate();
         self.reply(|o| {
             o.write_str("ok:")?;
             kv_fixed(o, "bore_mm", bore_um as i64, 3)?;
-            write!(o, " cone_cycle={cone_cycles}")?;
-            kv_fixed(o, "measured_wear_mm", measured_nm, 6)?;
-            kv_fixed(o, "model_wear_mm", model_nm as i64, 6)?;
+            write!(o, " cone_cycle={}", m.cone_cycle)?;
+            kv_fixed(o, "measured_wear_mm", m.wear_nm(base) as i64, 6)?;
+            kv_fixed(o, "model_wear_mm", m.model_nm as i64, 6)?;
+            kv_fixed(o, "wear_estimate_mm", est.wear_nm as i64, 6)?;
+            kv_fixed(o, "estimate_low_mm", est.low_nm as i64, 6)?;
+            kv_fixed(o, "estimate_high_mm", est.high_nm as i64, 6)?;
+            write!(o, " remaining_estimate_cycles={}", est.remaining_cycles)?;
+            kv_fixed(o, "baseline_bore_mm", base as i64, 3)?;
+            if assumed {
+                o.write_str(
+                    " baseline_assumed=yes (nominal 26.000 mm: measure --baseline on a new cone)",
+                )?;
+            }
             o.write_str("\r\n")
         });
+    }
+
+    fn measurements<B: Bsp>(&mut self, ctrl: &mut Controller<B>, json: bool) {
+        let base = ctrl.baseline_or_nominal();
+        let assumed = ctrl.odometer().cone().baseline().is_none();
+        let cone = ctrl.odometer().cone().id;
+        let list: heapless::Vec<_, { crate::odometer::READINGS_KEPT }> =
+            ctrl.measurements().iter().copied().collect();
+        if json {
+            self.reply_json(|j| {
+                j.u64("cone", cone as u64)?
+                    .fixed("baseline_bore_mm", base as i64, 3)?
+                    .bool("baseline_assumed", assumed)?;
+                j.array("readings", |a| {
+                    for m in &list {
+                        a.object(|x| {
+                            x.u64("cone_cycle", m.cone_cycle as u64)?
+                                .u64("cycle", m.lifetime_cycle as u64)?
+                                .fixed("bore_mm", m.bore_um as i64, 3)?
+                                .fixed("wear_mm", m.wear_nm(base) as i64, 6)?
+                                .fixed("model_wear_mm", m.model_nm as i64, 6)?;
+                            Ok(())
+                        })?;
+                    }
+                    Ok(())
+                })?;
+                Ok(())
+            });
+        } else {
+            self.reply(|o| {
+                write!(o, "cone={cone}")?;
+                kv_fixed(o, "baseline_bore_mm", base as i64, 3)?;
+                write!(
+                    o,
+                    " baseline_assumed={} readings={}\r\n",
+                    if assumed { "yes" } else { "no" },
+                    list.len()
+                )?;
+                for m in &list {
+                    write!(o, "cone_cycle={} cycle={}", m.cone_cycle, m.lifetime_cycle)?;
+                    kv_fixed(o, "bore_mm", m.bore_um as i64, 3)?;
+                    kv_fixed(o, "wear_mm", m.wear_nm(base) as i64, 6)?;
+                    kv_fixed(o, "model_wear_mm", m.model_nm as i64, 6)?;
+                    o.write_str("\r\n")?;
+                }
+                Ok(())
+            });
+        }
     }
 }

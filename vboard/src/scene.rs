@@ -16,7 +16,6 @@
 
 use std::time::Instant;
 
-use docking_controller::storage::RecordLog;
 use hil_sim::flash::{SharedFlash, SimFlash};
 use hil_sim::rig::{Machine, RigOptions};
 use hil_sim::scene::{num, FaultSeen, Progress, SceneDriver, SceneReport, Stage, FLOOD_PIECES};
@@ -971,7 +970,8 @@ pub struct Prefill {
 pub type Newest = Vec<Option<(u32, Vec<u8>)>>;
 
 fn read_newest(flash: &SharedFlash) -> Result<Newest, String> {
-    let (mut log, _) = RecordLog::open(flash.clone()).map_err(|e| format!("open: {e}"))?;
+    let (mut log, _) =
+        docking_controller::odometer::open_log(flash.clone()).map_err(|e| format!("open: {e}"))?;
     Ok((0..docking_controller::storage::MAX_KINDS)
         .map(|k| {
             log.latest(k)
