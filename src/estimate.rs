@@ -70,6 +70,8 @@ const LOG2_E: i128 = 6_196_328_019;
 const HUBER_K: i128 = 5 * ONE / 2;
 /// IRLS passes.
 const PASSES: usize = 3;
+/// Readings a fit uses at most (the newest; the odometer keeps 40).
+pub const MAX_READINGS: usize = 48;
 /// Bounds of the fitted exponent (a wear law that does not grow, or grows faster than
 /// linearly, is not a cone's).
 const BETA_MIN: i128 = ONE / 20;
@@ -188,32 +190,42 @@ impl Fit {
             return Self::prior();
         }
         let (a0, b0) = prior_line();
-        // Per reading: u, z and the base weight 1/(σ_z² + σ_shape²).
-        let point = |r: &Reading| {
+        // Per reading, once: u, z, its base weight and Huber's threshold. The
+        // logarithms, roots and divisions are the costly part on the target (software
+        // 128-bit arithmetic): the passes below only multiply (a down-weighted outlier
+        // costs one division).
+        let mut pts: heapless::Vec<(i64, i64, i64, i64), MAX_READINGS> = heapless::Vec::new();
+        let newest = readings.len().saturating_sub(MAX_READINGS);
+        for r in readings.get(newest..).unwrap_or(&[]) {
             let u = u_of(r.e_q32);
             // y + c in µm, kept above c/4 (a bore read far below its baseline).
             let v = (r.wear_nm as i128 * ONE / 1000 + C_UM).max(C_UM / 4);
             let z = log2_i(v);
             let sz = mul(div(SIGMA_READ_UM, v), LOG2_E);
             let var = mul(sz, sz) + SHAPE_VAR;
-            (u, z, var)
-        };
+            // (u, z, base weight 1/var, Huber's threshold k·sd)
+            let _ = pts.push((
+                u as i64,
+                z as i64,
+                div(ONE, var) as i64,
+                mul(HUBER_K, sqrt_q32(var)) as i64,
+            ));
+        }
         let (mut alpha, mut beta) = (a0, b0);
         let mut cov = (0i128, 0i128, 0i128);
         for pass in 0..PASSES {
             let (mut p00, mut p01, mut p11) = (PRIOR_PREC_ALPHA, 0i128, PRIOR_PREC_BETA);
             let (mut r0, mut r1) = (mul(PRIOR_PREC_ALPHA, a0), mul(PRIOR_PREC_BETA, b0));
-            for rd in readings {
-                let (u, z, var) = point(rd);
-                let mut w = div(ONE, var);
-                if pass > 0 {
-                    // Huber: beyond k standard deviations the weight falls as 1/|r|.
-                    let e = z - (alpha + mul(beta, u));
-                    let r = div(e.abs(), sqrt_q32(var));
-                    if r > HUBER_K {
-                        w = mul(w, div(HUBER_K, r));
-                    }
-                }
+            for &(u, z, w0, ksd) in &pts {
+                let (u, z, w0, ksd) = (u as i128, z as i128, w0 as i128, ksd as i128);
+                // Huber: beyond k standard deviations the weight falls as 1/|r|, i.e.
+                // w = w0 · k·sd/|e|.
+                let e = if pass > 0 {
+                    (z - (alpha + mul(beta, u))).abs()
+                } else {
+                    0
+                };
+                let w = if e > ksd { mul(w0, div(ksd, e)) } else { w0 };
                 let wu = mul(w, u);
                 p00 += w;
                 p01 += wu;
@@ -234,7 +246,7 @@ impl Fit {
             }
             cov = (div(p11, det), -div(p01, det), div(p00, det));
         }
-        let n = u16::try_from(readings.len()).unwrap_or(u16::MAX);
+        let n = u16::try_from(pts.len()).unwrap_or(u16::MAX);
         Self {
             alpha: alpha as i64,
             beta: beta as i64,

@@ -10,7 +10,7 @@ use crate::periph::flash::FlashTiming;
 use crate::scene::{Options, SceneOptions, SCENES};
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--firmware ELF] [--rate 10|80] [--cpi X] [--speed X] [--for SECONDS]";
+pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--firmware ELF] [--rate 10|80] [--cpi X] [--speed X] [--for SECONDS] | estimate-cost [--readings N] [--firmware ELF]";
 
 /// How the command failed.
 #[derive(Debug)]
@@ -144,6 +144,18 @@ fn serve(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     crate::serve::run(&opts, out).map_err(Failure::Run)
 }
 
+fn estimate_cost(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
+    let o = Opts::parse(args, &["firmware", "readings"], &[])?;
+    let mut opts = Options::new();
+    if let Some(f) = o.get("firmware") {
+        opts.firmware = f.to_string();
+    }
+    let n = o.num("readings", 30usize, 1, 40)?;
+    let r = crate::scene::estimate_cost(&opts, n).map_err(Failure::Run)?;
+    let _ = writeln!(out, "{}", r.to_text());
+    Ok(())
+}
+
 /// Run the command line `args` (without the program name).
 pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     let Some((cmd, rest)) = args.split_first() else {
@@ -152,6 +164,7 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     match cmd.as_str() {
         "scene" => scene(rest, out),
         "serve" => serve(rest, out),
+        "estimate-cost" => estimate_cost(rest, out),
         "help" | "--help" | "-h" => {
             let _ = writeln!(out, "{USAGE}");
             Ok(())

@@ -396,6 +396,9 @@ impl Board {
                 }
             }
             let n = block_insns(uc, addr, size);
+            if uc.get_data().meter.is_some() {
+                meter_block(uc, addr as u32);
+            }
             let s = uc.get_data_mut();
             s.block_at = (addr as u32, s.clock.mc());
             s.clock.execute(n);
@@ -655,6 +658,27 @@ fn exception_return(uc: &mut Unicorn<'_, Soc>) {
     set(uc, RegisterARM::PC, ret | 1);
     let s = uc.get_data_mut();
     s.current_exc = s.nvic.active_stack().last().copied().unwrap_or(0) as usize;
+}
+
+/// The function meter at a block boundary (before the block's own instructions are
+/// counted): a call starts at the entry block and ends at the block its return address
+/// starts, with the stack back where it was.
+fn meter_block(uc: &mut Unicorn<'_, Soc>, addr: u32) {
+    let (lr, sp) = (reg(uc, RegisterARM::LR), reg(uc, RegisterARM::SP));
+    let s = uc.get_data_mut();
+    let exc = s.current_exc;
+    let count = s.exc_insns.get(exc).copied().unwrap_or(0);
+    let Some(m) = s.meter.as_mut() else { return };
+    match m.active {
+        None if addr & !1 == m.entry => m.active = Some((exc, count, lr & !1, sp)),
+        Some((e, start, ret, sp0)) if e == exc && addr & !1 == ret && sp >= sp0 => {
+            m.last = count - start;
+            m.insns += m.last;
+            m.calls += 1;
+            m.active = None;
+        }
+        _ => {}
+    }
 }
 
 /// A synchronous fault of kind `kind` (MemManage, BusFault, UsageFault or HardFault)
@@ -1083,6 +1107,15 @@ impl Board {
             pc,
             "imprecise bus error (injected)",
         );
+    }
+
+    /// Meter the function at `entry` (instructions per call, see [`crate::soc::FnMeter`]);
+    /// replaces any meter before.
+    pub fn meter(&mut self, entry: u32) {
+        self.soc_mut().meter = Some(crate::soc::FnMeter {
+            entry: entry & !1,
+            ..Default::default()
+        });
     }
 
     /// Detach the probe: nothing reads the RTT buffer any more, and the log stops.

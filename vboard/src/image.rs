@@ -100,6 +100,14 @@ impl Image {
             .map(|&(_, a, s)| (a, s))
     }
 
+    /// Address and size of the first symbol whose (mangled) name contains `part`.
+    pub fn symbol_containing(&self, part: &str) -> Option<(u32, u32)> {
+        self.symbols
+            .iter()
+            .find(|(n, _, s)| *s > 0 && n.contains(part))
+            .map(|&(_, a, s)| (a, s))
+    }
+
     /// The function containing `addr` (for fault reports), by symbol size.
     pub fn function_at(&self, addr: u32) -> Option<&str> {
         let a = addr & !1;

@@ -1125,3 +1125,75 @@ fn power_cut_write(
     ));
     Ok(())
 }
+
+/// What the wear estimate costs the Cortex-M4, measured on the image.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct EstimateCost {
+    /// (readings, instructions) of one fit (`Fit::new`), after each reading entered.
+    pub fit: Vec<(usize, u64)>,
+    /// Instructions of one estimate at the current wear (`Fit::at`, a `wear` query).
+    pub at: u64,
+}
+
+impl EstimateCost {
+    /// A table for a terminal.
+    pub fn to_text(&self) -> String {
+        let mut s = String::from(
+            "# the wear estimate on the Cortex-M4 (release image, instructions in thread mode; 168 MHz at CPI 1)\nreadings | fit instructions | µs\n",
+        );
+        for (k, n) in &self.fit {
+            s += &format!("{k:>8} | {n:>16} | {:>5.0}\n", *n as f64 / 168.0);
+        }
+        s += &format!(
+            "# one estimate at the current wear (wear query): {} instructions, {:.1} µs",
+            self.at,
+            self.at as f64 / 168.0
+        );
+        s
+    }
+}
+
+/// Enter `n` micrometer readings on the console of a board running `opts`'s image and
+/// meter the fit each one triggers, then one `wear` query.
+pub fn estimate_cost(opts: &Options, n: usize) -> Result<EstimateCost, String> {
+    let mut s = Session::new(opts.clone())?;
+    let halt = |e: Halt| e.to_string();
+    s.run_for(PS_PER_S).map_err(halt)?;
+    for cmd in ["pin set 2468", "maint 2468", "measure --baseline 26.000"] {
+        let r = s.console(cmd, 5 * PS_PER_S).map_err(halt)?;
+        if !r.starts_with("ok") {
+            return Err(format!("'{cmd}': {}", r.trim()));
+        }
+    }
+    let entry = |part: &str| {
+        s.board
+            .image
+            .symbol_containing(part)
+            .map(|(a, _)| a)
+            .ok_or_else(|| format!("no symbol {part} in the image"))
+    };
+    let (fit_at, at_at) = (entry("8estimate3Fit3new")?, entry("8estimate3Fit2at")?);
+    let mut fit = Vec::new();
+    s.board.meter(fit_at);
+    for k in 1..=n {
+        let bore = 26_000 + 10 * k as u32;
+        let r = s
+            .console(
+                &format!("measure {}.{:03}", bore / 1000, bore % 1000),
+                5 * PS_PER_S,
+            )
+            .map_err(halt)?;
+        if !r.starts_with("ok") {
+            return Err(format!("measure: {}", r.trim()));
+        }
+        let m = s.board.soc().meter.clone().unwrap_or_default();
+        if m.calls as usize != k {
+            return Err(format!("{} fits metered after {k} readings", m.calls));
+        }
+        fit.push((k, m.last));
+    }
+    s.board.meter(at_at);
+    let _ = s.console("wear", 5 * PS_PER_S).map_err(halt)?;
+    let at = s.board.soc().meter.as_ref().map_or(0, |m| m.last);
+    Ok(EstimateCost { fit, at })
+}

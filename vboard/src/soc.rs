@@ -129,6 +129,23 @@ pub struct Edge {
     pub high: bool,
 }
 
+/// Instructions executed inside one function, per call, in the exception context it
+/// was called from (instructions of interrupts taken meanwhile are not its own).
+#[derive(Clone, Debug, Default)]
+pub struct FnMeter {
+    /// Entry address (Thumb bit clear).
+    pub entry: u32,
+    /// Calls completed.
+    pub calls: u64,
+    /// Instructions of the completed calls.
+    pub insns: u64,
+    /// The last call's instructions.
+    pub last: u64,
+    /// A call in progress: (its exception context, that context's instruction count at
+    /// entry, return address, stack pointer at entry).
+    pub active: Option<(usize, u64, u32, u32)>,
+}
+
 /// The SoC.
 pub struct Soc {
     /// Virtual time.
@@ -198,6 +215,8 @@ pub struct Soc {
     /// Instructions executed in each exception (0: thread mode), and its entries: the
     /// per-task cost of the firmware.
     pub exc_insns: Vec<u64>,
+    /// A function whose executions are metered ([`crate::cpu::Board::meter`]).
+    pub meter: Option<FnMeter>,
     /// Entries of each exception.
     pub exc_entries: Vec<u64>,
     /// The exception running now (0: thread mode).
@@ -278,6 +297,7 @@ impl Soc {
             runs: 0,
             accesses: (0, 0),
             exc_insns: vec![0; crate::periph::nvic::SLOTS as usize],
+            meter: None,
             exc_entries: vec![0; crate::periph::nvic::SLOTS as usize],
             current_exc: 0,
             exti0_edge_ps: None,
