@@ -200,6 +200,8 @@ pub enum Event {
     WearLimitRefusal,
     /// A start was refused: the load cell has no stored calibration.
     UncalibratedRefusal,
+    /// A fault clear refused: the E-STOP input is open.
+    EstopClearRefusal,
 }
 
 /// An event with its time.
@@ -226,6 +228,8 @@ pub struct PollResult {
 /// A snapshot for the console and logs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Status {
+    /// The PLC handshake as it is now.
+    pub handshake: Handshake,
     /// Sequencer state.
     pub state: State,
     /// Contact phase, if in the cone.
@@ -264,6 +268,38 @@ const JUMP_MID_MN: i32 = 156_700;
 const EVENT_QUEUE: usize = 32;
 /// Fault records kept.
 const FAULTS_KEPT: usize = 16;
+/// The mated contact force: Eq. 7's N3 at the end of the stroke (30 mm deep), mN.
+pub const HOLD_EXPECTED_MN: i32 = 125_098;
+/// How far the contact force may stray from [`HOLD_EXPECTED_MN`] while mated, mN: more
+/// (two samples in a row) is the vehicle pulling or drifting ([`FaultKind::HoldForce`]),
+/// and MATED is reported only within it.
+pub const HOLD_TOLERANCE_MN: i32 = 40_000;
+
+/// The PLC handshake (board pins; Modbus status bits).
+///
+/// Inputs: **DOCK** (level: asserted = "be docked", released = "be undocked"; debounced
+/// over two control steps; acted on at its edges — after a reset or a fault the PLC
+/// releases and asserts it again), **E-STOP** (normally closed: open — pressed or a
+/// broken wire — is a stop). Outputs, active high (a dead controller reads as not
+/// ready, not mated):
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct Handshake {
+    /// DOCK input, as filtered.
+    pub dock: bool,
+    /// E-STOP input open (stopping).
+    pub estop: bool,
+    /// READY: idle, homed, locked, calibrated, cone not worn out, E-STOP closed.
+    pub ready: bool,
+    /// MATED: connectors engaged — at the mated position, the force in the hold
+    /// envelope, no undock under way; low before any extraction starts.
+    pub mated: bool,
+    /// FAULT: a latched fault (or the overload back-off).
+    pub fault: bool,
+    /// MAINTENANCE: the cone past its warning level (or worn out).
+    pub maintenance: bool,
+}
+
 /// Tries a counter snapshot (or a sector pre-erase) gets, one per rest, before the
 /// controller raises [`FaultKind::Storage`].
 pub const STORAGE_ATTEMPTS: u8 = 3;
@@ -338,6 +374,14 @@ pub struct Controller<B: Bsp> {
     readings: heapless::Vec<Measurement, { odometer::READINGS_KEPT }>,
     /// The wear estimate's fit to them.
     fit: Fit,
+    /// DOCK input: last raw reading, filtered level.
+    dock_raw: bool,
+    dock_seen: bool,
+    dock: bool,
+    /// E-STOP input open.
+    estop_open: bool,
+    /// Consecutive samples outside the hold envelope while mated.
+    hold_out: u8,
 }
 
 /// Why a maintenance action was refused.
@@ -576,6 +620,11 @@ impl<B: Bsp> Controller<B> {
             stack: None,
             readings: heapless::Vec::new(),
             fit: Fit::prior(),
+            dock_raw: false,
+            dock_seen: false,
+            dock: false,
+            estop_open: false,
+            hold_out: 0,
         };
         me.load_readings();
         // The switches as they are now: the filter starts from them.
@@ -908,12 +957,58 @@ impl<B: Bsp> Controller<B> {
         // 3. Contact phase from the depth, cross-checked with the force near 3→4.
         self.track_phase(now_ms, depth_um, sample.is_some());
 
+        // The PLC: DOCK counts once two steps read it alike, and acts at its edges.
+        if self.dock_raw == self.dock_prev_raw() && self.dock_raw != self.dock {
+            self.dock = self.dock_raw;
+            let r = match (self.dock, state) {
+                (true, State::PowerUp) => Some(Request::Home),
+                (true, _) => Some(Request::Dock),
+                (false, s) if s.is_docking() => Some(Request::Undock),
+                (false, _) => None,
+            };
+            if r.is_some() {
+                self.pending = r;
+            }
+        }
+        self.dock_seen = self.dock_raw;
+        if self.estop_open {
+            // The board stopped the motors already (its fastest interrupt); latch it.
+            self.seen_stop = self.seen_stop.max(self.stop.stops());
+            if !matches!(state, State::Faulted { .. }) {
+                fault = fault.or(Some(FaultKind::EmergencyStop));
+            }
+        }
+        // Mated: the force must stay in the hold envelope.
+        if let (Some(_), State::Holding { unmating: false, .. }) = (sample, state) {
+            if (self.force_mn - HOLD_EXPECTED_MN).abs() > HOLD_TOLERANCE_MN {
+                self.hold_out = self.hold_out.saturating_add(1);
+            } else {
+                self.hold_out = 0;
+            }
+            if self.hold_out >= 2 {
+                warn!(
+                    "mated force {} mN outside {}±{} mN: the vehicle pulls or drifts",
+                    self.force_mn, HOLD_EXPECTED_MN, HOLD_TOLERANCE_MN
+                );
+                fault = fault.or(Some(FaultKind::HoldForce));
+            }
+        } else if !matches!(state, State::Holding { .. }) {
+            self.hold_out = 0;
+        }
+
         // 4. Sequencer.
         let mut request = self.pending.take();
-        if request == Some(Request::StartCycle)
-            && state == State::Idle
-            && self.wear_level() == WearLevel::Limit
-        {
+        let starting = matches!(request, Some(Request::StartCycle | Request::Dock))
+            && state == State::Idle;
+        if request == Some(Request::ClearFault) && self.estop_open {
+            request = None;
+            error!("clear refused: the E-STOP input is open");
+            self.push_event(now_ms, Event::EstopClearRefusal);
+        }
+        if starting && self.estop_open {
+            request = None;
+        }
+        if starting && request.is_some() && self.wear_level() == WearLevel::Limit {
             // Worn out: no new docking until the cone is replaced.
             request = None;
             error!(
@@ -923,14 +1018,14 @@ impl<B: Bsp> Controller<B> {
             );
             self.push_event(now_ms, Event::WearLimitRefusal);
         }
-        if request == Some(Request::StartCycle) && state == State::Idle && !self.calibrated {
+        if starting && request.is_some() && !self.calibrated {
             request = None;
             error!(
                 "start refused: the load cell is not calibrated (calibrate tare, calibrate span)"
             );
             self.push_event(now_ms, Event::UncalibratedRefusal);
         }
-        if request == Some(Request::StartCycle) && state == State::Idle {
+        if starting && request.is_some() {
             match self.take_tare() {
                 TareResult::Ready => {}
                 TareResult::NotYet => {
@@ -1202,10 +1297,43 @@ impl<B: Bsp> Controller<B> {
         self.events.pop_front()
     }
 
+    fn dock_prev_raw(&self) -> bool {
+        self.dock_seen
+    }
+
+    /// The PLC's inputs as read now (the board reads its pins before each step): DOCK
+    /// asserted, E-STOP open.
+    pub fn set_plc(&mut self, dock_asserted: bool, estop_open: bool) {
+        self.dock_raw = dock_asserted;
+        self.estop_open = estop_open;
+    }
+
+    /// The handshake outputs now.
+    pub fn handshake(&self) -> Handshake {
+        let state = self.seq.state();
+        let sw = self.switches;
+        let in_envelope = (self.force_mn - HOLD_EXPECTED_MN).abs() <= HOLD_TOLERANCE_MN;
+        let level = self.wear_level();
+        Handshake {
+            dock: self.dock,
+            estop: self.estop_open,
+            ready: state == State::Idle
+                && sw.home
+                && sw.locked
+                && self.calibrated
+                && level != WearLevel::Limit
+                && !self.estop_open,
+            mated: matches!(state, State::Holding { unmating: false, .. }) && in_envelope,
+            fault: matches!(state, State::Faulted { .. } | State::BackingOff { .. }),
+            maintenance: level >= WearLevel::Warning,
+        }
+    }
+
     /// A status snapshot.
     pub fn status(&self) -> Status {
         let state = self.seq.state();
         Status {
+            handshake: self.handshake(),
             state,
             phase: self.phase,
             force_mn: self.force_mn,

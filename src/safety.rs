@@ -273,6 +273,42 @@ impl<P: OutputPin, L: StopLatch> OutputPin for GatedEn<P, L> {
     }
 }
 
+/// An active-high motor output (the lock's bridge inputs) behind the safety path's
+/// latch: while a stop is latched it is held low, whatever it is told (an emergency stop
+/// overrides the lock's command). The check and the write are one critical section.
+pub struct GatedHigh<P, L> {
+    pin: P,
+    latch: L,
+}
+
+impl<P, L> GatedHigh<P, L> {
+    /// Gate `pin` (active high) with `latch`.
+    pub fn new(pin: P, latch: L) -> Self {
+        Self { pin, latch }
+    }
+}
+
+impl<P: OutputPin, L> embedded_hal::digital::ErrorType for GatedHigh<P, L> {
+    type Error = P::Error;
+}
+
+impl<P: OutputPin, L: StopLatch> OutputPin for GatedHigh<P, L> {
+    fn set_high(&mut self) -> Result<(), Self::Error> {
+        let (pin, latch) = (&mut self.pin, &self.latch);
+        critical_section::with(|_| {
+            if latch.latched() {
+                pin.set_low()
+            } else {
+                pin.set_high()
+            }
+        })
+    }
+
+    fn set_low(&mut self) -> Result<(), Self::Error> {
+        self.pin.set_low()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -16,6 +16,23 @@
 //! Otherwise a [`Request::Home`] or a [`Request::StartCycle`] (console, dock-request
 //! input) starts the homing; the cycle itself then needs a request of its own.
 //!
+//! **In service** a [`Request::Dock`] docks and holds — minutes or hours — until a
+//! [`Request::Undock`]; a **test cycle** ([`Request::StartCycle`], for life and endurance
+//! runs) holds `hold_ms` and undocks by itself. An undock before the rod reaches the
+//! cone returns without counting a cycle; during the insertion it turns into a
+//! controlled extraction from where the rod is (counted: an insertion and an
+//! extraction). From the hold, MATED is dropped first and the extraction starts
+//! [`UNMATE_MS`] later. A [`Request::Stop`] latches [`FaultKind::Stopped`] from any
+//! state.
+//!
+//! **Pulled while mated** ([`FaultKind::HoldForce`], detected by the controller against
+//! the hold envelope): the connectors may be energised and the vehicle moving. The
+//! reaction is to drop MATED (the PLC de-energises on it), latch the fault and **hold the
+//! axis where it is, driven**: extracting on its own would pull live connectors apart
+//! under load, and a free-wheeling axis would let the vehicle drag the panel. The force
+//! limits keep running (an overload still disables the propulsion at the sample); the
+//! way out is a person's clear, which extracts under control.
+//!
 //! One docking cycle is one insertion and one extraction:
 //!
 //! ```text
@@ -24,7 +41,8 @@
 //!                                                        │ StartCycle (home, locked)     │
 //!                                                        ▼                               │
 //!   PreAlign (locked, fast, to engage) ─▶ Releasing (lock → released sw)                 │
-//!        ─▶ Inserting (compliant, ≤ v0, phases 1→2→3→4, to mated) ─▶ Holding (hold_ms)   │
+//!        ─▶ Inserting (compliant, ≤ v0, phases 1→2→3→4, to mated) ─▶ Holding (hold_ms │
+//!                                                      or, docked, until Undock)        │
 //!        ─▶ Extracting (≤ v0, to engage) ─▶ Locking (→ locked sw) ─▶ Returning (fast to ─┘
 //!                                               0.5 mm, then creeping onto the home sw)
 //!
@@ -76,6 +94,14 @@ pub enum FaultKind {
     /// times in a row: wear would go unrecorded, so no new cycle starts (the counters
     /// are kept in RAM; clearing the fault tries again).
     Storage,
+    /// The E-STOP input opened (pressed, or its wire broken): propulsion and lock off at
+    /// once. Clearing needs the input closed again.
+    EmergencyStop,
+    /// A `stop` request (console, PLC): all motion stopped, latched.
+    Stopped,
+    /// While mated, the contact force left the hold envelope (the vehicle pulling or
+    /// drifting): MATED drops, the axis holds where it is (see the theory of operation).
+    HoldForce,
 }
 
 impl FaultKind {
@@ -95,6 +121,9 @@ impl FaultKind {
             Self::Io => "io",
             Self::Tension => "tension",
             Self::Storage => "storage",
+            Self::EmergencyStop => "emergency_stop",
+            Self::Stopped => "stopped",
+            Self::HoldForce => "hold_force",
         }
     }
 
@@ -119,6 +148,9 @@ impl FaultKind {
             10 => Self::Io,
             11 => Self::Tension,
             12 => Self::Storage,
+            13 => Self::EmergencyStop,
+            14 => Self::Stopped,
+            15 => Self::HoldForce,
             _ => return None,
         })
     }
@@ -141,8 +173,17 @@ pub struct Switches {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub enum Request {
-    /// Run one docking cycle (accepted in `Idle` only).
+    /// Run one test cycle: dock, hold `hold_ms`, undock (accepted in `Idle` only; life
+    /// and endurance runs).
     StartCycle,
+    /// Dock and stay mated until [`Request::Undock`] (accepted in `Idle`).
+    Dock,
+    /// Undock: from the hold, or abort a docking under way and return (accepted while
+    /// docking or mated).
+    Undock,
+    /// Stop all motion now; latches [`FaultKind::Stopped`] (accepted in any state but a
+    /// latched fault).
+    Stop,
     /// Clear a latched fault and recover to home (accepted in `Faulted` only).
     ClearFault,
     /// Find home and lock (accepted in `PowerUp` only: after a reset nothing moves
@@ -261,10 +302,14 @@ pub enum State {
         /// Deadline, ms.
         deadline_ms: u64,
     },
-    /// Mated; holding until `until_ms`.
+    /// Mated; holding until `until_ms` (a test cycle), or until undock is requested
+    /// (`None`: in service).
     Holding {
         /// End of the hold, ms.
-        until_ms: u64,
+        until_ms: Option<u64>,
+        /// Undock requested: the connectors are no longer reported mated; extraction
+        /// starts at `until_ms`.
+        unmating: bool,
     },
     /// Compliant extraction back to the engagement point.
     Extracting {
@@ -335,6 +380,17 @@ impl State {
         )
     }
 
+    /// Whether a docking is under way or held (an undock request applies).
+    pub const fn is_docking(&self) -> bool {
+        matches!(
+            self,
+            Self::PreAlign { .. }
+                | Self::Releasing { .. }
+                | Self::Inserting { .. }
+                | Self::Holding { .. }
+        )
+    }
+
     /// Whether the rod may be in the cone (compliant states).
     pub const fn in_compliant_motion(&self) -> bool {
         matches!(
@@ -356,6 +412,9 @@ pub const HOME_OVERSHOOT_UM: i32 = 3_000;
 pub const HOME_APPROACH_UM: i32 = 500;
 /// Creep speed onto the home switch, µm/s (5 µm per control period at 80 SPS).
 pub const HOME_CREEP_UM_PER_S: u32 = 400;
+/// Between an undock request and the start of the extraction: MATED is already low
+/// (the PLC de-energises the connectors on it), ms.
+pub const UNMATE_MS: u64 = 200;
 
 /// The sequencer.
 #[derive(Clone, Debug)]
@@ -364,6 +423,8 @@ pub struct Sequencer {
     state: State,
     cycles_completed: u32,
     cycle_in_progress: u32,
+    /// The cycle under way is a service docking (hold until undock), not a test cycle.
+    service: bool,
 }
 
 impl Sequencer {
@@ -374,6 +435,7 @@ impl Sequencer {
             state: State::PowerUp,
             cycles_completed: 0,
             cycle_in_progress: 0,
+            service: false,
         }
     }
 
@@ -466,9 +528,11 @@ impl Sequencer {
         } else {
             None
         };
-        let detected = inp.fault.or(switch_fault);
+        let stop = (inp.request == Some(Request::Stop)).then_some(FaultKind::Stopped);
+        let detected = inp.fault.or(switch_fault).or(stop);
         let next = match (self.state, detected) {
             (State::Faulted { .. }, _) => None, // latched: only a clear gets out
+            // Any fault (a stop included) ends the controlled retreat of an overload.
             (State::BackingOff { .. }, Some(f)) => {
                 Some((State::Faulted { fault: f }, Some(SeqEvent::Fault(f))))
             }
@@ -484,9 +548,17 @@ impl Sequencer {
         if let (Some(r), None) = (inp.request, event) {
             let accepted = matches!(
                 (r, self.state),
-                (Request::StartCycle, State::PreAlign { .. })
+                (Request::StartCycle | Request::Dock, State::PreAlign { .. })
+                    | (Request::Stop, State::Faulted { .. })
                     | (
-                        Request::Home | Request::StartCycle,
+                        Request::Undock,
+                        State::Holding { unmating: true, .. }
+                            | State::Extracting { .. }
+                            | State::Locking { .. }
+                            | State::Returning { .. }
+                    )
+                    | (
+                        Request::Home | Request::StartCycle | Request::Dock,
                         State::Homing { .. } | State::Locking { .. }
                     )
                     | (
@@ -500,6 +572,11 @@ impl Sequencer {
         }
 
         let (axis, lock) = match self.state {
+            // Pulled while mated: stay put, driven (no free-wheeling with the connectors
+            // under load), until a person decides (clear: a controlled extraction).
+            State::Faulted {
+                fault: FaultKind::HoldForce,
+            } => (AxisCmd::Hold, LockCmd::Off),
             State::PowerUp | State::Idle | State::Faulted { .. } => {
                 (AxisCmd::Disabled, LockCmd::Off)
             }
@@ -581,7 +658,7 @@ impl Sequencer {
             State::PowerUp if sw.home && sw.locked => (State::Idle, Some(SeqEvent::Homed), true),
             // Anything else needs a request: the panel may be inside the cone.
             State::PowerUp => match inp.request {
-                Some(Request::Home | Request::StartCycle) if sw.home => (
+                Some(Request::Home | Request::StartCycle | Request::Dock) if sw.home => (
                     State::Locking {
                         deadline_ms: self.lock_deadline(now),
                         then: AfterLock::Idle,
@@ -589,7 +666,7 @@ impl Sequencer {
                     Some(SeqEvent::Homed),
                     true,
                 ),
-                Some(Request::Home | Request::StartCycle) => {
+                Some(Request::Home | Request::StartCycle | Request::Dock) => {
                     let deadline_ms = self.move_deadline(
                         now,
                         cfg.end_switch_um + HOME_OVERSHOOT_UM,
@@ -636,7 +713,8 @@ impl Sequencer {
                 }
             }
             State::Idle => match inp.request {
-                Some(Request::StartCycle) if sw.home && sw.locked => {
+                Some(r @ (Request::StartCycle | Request::Dock)) if sw.home && sw.locked => {
+                    self.service = r == Request::Dock;
                     self.cycle_in_progress = self.cycles_completed.saturating_add(1);
                     let deadline_ms = self.move_deadline(
                         now,
@@ -649,10 +727,39 @@ impl Sequencer {
                         false,
                     )
                 }
-                Some(Request::StartCycle) if !sw.home => fault(FaultKind::AxisStall),
-                Some(Request::StartCycle) => fault(FaultKind::LockNotLocked),
+                Some(Request::StartCycle | Request::Dock) if !sw.home => {
+                    fault(FaultKind::AxisStall)
+                }
+                Some(Request::StartCycle | Request::Dock) => fault(FaultKind::LockNotLocked),
                 _ => stay(State::Idle),
             },
+            // Undock before the rod is in the cone: no insertion, no cycle. Locked (or
+            // locking again), the panel returns home.
+            State::PreAlign { .. } if inp.request == Some(Request::Undock) => {
+                self.cycle_in_progress = self.cycles_completed;
+                (self.start_return(now, inp.pos_um, false), None, false)
+            }
+            State::Releasing { .. } if inp.request == Some(Request::Undock) => {
+                self.cycle_in_progress = self.cycles_completed;
+                (
+                    State::Locking {
+                        deadline_ms: self.lock_deadline(now),
+                        then: AfterLock::Return,
+                    },
+                    None,
+                    false,
+                )
+            }
+            // Undock during the insertion: a controlled extraction from where it is
+            // (an insertion and an extraction: it counts as a cycle).
+            State::Inserting { .. } if inp.request == Some(Request::Undock) => {
+                let deadline_ms = self.move_deadline(
+                    now,
+                    inp.pos_um - cfg.engage_um,
+                    cfg.dock_speed_um_per_s,
+                );
+                (State::Extracting { deadline_ms }, None, false)
+            }
             State::PreAlign { deadline_ms } => {
                 if inp.axis_idle && (inp.pos_um - cfg.engage_um).abs() <= 10 {
                     (
@@ -686,7 +793,8 @@ impl Sequencer {
                 if inp.axis_idle && (inp.pos_um - cfg.mated_um()).abs() <= 10 {
                     (
                         State::Holding {
-                            until_ms: now + cfg.hold_ms as u64,
+                            until_ms: (!self.service).then_some(now + cfg.hold_ms as u64),
+                            unmating: false,
                         },
                         None,
                         false,
@@ -697,8 +805,18 @@ impl Sequencer {
                     stay(self.state)
                 }
             }
-            State::Holding { until_ms } => {
-                if now >= until_ms {
+            State::Holding {
+                unmating: false, ..
+            } if inp.request == Some(Request::Undock) => (
+                State::Holding {
+                    until_ms: Some(now + UNMATE_MS),
+                    unmating: true,
+                },
+                None,
+                false,
+            ),
+            State::Holding { until_ms, .. } => {
+                if until_ms.is_some_and(|t| now >= t) {
                     let deadline_ms = self.move_deadline(
                         now,
                         inp.pos_um - cfg.engage_um,
@@ -962,6 +1080,208 @@ mod tests {
         assert_eq!(r.seq.cycles_completed(), 1);
     }
 
+    /// Boot to idle, request `r` (Dock or StartCycle) and drive the rig to the mated
+    /// position: the state once there.
+    fn mated_by(r: &mut Rig, req: Request) -> State {
+        let cfg = MachineConfig::DEFAULT;
+        for _ in 0..3 {
+            r.tick(10);
+        }
+        r.inp.request = Some(req);
+        r.tick(10);
+        r.inp.switches.home = false;
+        r.inp.pos_um = cfg.engage_um;
+        r.tick(2_000);
+        r.inp.switches = Switches {
+            released: true,
+            ..Switches::default()
+        };
+        r.tick(400);
+        assert!(matches!(r.seq.state(), State::Inserting { .. }));
+        r.inp.pos_um = cfg.mated_um();
+        r.tick(25_000);
+        r.seq.state()
+    }
+
+    /// Drive an extraction under way back to idle: the events seen.
+    fn finish_return(r: &mut Rig) -> heapless::Vec<SeqEvent, 8> {
+        let cfg = MachineConfig::DEFAULT;
+        let mut ev = heapless::Vec::new();
+        let push = |o: Outputs, ev: &mut heapless::Vec<SeqEvent, 8>| {
+            if let Some(e) = o.event {
+                let _ = ev.push(e);
+            }
+        };
+        r.inp.pos_um = cfg.engage_um;
+        push(r.step(25_000), &mut ev);
+        r.inp.switches = Switches {
+            locked: true,
+            ..Switches::default()
+        };
+        push(r.step(400), &mut ev);
+        r.inp.pos_um = HOME_APPROACH_UM;
+        push(r.step(2_000), &mut ev);
+        r.inp.switches.home = true;
+        r.inp.pos_um = 0;
+        push(r.step(2_000), &mut ev);
+        ev
+    }
+
+    #[test]
+    fn dock_holds_an_hour_until_undock_then_counts_one_cycle() {
+        let mut r = Rig::new();
+        let held = mated_by(&mut r, Request::Dock);
+        assert_eq!(
+            held,
+            State::Holding {
+                until_ms: None,
+                unmating: false
+            }
+        );
+        // An hour mated: still holding, the axis driven where it is.
+        for _ in 0..360 {
+            let o = r.step(10_000);
+            assert_eq!(o.axis, AxisCmd::Hold);
+            assert_eq!(o.event, None);
+        }
+        assert_eq!(r.seq.state(), held);
+        // Undock: MATED drops first (unmating), the extraction starts UNMATE_MS later.
+        r.inp.request = Some(Request::Undock);
+        r.tick(10);
+        assert!(matches!(
+            r.seq.state(),
+            State::Holding { unmating: true, .. }
+        ));
+        r.tick(UNMATE_MS - 20);
+        assert!(matches!(r.seq.state(), State::Holding { .. }));
+        r.tick(20);
+        assert!(matches!(r.seq.state(), State::Extracting { .. }));
+        let ev = finish_return(&mut r);
+        assert_eq!(ev.last(), Some(&SeqEvent::CycleCompleted(1)));
+        assert_eq!(r.seq.cycles_completed(), 1);
+        assert_eq!(r.seq.state(), State::Idle);
+    }
+
+    #[test]
+    fn a_test_cycle_still_undocks_by_itself() {
+        let mut r = Rig::new();
+        let held = mated_by(&mut r, Request::StartCycle);
+        assert!(matches!(
+            held,
+            State::Holding {
+                until_ms: Some(_),
+                unmating: false
+            }
+        ));
+        r.tick(MachineConfig::DEFAULT.hold_ms as u64);
+        assert!(matches!(r.seq.state(), State::Extracting { .. }));
+    }
+
+    #[test]
+    fn undock_during_insertion_extracts_from_where_it_is_and_counts() {
+        let cfg = MachineConfig::DEFAULT;
+        let mut r = Rig::new();
+        let _ = r.started();
+        r.inp.switches.home = false;
+        r.inp.pos_um = cfg.engage_um;
+        r.tick(2_000);
+        r.inp.switches = Switches {
+            released: true,
+            ..Switches::default()
+        };
+        r.tick(400);
+        assert!(matches!(r.seq.state(), State::Inserting { .. }));
+        r.inp.axis_idle = false;
+        r.inp.pos_um = cfg.engage_um + 9_000; // mid-insertion
+        r.tick(10);
+        r.inp.request = Some(Request::Undock);
+        let o = r.step(10);
+        assert!(matches!(r.seq.state(), State::Extracting { .. }));
+        assert_eq!(
+            o.axis,
+            AxisCmd::Move {
+                target_um: cfg.engage_um,
+                speed_um_per_s: cfg.dock_speed_um_per_s
+            },
+            "back out at no more than v0"
+        );
+        r.inp.axis_idle = true;
+        let ev = finish_return(&mut r);
+        assert_eq!(ev.last(), Some(&SeqEvent::CycleCompleted(1)));
+    }
+
+    #[test]
+    fn undock_before_the_cone_returns_without_counting() {
+        let cfg = MachineConfig::DEFAULT;
+        // During the pre-alignment (locked): straight back.
+        let mut r = Rig::new();
+        let _ = r.started();
+        r.inp.switches.home = false;
+        r.inp.axis_idle = false;
+        r.inp.pos_um = cfg.engage_um / 2;
+        r.inp.request = Some(Request::Undock);
+        r.tick(10);
+        assert!(matches!(r.seq.state(), State::Returning { .. }));
+        r.inp.axis_idle = true;
+        r.inp.pos_um = HOME_APPROACH_UM;
+        r.tick(2_000);
+        r.inp.switches.home = true;
+        r.inp.pos_um = 0;
+        let mut last = None;
+        for _ in 0..3 {
+            last = r.step(100).event.or(last);
+        }
+        assert_eq!(r.seq.state(), State::Idle);
+        assert_ne!(last, Some(SeqEvent::CycleCompleted(1)));
+        assert_eq!(r.seq.cycles_completed(), 0);
+        // During the release: lock again first.
+        let mut r = Rig::new();
+        let _ = r.started();
+        r.inp.switches.home = false;
+        r.inp.pos_um = cfg.engage_um;
+        r.tick(2_000);
+        assert!(matches!(r.seq.state(), State::Releasing { .. }));
+        r.inp.request = Some(Request::Undock);
+        let o = r.step(10);
+        assert_eq!(o.lock, LockCmd::ToLocked);
+        assert_eq!(r.seq.cycles_completed(), 0);
+    }
+
+    #[test]
+    fn stop_latches_stopped_from_any_moving_state() {
+        let mut r = Rig::new();
+        let _ = r.started();
+        r.inp.switches.home = false;
+        r.inp.request = Some(Request::Stop);
+        let o = r.step(10);
+        assert_eq!(o.event, Some(SeqEvent::Fault(FaultKind::Stopped)));
+        assert_eq!((o.axis, o.lock), (AxisCmd::Disabled, LockCmd::Off));
+        // Latched: time and a new start do not move it.
+        r.inp.request = Some(Request::Dock);
+        let o = r.step(60_000);
+        assert_eq!((o.axis, o.lock), (AxisCmd::Disabled, LockCmd::Off));
+        assert_eq!(
+            r.seq.state(),
+            State::Faulted {
+                fault: FaultKind::Stopped
+            }
+        );
+    }
+
+    #[test]
+    fn pulled_while_mated_holds_the_axis_until_a_clear_extracts() {
+        let mut r = Rig::new();
+        let _ = mated_by(&mut r, Request::Dock);
+        r.inp.fault = Some(FaultKind::HoldForce);
+        let o = r.step(10);
+        assert_eq!(o.event, Some(SeqEvent::Fault(FaultKind::HoldForce)));
+        assert_eq!(o.axis, AxisCmd::Hold, "driven where it is, not free");
+        assert_eq!(r.step(10_000).axis, AxisCmd::Hold);
+        r.inp.request = Some(Request::ClearFault);
+        let _ = r.step(10);
+        assert!(matches!(r.seq.state(), State::Recovering { .. }));
+    }
+
     #[test]
     fn lock_that_never_releases_is_a_named_latched_fault() {
         let mut r = Rig::new();
@@ -1070,6 +1390,7 @@ mod tests {
         assert_eq!(FaultKind::from_code(10), Some(FaultKind::Io));
         assert_eq!(FaultKind::from_code(11), Some(FaultKind::Tension));
         assert_eq!(FaultKind::from_code(12), Some(FaultKind::Storage));
-        assert_eq!(FaultKind::from_code(13), None);
+        assert_eq!(FaultKind::from_code(15), Some(FaultKind::HoldForce));
+        assert_eq!(FaultKind::from_code(16), None);
     }
 }

@@ -9,7 +9,7 @@ use docking_controller::controller::{Bsp, Controller, ControllerConfig, Parts};
 use docking_controller::hal::{LoadCellAdc, StepPulses, StopLatch, Watchdog};
 use docking_controller::hx711::{Calibration, Gain, Hx711};
 use docking_controller::profile::{forces_at_depth_um, STROKE_UM};
-use docking_controller::safety::{GatedEn, SafetyKernel};
+use docking_controller::safety::{GatedEn, GatedHigh, SafetyKernel};
 
 use crate::axis::{AxisPin, AxisPulses, SimAxis};
 use crate::clock::SimClock;
@@ -153,8 +153,8 @@ impl Bsp for SimBsp {
     type EnN = GatedEn<AxisPin, SimStop>;
     type Dir = AxisPin;
     type Pulses = AxisPulses;
-    type LockIn1 = LockPin;
-    type LockIn2 = LockPin;
+    type LockIn1 = GatedHigh<LockPin, SimStop>;
+    type LockIn2 = GatedHigh<LockPin, SimStop>;
     type Home = AxisPin;
     type End = AxisPin;
     type Locked = LockPin;
@@ -341,8 +341,10 @@ pub struct Machine {
     pub script: Rc<RefCell<ForceScript>>,
     /// Conversions so far (the force source's call count).
     pub conversions: Rc<Cell<u64>>,
-    /// The vehicle's dock-request line (active low; released = high).
+    /// The PLC's DOCK line (active low: asserted = low = "be docked"; released = high).
     pub dock_request: SimLine,
+    /// The E-STOP line (normally closed to ground: low = closed; high = open, a stop).
+    pub estop: SimLine,
     /// The load cell's front end.
     pub hx_config: Hx711Config,
 }
@@ -380,6 +382,7 @@ impl Machine {
             script,
             conversions,
             dock_request: SimLine::new(true),
+            estop: SimLine::new(false),
             hx_config,
         }
     }
@@ -473,6 +476,11 @@ pub struct Rig {
     pub term: SimConsole,
     /// Poll the console in [`Rig::tick`].
     pub console_enabled: bool,
+    /// The PLC's DOCK line (low = asserted).
+    pub dock_line: SimLine,
+    /// The E-STOP line (high = open: a stop).
+    pub estop_line: SimLine,
+    estop_was_open: bool,
     /// What the last console poll did.
     pub last_console: ConsolePoll,
 }
@@ -512,7 +520,8 @@ impl Rig {
             script,
             conversions,
             hx_config: hx_cfg,
-            ..
+            dock_request,
+            estop,
         } = Machine::new(&opts);
         if opts.commissioned {
             commission(&flash, &hx_cfg);
@@ -530,8 +539,8 @@ impl Rig {
             en_n: GatedEn::new(axis.enable_n(), stop.clone()),
             dir: axis.dir(),
             pulses: axis.pulses(),
-            lock_in1: lock.in1(),
-            lock_in2: lock.in2(),
+            lock_in1: GatedHigh::new(lock.in1(), stop.clone()),
+            lock_in2: GatedHigh::new(lock.in2(), stop.clone()),
             home: axis.home_switch(),
             end: axis.end_switch(),
             locked: lock.locked_switch(),
@@ -569,6 +578,9 @@ impl Rig {
             console: Console::new([0x5A; 32]),
             term: SimConsole::new(),
             console_enabled: false,
+            dock_line: dock_request,
+            estop_line: estop,
+            estop_was_open: false,
             last_console: ConsolePoll::default(),
         }
     }
@@ -584,6 +596,14 @@ impl Rig {
             .min(self.clock.now_ns() + self.period_ns);
         self.clock.advance_to_ns(next);
         let now_us = self.clock.now_ns() / 1_000;
+        // The board's E-STOP interrupt, at its edge (here at the tick: the rig is not
+        // interrupt-accurate; the virtual board measures the real latency).
+        let estop_open = self.estop_line.is_high();
+        if estop_open && !self.estop_was_open {
+            self.stop.stop_now();
+        }
+        self.estop_was_open = estop_open;
+        self.ctrl.set_plc(!self.dock_line.is_high(), estop_open);
         let ev = self
             .kernel
             .on_ready(now_us, &mut self.stop)
