@@ -384,6 +384,52 @@ pub struct Controller<B: Bsp> {
     hold_out: u8,
 }
 
+/// Why a command ([`Controller::command`]) was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Refusal {
+    /// The E-STOP input is open.
+    EstopOpen,
+    /// Not idle (docking, moving, faulted or not homed yet).
+    NotIdle,
+    /// The load cell has no stored calibration.
+    Uncalibrated,
+    /// The cone is worn out: replace it first.
+    WornOut,
+    /// Not on the home switch and locked.
+    NotHomed,
+    /// No docking under way or held.
+    NotDocked,
+    /// No latched fault.
+    NoFault,
+    /// Homing is for after a reset.
+    AlreadyHomed,
+}
+
+impl Refusal {
+    /// Stable code (Modbus, logs): 1..=8.
+    pub const fn code(self) -> u8 {
+        self as u8 + 1
+    }
+}
+
+impl core::fmt::Display for Refusal {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::EstopOpen => "refused: the E-STOP input is open",
+            Self::NotIdle => "refused: not idle",
+            Self::Uncalibrated => {
+                "refused: the load cell is not calibrated (calibrate tare, calibrate span)"
+            }
+            Self::WornOut => "refused: the cone is worn out (cone replace)",
+            Self::NotHomed => "refused: not homed and locked",
+            Self::NotDocked => "refused: nothing to undock",
+            Self::NoFault => "no fault to clear",
+            Self::AlreadyHomed => "already homed (home is for after a reset)",
+        })
+    }
+}
+
 /// Why a maintenance action was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -979,7 +1025,13 @@ impl<B: Bsp> Controller<B> {
             }
         }
         // Mated: the force must stay in the hold envelope.
-        if let (Some(_), State::Holding { unmating: false, .. }) = (sample, state) {
+        if let (
+            Some(_),
+            State::Holding {
+                unmating: false, ..
+            },
+        ) = (sample, state)
+        {
             if (self.force_mn - HOLD_EXPECTED_MN).abs() > HOLD_TOLERANCE_MN {
                 self.hold_out = self.hold_out.saturating_add(1);
             } else {
@@ -998,8 +1050,8 @@ impl<B: Bsp> Controller<B> {
 
         // 4. Sequencer.
         let mut request = self.pending.take();
-        let starting = matches!(request, Some(Request::StartCycle | Request::Dock))
-            && state == State::Idle;
+        let starting =
+            matches!(request, Some(Request::StartCycle | Request::Dock)) && state == State::Idle;
         if request == Some(Request::ClearFault) && self.estop_open {
             request = None;
             error!("clear refused: the E-STOP input is open");
@@ -1308,6 +1360,64 @@ impl<B: Bsp> Controller<B> {
         self.estop_open = estop_open;
     }
 
+    /// A command from a person or the PLC (console, Modbus), checked now: `Ok` when the
+    /// request is queued for the next step, or why it cannot be carried out. The same
+    /// rules for every source:
+    ///
+    /// * `Stop` is never refused.
+    /// * `Dock` / `StartCycle`: idle, homed and locked, E-STOP closed, calibrated, cone
+    ///   not worn out (the READY output).
+    /// * `Undock`: a docking under way or held.
+    /// * `ClearFault`: a latched fault, E-STOP closed.
+    /// * `Home`: after a reset only (power-up), E-STOP closed.
+    pub fn command(&mut self, r: Request) -> Result<(), Refusal> {
+        let state = self.seq.state();
+        let estop = |me: &Self| {
+            if me.estop_open {
+                Err(Refusal::EstopOpen)
+            } else {
+                Ok(())
+            }
+        };
+        match r {
+            Request::Stop => {}
+            Request::Dock | Request::StartCycle => {
+                estop(self)?;
+                if state != State::Idle {
+                    return Err(Refusal::NotIdle);
+                }
+                if !self.calibrated {
+                    return Err(Refusal::Uncalibrated);
+                }
+                if self.wear_level() == WearLevel::Limit {
+                    return Err(Refusal::WornOut);
+                }
+                if !(self.switches.home && self.switches.locked) {
+                    return Err(Refusal::NotHomed);
+                }
+            }
+            Request::Undock => {
+                if !state.is_docking() {
+                    return Err(Refusal::NotDocked);
+                }
+            }
+            Request::ClearFault => {
+                estop(self)?;
+                if !matches!(state, State::Faulted { .. }) {
+                    return Err(Refusal::NoFault);
+                }
+            }
+            Request::Home => {
+                estop(self)?;
+                if state != State::PowerUp {
+                    return Err(Refusal::AlreadyHomed);
+                }
+            }
+        }
+        self.pending = Some(r);
+        Ok(())
+    }
+
     /// The handshake outputs now.
     pub fn handshake(&self) -> Handshake {
         let state = self.seq.state();
@@ -1323,7 +1433,13 @@ impl<B: Bsp> Controller<B> {
                 && self.calibrated
                 && level != WearLevel::Limit
                 && !self.estop_open,
-            mated: matches!(state, State::Holding { unmating: false, .. }) && in_envelope,
+            mated: matches!(
+                state,
+                State::Holding {
+                    unmating: false,
+                    ..
+                }
+            ) && in_envelope,
             fault: matches!(state, State::Faulted { .. } | State::BackingOff { .. }),
             maintenance: level >= WearLevel::Warning,
         }

@@ -753,11 +753,8 @@ impl Sequencer {
             // Undock during the insertion: a controlled extraction from where it is
             // (an insertion and an extraction: it counts as a cycle).
             State::Inserting { .. } if inp.request == Some(Request::Undock) => {
-                let deadline_ms = self.move_deadline(
-                    now,
-                    inp.pos_um - cfg.engage_um,
-                    cfg.dock_speed_um_per_s,
-                );
+                let deadline_ms =
+                    self.move_deadline(now, inp.pos_um - cfg.engage_um, cfg.dock_speed_um_per_s);
                 (State::Extracting { deadline_ms }, None, false)
             }
             State::PreAlign { deadline_ms } => {

@@ -258,6 +258,11 @@ pub struct ForceScript {
     /// The bridge wired in reverse (its signal leads swapped): compression reads as
     /// tension.
     pub reversed: bool,
+    /// The vehicle pulls (or drifts) while mated: the force grows by this much per
+    /// second from the first conversion after it is set, N/s.
+    pub pull_n_per_s: f64,
+    /// When the pull began (set by the force source), ns.
+    pub pull_from_ns: Option<u64>,
 }
 
 /// What the rig's load cell measures: N3 of Eq. 7 at the carriage's position (the
@@ -299,15 +304,22 @@ impl ProfileForce {
 }
 
 impl ForceSource for ProfileForce {
-    fn force_n(&mut self, _t_ns: u64) -> f64 {
+    fn force_n(&mut self, t_ns: u64) -> f64 {
         let n = self.conversions.get();
         self.conversions.set(n + 1);
         let depth_steps = self.axis.pos_steps() - self.engage_steps;
-        let s = self.script.borrow();
+        let mut s = self.script.borrow_mut();
+        let pull = if s.pull_n_per_s != 0.0 {
+            let t0 = *s.pull_from_ns.get_or_insert(t_ns);
+            t_ns.saturating_sub(t0) as f64 * 1e-9 * s.pull_n_per_s
+        } else {
+            0.0
+        };
         let mut f = match usize::try_from(depth_steps) {
             Err(_) => 0.0, // before contact
             Ok(k) => self.table.get(k).copied().unwrap_or(self.n3_end),
-        } + s.offset_n;
+        } + s.offset_n
+            + pull;
         if let Some(j) = s.jam_from_um {
             let depth = depth_steps as f64 * self.um_per_step;
             if depth > j {
@@ -357,6 +369,7 @@ impl Machine {
             hx: &self.hx,
             axis: &self.axis,
             lock: &self.lock,
+            estop: &self.estop,
         }
     }
 
@@ -640,6 +653,7 @@ impl Rig {
             hx: &self.hx,
             axis: &self.axis,
             lock: &self.lock,
+            estop: &self.estop_line,
         }
     }
 

@@ -12,10 +12,16 @@
 //! | `bad-tare` | the zero-load reading is 50 N off before the first cycle | `implausible_tare` |
 //! | `stall` | the carriage stalls when the first return starts | `axis_stall` |
 //! | `lock-stuck` | the lock seizes before the first release | `lock_not_released` |
+//! | `dock-hold` | in service, by the PLC's DOCK line: dock, hold a simulated hour, undock | no fault, one cycle counted, wear unchanged during the hold, MATED low before the extraction |
+//! | `vehicle-pull` | docked by DOCK; while mated the vehicle pulls: the force grows 20 N/s | `hold_force`: MATED drops, the axis holds where it is (driven) |
+//! | `estop` | docked by DOCK; E-STOP opens at 10 mm insertion depth | `emergency_stop`, motors and lock off; a clear is refused while E-STOP is open, accepted once closed (recovery home) |
+//!
+//! The last three are driven by the PLC's lines (DOCK asserted when READY, released to
+//! undock); the others by test-cycle requests.
 
 use std::time::Instant;
 
-use docking_controller::controller::{Event, Status};
+use docking_controller::controller::{Event, Refusal, Status};
 use docking_controller::profile::ContactPhase;
 use docking_controller::sequencer::{Request, SeqEvent, State, BACK_OFF_UM};
 
@@ -23,12 +29,13 @@ use std::cell::RefCell;
 
 use crate::axis::{AxisFault, SimAxis};
 use crate::hx711::{Hx711Fault, SimHx711};
+use crate::line::SimLine;
 use crate::lock::{LockFault, SimLock};
 use crate::rig::{AdcMode, ForceScript, ProfileForce, Rig, RigOptions};
 use crate::rng::Rng;
 
 /// Scene names.
-pub const SCENES: [&str; 9] = [
+pub const SCENES: [&str; 12] = [
     "nominal",
     "overload",
     "spike",
@@ -38,7 +45,22 @@ pub const SCENES: [&str; 9] = [
     "bad-tare",
     "stall",
     "lock-stuck",
+    "dock-hold",
+    "vehicle-pull",
+    "estop",
 ];
+
+/// The in-service scenes: the PLC docks with the DOCK line and undocks by releasing it.
+pub const PLC_SCENES: [&str; 3] = ["dock-hold", "vehicle-pull", "estop"];
+
+/// How long `dock-hold` stays mated, s (one simulated hour).
+pub const DOCK_HOLD_S: u64 = 3_600;
+
+/// The vehicle's pull in `vehicle-pull`, N/s.
+pub const PULL_N_PER_S: f64 = 20.0;
+
+/// Insertion depth at which `estop` opens the E-STOP line, µm.
+pub const ESTOP_DEPTH_UM: i32 = 10_000;
 
 /// Scene options.
 #[derive(Clone, Copy, Debug)]
@@ -107,6 +129,158 @@ pub struct SceneReport {
     pub wall_time_s: f64,
     /// The watchdog would have reset the MCU.
     pub watchdog_bit: bool,
+    /// In-service scenes: what the PLC saw.
+    pub plc: Option<PlcReport>,
+}
+
+/// What an in-service scene ([`PLC_SCENES`]) saw on the handshake.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PlcReport {
+    /// Time the MATED output was high, s.
+    pub mated_s: f64,
+    /// The cone's load–distance added while MATED was high, Q63.1 mN·µm (wear is
+    /// proportional to it: zero = no wear during the hold).
+    pub hold_load_distance_q1: Option<u64>,
+    /// MATED was low before the extraction started.
+    pub mated_low_before_extraction: Option<bool>,
+    /// E-STOP opening to the propulsion driver disabled, s (the host rig acts at its next
+    /// tick; the virtual board measures the interrupt).
+    pub estop_latency_s: Option<f64>,
+    /// The lock was not driven after the E-STOP opened.
+    pub lock_off_after_estop: Option<bool>,
+    /// A clear while E-STOP was open was refused.
+    pub clear_refused_while_open: Option<bool>,
+    /// A clear once E-STOP closed was accepted.
+    pub clear_accepted_when_closed: Option<bool>,
+    /// After a `hold_force` fault the axis stayed driven (enabled) and where it was.
+    pub axis_held: Option<bool>,
+}
+
+impl PlcReport {
+    fn to_json(&self) -> String {
+        let ob = |x: Option<bool>| x.map_or("null".to_string(), |b| b.to_string());
+        format!(
+            "{{\"mated_s\":{},\"hold_load_distance_q1\":{},\"mated_low_before_extraction\":{},\"estop_latency_s\":{},\"lock_off_after_estop\":{},\"clear_refused_while_open\":{},\"clear_accepted_when_closed\":{},\"axis_held\":{}}}",
+            num(self.mated_s),
+            self.hold_load_distance_q1.map_or("null".to_string(), |x| x.to_string()),
+            ob(self.mated_low_before_extraction),
+            self.estop_latency_s.map_or("null".to_string(), num),
+            ob(self.lock_off_after_estop),
+            ob(self.clear_refused_while_open),
+            ob(self.clear_accepted_when_closed),
+            ob(self.axis_held),
+        )
+    }
+}
+
+/// The PLC of an in-service scene: docks by DOCK when READY, undocks by releasing it,
+/// and watches the handshake.
+#[derive(Debug, Default)]
+struct Plc {
+    rep: PlcReport,
+    docked: bool,
+    released: bool,
+    mated_since_ns: Option<u64>,
+    w_at_mated: u64,
+    mated_fell_ns: Option<u64>,
+    estop_open_ns: Option<u64>,
+    fault_ns: Option<u64>,
+    pos_at_fault_um: f64,
+    clear_step: u8,
+    done: bool,
+}
+
+impl Plc {
+    /// One tick of the PLC (after the rig's tick and the scene's disturbance).
+    fn tick(&mut self, name: &str, rig: &mut Rig, st: &Status, now: u64) {
+        let h = st.handshake;
+        if !self.docked && h.ready {
+            rig.dock_line.set(false); // assert DOCK
+            self.docked = true;
+        }
+        let w = rig.ctrl.journal().cone_w_q1;
+        match (h.mated, self.mated_since_ns) {
+            (true, None) => {
+                self.mated_since_ns = Some(now);
+                self.w_at_mated = w;
+            }
+            (false, Some(t0)) => {
+                self.rep.mated_s += now.saturating_sub(t0) as f64 * 1e-9;
+                self.rep.hold_load_distance_q1 = Some(w.saturating_sub(self.w_at_mated));
+                self.mated_fell_ns = Some(now);
+                self.mated_since_ns = None;
+            }
+            _ => {}
+        }
+        if name == "dock-hold"
+            && !self.released
+            && self
+                .mated_since_ns
+                .is_some_and(|t0| now.saturating_sub(t0) >= DOCK_HOLD_S * 1_000_000_000)
+        {
+            rig.dock_line.set(true); // release DOCK: undock
+            self.released = true;
+        }
+        if matches!(st.state, State::Extracting { .. })
+            && self.rep.mated_low_before_extraction.is_none()
+        {
+            self.rep.mated_low_before_extraction =
+                Some(!h.mated && self.mated_fell_ns.is_some_and(|t| t < now));
+        }
+        if rig.estop_line.is_high() && self.estop_open_ns.is_none() {
+            self.estop_open_ns = Some(now);
+        }
+        if let Some(t0) = self.estop_open_ns {
+            if self.rep.estop_latency_s.is_none() {
+                if let Some(e) = rig
+                    .axis
+                    .enable_edges()
+                    .iter()
+                    .find(|e| !e.enabled && e.t_ns >= t0)
+                {
+                    self.rep.estop_latency_s = Some(e.t_ns.saturating_sub(t0) as f64 * 1e-9);
+                }
+            }
+            if rig.estop_line.is_high() && now > t0 {
+                let off = !rig.lock.driven();
+                self.rep.lock_off_after_estop =
+                    Some(self.rep.lock_off_after_estop.unwrap_or(true) && off);
+            }
+        }
+        if matches!(st.state, State::Faulted { .. }) && self.fault_ns.is_none() {
+            self.fault_ns = Some(now);
+            self.pos_at_fault_um = rig.axis.pos_um();
+            if name == "vehicle-pull" {
+                // MATED dropped: the vehicle stops pulling.
+                rig.devices().script.borrow_mut().pull_n_per_s = 0.0;
+            }
+        }
+        let since_fault = self.fault_ns.map(|t| now.saturating_sub(t));
+        match (name, since_fault) {
+            ("vehicle-pull", Some(dt)) if dt >= 2_000_000_000 => {
+                let still = (rig.axis.pos_um() - self.pos_at_fault_um).abs() < 1.0;
+                self.rep.axis_held = Some(rig.axis.enabled() && still);
+                self.done = true;
+            }
+            ("estop", Some(dt)) => {
+                if self.clear_step == 0 && dt >= 1_000_000_000 {
+                    rig.dock_line.set(true); // the PLC releases DOCK on the stop
+                    self.rep.clear_refused_while_open =
+                        Some(rig.ctrl.command(Request::ClearFault) == Err(Refusal::EstopOpen));
+                    rig.estop_line.set(false); // E-STOP restored
+                    self.clear_step = 1;
+                } else if self.clear_step == 1 && dt >= 1_500_000_000 {
+                    self.rep.clear_accepted_when_closed =
+                        Some(rig.ctrl.command(Request::ClearFault).is_ok());
+                    self.clear_step = 2;
+                } else if self.clear_step == 2 && st.state == State::Idle {
+                    self.done = true;
+                }
+            }
+            ("dock-hold", _) if self.released && st.state == State::Idle => self.done = true,
+            _ => {}
+        }
+    }
 }
 
 /// Sets up a scene's disturbance and injects it when its moment comes (shared by the
@@ -202,6 +376,14 @@ impl SceneDriver {
                 dev.lock.set_fault(LockFault::Stuck);
                 true
             }
+            "vehicle-pull" if in_cycle && p.stage == Stage::Mated => {
+                dev.script.borrow_mut().pull_n_per_s = PULL_N_PER_S;
+                true
+            }
+            "estop" if in_cycle && inserting && p.depth_um >= ESTOP_DEPTH_UM => {
+                dev.estop.set(true);
+                true
+            }
             _ => false,
         };
     }
@@ -223,6 +405,8 @@ pub enum Stage {
     Inserting,
     /// Back from the engagement point to home.
     Returning,
+    /// Mated, holding (no undock under way).
+    Mated,
     /// Anything else (release, hold, extraction, locking, recovery).
     Other,
 }
@@ -247,6 +431,9 @@ impl Progress {
                 State::PreAlign { .. } => Stage::PreAlign,
                 State::Inserting { .. } => Stage::Inserting,
                 State::Returning { .. } => Stage::Returning,
+                State::Holding {
+                    unmating: false, ..
+                } => Stage::Mated,
                 State::Idle | State::Faulted { .. } | State::PowerUp => Stage::Idle,
                 _ => Stage::Other,
             },
@@ -266,6 +453,8 @@ pub struct Devices<'a> {
     pub axis: &'a SimAxis,
     /// Lock.
     pub lock: &'a SimLock,
+    /// The E-STOP line (normally closed: high = open = stop).
+    pub estop: &'a SimLine,
 }
 
 /// What a flooding terminal sends (picked at random): commands with long replies, a full
@@ -342,7 +531,10 @@ fn run_inner(
     let (mut max_after, mut min_after) = (f64::MIN, f64::MAX);
     let mut steps = 0u64;
     let mut settle_until_ns: Option<u64> = None;
-    let max_ns = (cycles as u64 * 150 + 60) * 1_000_000_000;
+    let plc_scene = PLC_SCENES.contains(&name);
+    let mut plc = plc_scene.then(Plc::default);
+    let hold_s = if name == "dock-hold" { DOCK_HOLD_S } else { 0 };
+    let max_ns = (cycles as u64 * 150 + 60 + hold_s) * 1_000_000_000;
 
     let mut tick_rng = Rng::new(opts.seed ^ 0xf100d);
     loop {
@@ -395,6 +587,14 @@ fn run_inner(
         // Disturbances.
         driver.on_tick(&mut rig, &st);
 
+        if let Some(p) = plc.as_mut() {
+            // In service: the PLC drives DOCK and E-STOP.
+            p.tick(name, &mut rig, &st, now);
+            if p.done || now > max_ns {
+                break;
+            }
+            continue;
+        }
         // Drive the machine: start cycles while there are cycles to run.
         if st.state == State::Idle && st.cycles_completed < cycles {
             rig.ctrl.request(Request::StartCycle);
@@ -438,6 +638,7 @@ fn run_inner(
         sim_time_s: rig.clock.now_s(),
         wall_time_s: started.elapsed().as_secs_f64(),
         watchdog_bit: rig.wdg.check(),
+        plc: plc.map(|p| p.rep),
     })
 }
 
@@ -480,8 +681,11 @@ impl SceneReport {
             .collect();
         let opt = |x: Option<f64>| x.map_or("null".to_string(), num);
         format!(
-            "{{\"scene\":\"{}\",\"rate_sps\":{},\"seed\":{},\"cycles_completed\":{},\"faults\":[{}],\"peak_force_n\":{},\"stop_latency_s\":{},\"final_state\":\"{}\",\"motors_disabled\":{},\"insertion_phases\":[{}],\"forward_after_trip_um\":{},\"backed_off_um\":{},\"spikes_injected\":{},\"spikes_rejected\":{},\"control_steps\":{},\"sim_time_s\":{},\"wall_time_s\":{},\"watchdog_bit\":{}}}",
+            "{{\"scene\":\"{}\",\"plc\":{},\"rate_sps\":{},\"seed\":{},\"cycles_completed\":{},\"faults\":[{}],\"peak_force_n\":{},\"stop_latency_s\":{},\"final_state\":\"{}\",\"motors_disabled\":{},\"insertion_phases\":[{}],\"forward_after_trip_um\":{},\"backed_off_um\":{},\"spikes_injected\":{},\"spikes_rejected\":{},\"control_steps\":{},\"sim_time_s\":{},\"wall_time_s\":{},\"watchdog_bit\":{}}}",
             self.scene,
+            self.plc
+                .as_ref()
+                .map_or("null".to_string(), PlcReport::to_json),
             self.rate_sps,
             self.seed,
             self.cycles_completed,
@@ -524,6 +728,9 @@ impl SceneReport {
                 l,
                 1.0 / self.rate_sps as f64
             );
+        }
+        if let Some(p) = &self.plc {
+            s += &format!("  plc: {}\n", p.to_json());
         }
         s += &format!(
             "  motors disabled: {}; {} control steps, {:.1} s simulated in {:.3} s",

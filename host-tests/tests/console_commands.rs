@@ -295,3 +295,63 @@ fn console_flood_does_not_delay_the_overload_stop() {
         assert!(flooded.report.stop_latency_s.unwrap() <= 1.0 / rate as f64);
     }
 }
+
+#[test]
+fn dock_undock_stop_from_the_console_with_their_gates() {
+    use docking_controller::sequencer::State;
+    let mut r = rig();
+    assert!(r.command("pin set 1357", 10).starts_with("ok"));
+    // dock and undock need maintenance mode; stop never does.
+    assert!(r.command("dock", 10).contains("maintenance mode required"));
+    assert!(r.command("maint 1357", 10).starts_with("ok"));
+    assert!(r.command("undock", 10).contains("nothing to undock"));
+    assert!(r.command("home", 10).contains("already homed"));
+    assert!(r.command("dock", 10).starts_with("ok: docking"), "dock");
+    let mut held = false;
+    for _ in 0..6_000 {
+        r.tick();
+        if r.ctrl.handshake().mated {
+            held = true;
+            break;
+        }
+    }
+    assert!(held, "mated");
+    assert!(r.command("dock", 10).contains("refused"), "already docking");
+    let s = json(&r.command("status --json", 10));
+    assert_eq!(
+        (s["out_mated"].as_bool(), s["out_ready"].as_bool()),
+        (Some(true), Some(false))
+    );
+    let t = r.command("status", 10);
+    assert!(
+        t.contains(" in_estop=closed out_ready=no out_mated=yes"),
+        "{t}"
+    );
+    // Undock runs while the machine is not at rest.
+    assert!(r.command("undock", 10).starts_with("ok: undocking"));
+    for _ in 0..6_000 {
+        r.tick();
+        if r.ctrl.state() == State::Idle {
+            break;
+        }
+    }
+    assert_eq!(r.ctrl.odometer().lifetime().cycles, 1);
+    // Stop without maintenance mode, mid-docking: latched `stopped`.
+    assert!(r.command("maint exit", 10).starts_with("ok"));
+    r.ctrl
+        .command(docking_controller::sequencer::Request::Dock)
+        .unwrap();
+    for _ in 0..200 {
+        r.tick();
+    }
+    assert!(r.command("stop", 10).starts_with("ok: stopped"));
+    r.tick();
+    assert_eq!(
+        json(&r.command("faults --json", 10))["active"],
+        "stopped",
+        "latched"
+    );
+    assert!(!r.axis.enabled() && !r.lock.driven(), "all motion off");
+    let s = json(&r.command("status --json", 10));
+    assert_eq!(s["out_fault"], true);
+}

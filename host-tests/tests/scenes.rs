@@ -127,3 +127,57 @@ fn scenes_replay_bit_for_bit_with_the_same_seed() {
         (b.peak_force_n, b.spikes_rejected, b.control_steps)
     );
 }
+
+#[test]
+fn dock_hold_an_hour_counts_one_cycle_and_wears_nothing_while_mated() {
+    let r = scene("dock-hold", 1, 80, 5);
+    let p = r
+        .plc
+        .clone()
+        .expect("an in-service scene reports the handshake");
+    assert!(r.faults.is_empty(), "{}", r.to_json());
+    assert_eq!(
+        r.cycles_completed, 1,
+        "one insertion + extraction: one cycle"
+    );
+    assert_eq!(r.final_state, "idle");
+    assert!(r.motors_disabled);
+    assert!(
+        p.mated_s >= hil_sim::scene::DOCK_HOLD_S as f64,
+        "MATED high for the whole hour: {}",
+        r.to_json()
+    );
+    assert_eq!(p.hold_load_distance_q1, Some(0), "no wear while mated");
+    assert_eq!(p.mated_low_before_extraction, Some(true));
+    assert_eq!(r.insertion_phases, vec![vec![1, 2, 3, 4]]);
+}
+
+#[test]
+fn vehicle_pull_while_mated_latches_hold_force_and_holds_the_axis() {
+    let r = scene("vehicle-pull", 1, 80, 5);
+    let p = r.plc.clone().unwrap();
+    let kinds: Vec<_> = r.faults.iter().map(|f| f.kind).collect();
+    assert_eq!(kinds, ["hold_force"], "{}", r.to_json());
+    assert_eq!(r.final_state, "faulted");
+    // MATED dropped within the tolerance's reach: 40 N at 20 N/s, two samples.
+    assert!(p.mated_s > 0.0 && p.mated_s < 2.2, "{}", r.to_json());
+    assert_eq!(p.axis_held, Some(true), "driven where it was, not free");
+    assert_eq!(r.cycles_completed, 0);
+}
+
+#[test]
+fn estop_during_insertion_stops_latches_and_needs_the_input_back_to_clear() {
+    for rate in [10, 80] {
+        let r = scene("estop", 1, rate, 5);
+        let p = r.plc.clone().unwrap();
+        let kinds: Vec<_> = r.faults.iter().map(|f| f.kind).collect();
+        assert_eq!(kinds, ["emergency_stop"], "{}", r.to_json());
+        // The host rig acts at its next tick (one sample period at most).
+        let latency = p.estop_latency_s.expect("the propulsion was disabled");
+        assert!(latency <= 1.0 / rate as f64, "{}", r.to_json());
+        assert_eq!(p.lock_off_after_estop, Some(true));
+        assert_eq!(p.clear_refused_while_open, Some(true));
+        assert_eq!(p.clear_accepted_when_closed, Some(true));
+        assert_eq!(r.final_state, "idle", "recovered home after the clear");
+    }
+}

@@ -14,6 +14,9 @@
 //! measurements [--json]                 the current cone's readings
 //! clear-fault
 //! home                                  power-up homing (out of the cone) and lock
+//! dock                                  dock and stay mated until undock
+//! undock                                undock (or abort a docking under way)
+//! stop                                  stop all motion now (latched `stopped` fault)
 //! rate <10|80>                          the HX711's RATE pin setting, from the next boot
 //! cone replace <material> <serial> [--bore <d0_mm>]
 //!                                       material: zqsn5-2 | qsn6-6-3 | cf-peek
@@ -112,6 +115,12 @@ pub enum Command<'a> {
     ClearFault,
     /// `home`: find home and lock after a reset.
     Home,
+    /// `dock`: dock and stay mated until `undock`.
+    Dock,
+    /// `undock`: extraction, re-lock, home (or abort a docking under way).
+    Undock,
+    /// `stop`: stop all motion now, latched.
+    Stop,
     /// `rate <10|80>`: the HX711's output rate (its RATE pin), from the next boot.
     Rate {
         /// Samples per second.
@@ -167,6 +176,9 @@ impl Command<'_> {
             Self::Measurements { .. } => "measurements",
             Self::ClearFault => "clear-fault",
             Self::Home => "home",
+            Self::Dock => "dock",
+            Self::Undock => "undock",
+            Self::Stop => "stop",
             Self::Rate { .. } => "rate",
             Self::ConeReplace { .. } => "cone replace",
             Self::Measure { .. } => "measure",
@@ -178,18 +190,27 @@ impl Command<'_> {
         }
     }
 
-    /// True for commands that change persistent machine state (need maintenance mode).
+    /// True for commands that change persistent machine state or move the machine (need
+    /// maintenance mode). `stop` is not one: a stop is never refused.
     pub const fn is_state_changing(&self) -> bool {
         matches!(
             self,
             Self::ClearFault
                 | Self::Home
+                | Self::Dock
+                | Self::Undock
                 | Self::Rate { .. }
                 | Self::ConeReplace { .. }
                 | Self::CalibrateTare
                 | Self::CalibrateSpan { .. }
                 | Self::PinSet { .. }
         )
+    }
+
+    /// True for the state-changing commands that need a machine at rest (all but
+    /// `undock`, which applies to a docking under way).
+    pub const fn needs_rest(&self) -> bool {
+        self.is_state_changing() && !matches!(self, Self::Undock)
     }
 
     /// True when the reply was asked for in JSON (`--json`).
@@ -226,6 +247,9 @@ impl fmt::Debug for Command<'_> {
             }
             Self::ClearFault => f.write_str("ClearFault"),
             Self::Home => f.write_str("Home"),
+            Self::Dock => f.write_str("Dock"),
+            Self::Undock => f.write_str("Undock"),
+            Self::Stop => f.write_str("Stop"),
             Self::Rate { sps } => f.debug_struct("Rate").field("sps", sps).finish(),
             Self::ConeReplace {
                 material,
@@ -413,6 +437,9 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
             | "measurements"
             | "clear-fault"
             | "home"
+            | "dock"
+            | "undock"
+            | "stop"
             | "rate"
             | "cone"
             | "measure"
@@ -449,6 +476,18 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
         "home" => {
             a.action(0)?;
             Ok(Command::Home)
+        }
+        "dock" => {
+            a.action(0)?;
+            Ok(Command::Dock)
+        }
+        "undock" => {
+            a.action(0)?;
+            Ok(Command::Undock)
+        }
+        "stop" => {
+            a.action(0)?;
+            Ok(Command::Stop)
         }
         "rate" => {
             a.action(1)?;

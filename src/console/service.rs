@@ -12,10 +12,14 @@
 //! Every line ends with CR LF (terminals). The formats are documented in the README and
 //! are stable: fields may be added, never renamed or removed.
 //!
-//! State-changing commands (`clear-fault`, `cone replace`, `measure`, `calibrate`,
-//! `pin set` once a PIN exists) need maintenance mode (`maint <pin>`) and a machine at
-//! rest (idle or faulted); each writes an audit record with the cycle count. Nothing on
-//! the console can reset the lifetime totals.
+//! State-changing commands (`clear-fault`, `home`, `dock`, `undock`, `rate`,
+//! `cone replace`, `measure`, `calibrate`, `pin set` once a PIN exists) need maintenance
+//! mode (`maint <pin>`): they move the machine or change what it stores, and in service
+//! the PLC owns the motion — a person at the console takes over knowingly. All but
+//! `undock` (which applies to a docking under way) also need a machine at rest (idle or
+//! faulted); each at rest writes an audit record with the cycle count. `stop` needs
+//! nothing: a stop is never refused. Nothing on the console can reset the lifetime
+//! totals.
 
 use core::fmt::{self, Write};
 
@@ -29,7 +33,7 @@ use super::parse::{parse, Command};
 use crate::controller::{Bsp, Controller, HistoryEntry};
 use crate::hal::ConsoleIo;
 use crate::odometer::kind;
-use crate::sequencer::{Request, State};
+use crate::sequencer::Request;
 
 /// Longest input line, bytes.
 pub const LINE_MAX: usize = 128;
@@ -54,6 +58,10 @@ pub mod action {
     pub const HOME: u8 = 7;
     /// The HX711's rate was set.
     pub const RATE: u8 = 8;
+    /// A docking was started from the console. (`undock` is not audited here: it runs
+    /// while the machine moves, when no flash is written; the cycle's history entry
+    /// records it.)
+    pub const DOCK: u8 = 9;
 }
 
 /// What one poll did.
@@ -301,7 +309,7 @@ impl Console {
             self.err(&"maintenance mode required (maint <pin>)");
             return 0;
         }
-        if gated && !ctrl.is_quiet() {
+        if gated && cmd.needs_rest() && !ctrl.is_quiet() {
             self.err(&"refused while a docking is moving");
             return 0;
         }
@@ -322,23 +330,37 @@ impl Console {
             Command::Wear { json } => self.wear(ctrl, json),
             Command::History { n, json } => self.history(ctrl, n as usize, json),
             Command::Faults { json } => self.faults(ctrl, json),
-            Command::ClearFault => {
-                if !matches!(ctrl.state(), State::Faulted { .. }) {
-                    self.err(&"no fault to clear");
-                } else {
-                    ctrl.request(Request::ClearFault);
+            Command::ClearFault => match ctrl.command(Request::ClearFault) {
+                Ok(()) => {
                     self.audit(ctrl, action::CLEAR_FAULT, now_ms, &[]);
                     self.ok(&"fault cleared; recovering to home");
                 }
-            }
-            Command::Home => {
-                if ctrl.state() != State::PowerUp {
-                    self.err(&"already homed (home is for after a reset)");
-                } else {
-                    ctrl.request(Request::Home);
+                Err(e) => self.err(&e),
+            },
+            Command::Home => match ctrl.command(Request::Home) {
+                Ok(()) => {
                     self.audit(ctrl, action::HOME, now_ms, &[]);
                     self.ok(&"homing: the axis moves at no more than v0, then the lock");
                 }
+                Err(e) => self.err(&e),
+            },
+            Command::Dock => match ctrl.command(Request::Dock) {
+                Ok(()) => {
+                    self.audit(ctrl, action::DOCK, now_ms, &[]);
+                    self.ok(&"docking: mated until undock");
+                }
+                Err(e) => self.err(&e),
+            },
+            Command::Undock => match ctrl.command(Request::Undock) {
+                Ok(()) => {
+                    info!("console: undock");
+                    self.ok(&"undocking: extraction, re-lock, home");
+                }
+                Err(e) => self.err(&e),
+            },
+            Command::Stop => {
+                let _ = ctrl.command(Request::Stop);
+                self.ok(&"stopped: all motion off, latched (clear-fault to recover)");
             }
             Command::Rate { sps } => match ctrl.store_rate(sps) {
                 Ok(()) => {
@@ -451,7 +473,7 @@ impl Console {
     }
 
     fn help(&mut self, json: bool) {
-        const CMDS: [&str; 17] = [
+        const CMDS: [&str; 20] = [
             "help [--json]",
             "version [--json]",
             "status [--json]",
@@ -461,6 +483,9 @@ impl Console {
             "measurements [--json]",
             "clear-fault",
             "home",
+            "dock",
+            "undock",
+            "stop",
             "rate <10|80>",
             "cone replace <material> <serial> [--bore <d0_mm>]",
             "measure [--baseline] <bore_diameter_mm>",
@@ -527,6 +552,13 @@ impl Console {
                         .u64("stack_size", size as u64)?,
                     None => j.null("stack_used")?.null("stack_size")?,
                 };
+                let h = s.handshake;
+                j.bool("in_dock", h.dock)?
+                    .bool("in_estop_open", h.estop)?
+                    .bool("out_ready", h.ready)?
+                    .bool("out_mated", h.mated)?
+                    .bool("out_fault", h.fault)?
+                    .bool("out_maintenance", h.maintenance)?;
                 Ok(())
             });
         } else {
@@ -549,6 +581,18 @@ impl Console {
                 if let Some((used, size)) = stack {
                     write!(o, " stack={used}/{size}")?;
                 }
+                let h = s.handshake;
+                let yn = |b: bool| if b { "yes" } else { "no" };
+                write!(
+                    o,
+                    " in_dock={} in_estop={} out_ready={} out_mated={} out_fault={} out_maintenance={}",
+                    yn(h.dock),
+                    if h.estop { "open" } else { "closed" },
+                    yn(h.ready),
+                    yn(h.mated),
+                    yn(h.fault),
+                    yn(h.maintenance),
+                )?;
                 o.write_str("\r\n")
             });
         }
