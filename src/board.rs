@@ -14,7 +14,9 @@
 //! | lock locked / released switch (active low) | PC2 / PC3 | input, pull-up |
 //! | HX711 DOUT / PD_SCK | PB0 (EXTI0, falling edge) / PB1 | input pull-up / low |
 //! | console USART2 TX / RX | PA2 / PA3 | 115200 8N1 |
-//! | dock request from the vehicle/PLC (active low) | PC4 | input, pull-up |
+//! | PLC **DOCK** (level, active low: asserted = "be docked") | PC4 | input, pull-up (an open wire reads released) |
+//! | PLC **E-STOP** (normally closed to ground: open = stop) | PC5 (EXTI5, rising edge) | input, pull-up (a broken wire reads open: a stop) |
+//! | PLC **READY** / **MATED** / **FAULT** / **MAINTENANCE** (active high) | PD0 / PD1 / PD2 / PD3 | **low** (push-pull; low at reset by the board's pull-downs: a dead controller is not ready, not mated) |
 //!
 //! # Priorities: a safety path no other work can delay
 //!
@@ -25,11 +27,25 @@
 //!
 //! | priority | task (interrupt) | what | shares |
 //! |---|---|---|---|
+//! | 5 | `estop` (EXTI9_5: E-STOP opens) | **propulsion EN high, lock bridge low**, the stop latched | — |
 //! | 4 | `data_ready` (EXTI0: HX711 DOUT falls) | read the sample, judge it, **stop the propulsion** | `kernel` |
 //! | 3 | `step_tick` (SysTick, 20 kHz, only while moving) | step pulses | — |
 //! | 2 | `usart2` (USART2) | console bytes in and out | — |
-//! | 1 | `control` (TIM2: each sample, and every sample period) | the control step | `kernel`, `ctrl` |
-//! | 0 | `idle` | console commands, flash (record writes, erases), the defmt log, dock-request input; **sleeps** (`wfi`) when there is nothing to do | `ctrl` |
+//! | 1 | `control` (TIM2: each sample, and every sample period) | the control step: the PLC inputs read before it, the handshake outputs written after it | `kernel`, `ctrl` |
+//! | 0 | `idle` | console commands, flash (record writes, erases), the defmt log; **sleeps** (`wfi`) when there is nothing to do | `ctrl` |
+//!
+//! # E-STOP
+//!
+//! The issue asks for the stop in hardware where the board can: a timer's break input
+//! would cut the step pulses with no code at all. The step pulses here are software
+//! (SysTick, see `step.rs`), so there is no timer output to break; the E-STOP input has
+//! the **highest-priority interrupt** instead. Its edge sets EN high and both lock bridge
+//! inputs low — two stores to set/reset registers — and latches the stop (the same
+//! latch as the overload's: EN and the lock stay off whatever the controller commands,
+//! [`GatedEn`], [`GatedHigh`]). The control step then reads the input open, latches
+//! `emergency_stop`, and refuses a clear until the input reads closed again. An input
+//! open at power-up (a broken wire) has no edge: the first control step latches the
+//! fault, and nothing has moved (nothing moves after a reset without a request).
 //!
 //! The stop latency (DOUT falling to EN high) is therefore the EXTI entry, the HX711
 //! readout (25.5 µs) and the guard, plus at most the longest section that masks every
@@ -53,14 +69,16 @@ use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m_rt::{exception, ExceptionFrame};
 use defmt_rtt as _;
 use docking_controller::console::service::Console;
+use docking_controller::controller::Handshake;
 use docking_controller::controller::{Bsp, Controller, ControllerConfig, Parts};
 use docking_controller::diag::{file_tail, Crash, CrashKind, ResetCause};
+use docking_controller::hal::StopLatch;
 use docking_controller::hal::Watchdog;
 use docking_controller::hx711::{Calibration, Gain, Hx711};
-use docking_controller::safety::{GatedEn, KernelEvent, SafetyKernel};
-use docking_controller::sequencer::Request;
+use docking_controller::safety::{GatedEn, GatedHigh, KernelEvent, SafetyKernel};
 use stm32f4xx_hal::gpio::{
-    Input, Output, PinState, PB0, PB1, PC0, PC1, PC2, PC3, PC4, PD12, PD13, PE10, PE11,
+    Input, Output, PinState, PB0, PB1, PC0, PC1, PC2, PC3, PC4, PC5, PD0, PD1, PD12, PD13, PD2,
+    PD3, PE10, PE11,
 };
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::watchdog::IndependentWatchdog;
@@ -72,8 +90,6 @@ use step::{BoardStepPulses, BoardStop};
 pub const SYSCLK_HZ: u32 = 168_000_000;
 /// Independent watchdog period, ms (fed by a control step that keeps its period).
 const WATCHDOG_MS: u32 = 500;
-/// A dock request must stay asserted this long to count, µs.
-const DOCK_REQUEST_DEBOUNCE_US: u64 = 20_000;
 /// HX711 output data rate until a technician stores the module's (console `rate`):
 /// 80 SPS with its RATE pin high; most modules tie it low, 10 SPS.
 const DEFAULT_SAMPLE_RATE_SPS: u32 = 80;
@@ -108,9 +124,11 @@ pub fn force_safe_outputs() {
         cortex_m::asm::dsb();
         // Levels first (BSRR), then mode, so the pin never drives the wrong level.
         core::ptr::write_volatile((GPIOE_BASE + BSRR) as *mut u32, (1 << 11) | (1 << (9 + 16)));
+        // Lock bridge low; the PLC outputs (PD0..PD3) low too: a crashing controller is
+        // not ready and reports nothing mated.
         core::ptr::write_volatile(
             (GPIOD_BASE + BSRR) as *mut u32,
-            (1 << (12 + 16)) | (1 << (13 + 16)),
+            (1 << (12 + 16)) | (1 << (13 + 16)) | (0xF << 16),
         );
         let moder_e = (GPIOE_BASE + MODER) as *mut u32;
         let m = core::ptr::read_volatile(moder_e) & !((0b11 << 18) | (0b11 << 22));
@@ -199,8 +217,8 @@ impl Bsp for Board {
     type EnN = GatedEn<PE11<Output>, BoardStop>;
     type Dir = PE10<Output>;
     type Pulses = BoardStepPulses;
-    type LockIn1 = PD12<Output>;
-    type LockIn2 = PD13<Output>;
+    type LockIn1 = GatedHigh<PD12<Output>, BoardStop>;
+    type LockIn2 = GatedHigh<PD13<Output>, BoardStop>;
     type Home = PC0<Input>;
     type End = PC1<Input>;
     type Locked = PC2<Input>;
@@ -208,6 +226,45 @@ impl Bsp for Board {
     type Stop = BoardStop;
     type Wdg = BoardWatchdog;
     type Flash = OdometerFlash;
+}
+
+/// The PLC handshake's pins.
+pub struct PlcPins {
+    /// DOCK (active low).
+    pub dock: PC4<Input>,
+    /// E-STOP (normally closed to ground: high = open = stop).
+    pub estop: PC5<Input>,
+    /// READY out.
+    pub ready: PD0<Output>,
+    /// MATED out.
+    pub mated: PD1<Output>,
+    /// FAULT out.
+    pub fault: PD2<Output>,
+    /// MAINTENANCE out.
+    pub maintenance: PD3<Output>,
+}
+
+impl PlcPins {
+    /// Drive the outputs (after each control step).
+    fn write(&mut self, h: Handshake) {
+        self.ready.set_state(h.ready.into());
+        self.mated.set_state(h.mated.into());
+        self.fault.set_state(h.fault.into());
+        self.maintenance.set_state(h.maintenance.into());
+    }
+}
+
+/// The E-STOP's outputs: propulsion EN (PE11) high, lock IN1/IN2 (PD12/PD13) low, MATED
+/// (PD1) low — three set/reset stores, no read-modify-write, from any context.
+fn estop_outputs_off() {
+    // SAFETY: fixed MMIO set/reset registers of GPIOE and GPIOD (clocked since init).
+    unsafe {
+        core::ptr::write_volatile((GPIOE_BASE + BSRR) as *mut u32, 1 << 11);
+        core::ptr::write_volatile(
+            (GPIOD_BASE + BSRR) as *mut u32,
+            (1 << (12 + 16)) | (1 << (13 + 16)) | (1 << (1 + 16)),
+        );
+    }
 }
 
 /// Set by the control task when it has events or persistence for the idle loop.
@@ -249,7 +306,8 @@ mod app {
         console_isr: console::ConsoleIsr,
         term: console::BoardConsole,
         entropy: [u8; 32],
-        dock_request: PC4<Input>,
+        plc: PlcPins,
+        estop_stop: BoardStop,
         tim2: pac::TIM2,
     }
 
@@ -297,7 +355,12 @@ mod app {
         let end = gpioc.pc1.into_pull_up_input();
         let locked = gpioc.pc2.into_pull_up_input();
         let released = gpioc.pc3.into_pull_up_input();
-        let dock_request = gpioc.pc4.into_pull_up_input();
+        let dock = gpioc.pc4.into_pull_up_input();
+        let mut estop = gpioc.pc5.into_pull_up_input();
+        let ready = gpiod.pd0.into_push_pull_output_in_state(PinState::Low);
+        let mated = gpiod.pd1.into_push_pull_output_in_state(PinState::Low);
+        let fault = gpiod.pd2.into_push_pull_output_in_state(PinState::Low);
+        let maintenance = gpiod.pd3.into_push_pull_output_in_state(PinState::Low);
         let mut hx_dout = gpiob.pb0.into_pull_up_input();
         let hx_sck = gpiob.pb1.into_push_pull_output_in_state(PinState::Low);
 
@@ -307,6 +370,10 @@ mod app {
         hx_dout.make_interrupt_source(&mut syscfg);
         hx_dout.trigger_on_edge(&mut exti, Edge::Falling);
         hx_dout.enable_interrupt(&mut exti);
+        // E-STOP: the input opening (rising edge) on EXTI5.
+        estop.make_interrupt_source(&mut syscfg);
+        estop.trigger_on_edge(&mut exti, Edge::Rising);
+        estop.enable_interrupt(&mut exti);
 
         // 7. Step pulses: SysTick at 20 kHz, its interrupt on only while moving.
         cp.SYST
@@ -334,8 +401,8 @@ mod app {
             en_n: GatedEn::new(en_n, BoardStop),
             dir,
             pulses: BoardStepPulses,
-            lock_in1,
-            lock_in2,
+            lock_in1: GatedHigh::new(lock_in1, BoardStop),
+            lock_in2: GatedHigh::new(lock_in2, BoardStop),
             home,
             end,
             locked,
@@ -414,7 +481,15 @@ mod app {
                 },
                 term: console::BoardConsole { rx_out, tx_in },
                 entropy: entropy(),
-                dock_request,
+                plc: PlcPins {
+                    dock,
+                    estop,
+                    ready,
+                    mated,
+                    fault,
+                    maintenance,
+                },
+                estop_stop: BoardStop,
                 tim2,
             },
         )
@@ -440,6 +515,20 @@ mod app {
         }
     }
 
+    /// The E-STOP input opened (pressed, or its wire broken): propulsion and lock off
+    /// now, latched; the control step latches the `emergency_stop` fault.
+    #[task(binds = EXTI9_5, priority = 5, local = [estop_stop])]
+    fn estop(cx: estop::Context) {
+        estop_outputs_off();
+        let _ = cx.local.estop_stop.stop_now();
+        // SAFETY: EXTI PR is write-1-to-clear; line 5 is ours.
+        unsafe {
+            (*pac::EXTI::ptr())
+                .pr()
+                .write(|w| w.pr5().clear_bit_by_one())
+        };
+    }
+
     /// Step pulses (20 kHz while the axis moves).
     #[task(binds = SysTick, priority = 3, local = [step_gen])]
     fn step_tick(cx: step_tick::Context) {
@@ -454,12 +543,14 @@ mod app {
 
     /// The control step: once per sample (pended by `data_ready`) and once per sample
     /// period without one (TIM2), so that deadlines and the disconnect timeout run.
-    #[task(binds = TIM2, priority = 1, shared = [ctrl, kernel], local = [events_rx, tim2])]
+    #[task(binds = TIM2, priority = 1, shared = [ctrl, kernel], local = [events_rx, tim2, plc])]
     fn control(mut cx: control::Context) {
         cx.local.tim2.sr().write(|w| w.uif().clear_bit());
         let now = clock::now_us();
         let events_rx = cx.local.events_rx;
+        let plc = cx.local.plc;
         cx.shared.ctrl.lock(|ctrl| {
+            ctrl.set_plc(plc.dock.is_low(), plc.estop.is_high());
             let mut stepped = false;
             while let Some(ev) = events_rx.dequeue() {
                 let _ = ctrl.step(now, Some(ev));
@@ -474,25 +565,23 @@ mod app {
             cx.shared.kernel.lock(|k| k.configure(cfg, now));
             // What a reset must not lose (the flash snapshot waits for a rest).
             crash::journal_write(&ctrl.journal());
+            plc.write(ctrl.handshake());
         });
         IDLE_WORK.store(true, Ordering::Relaxed);
     }
 
-    /// Everything that may wait: console commands, flash, the log, the dock-request
-    /// input. Sleeps when there is nothing to do.
+    /// Everything that may wait: console commands, flash, the log. Sleeps when there is
+    /// nothing to do.
     #[idle(shared = [ctrl], local = [
         term,
         entropy,
-        dock_request,
         // In a static (it holds the 8 KiB output ring): returned from init it would be
         // moved through init's stack.
         console: Console = Console::new([0; 32]),
     ])]
     fn idle(mut cx: idle::Context) -> ! {
         cx.local.console.seed(*cx.local.entropy);
-        let mut request_low_since: Option<u64> = None;
         let mut stack_checked_us = 0u64;
-        let mut request_latched = false;
         loop {
             // Sleep until there is work: the control task signals after each step (at
             // least once a sample period), console bytes wake us through USART2. The
@@ -509,18 +598,6 @@ mod app {
                 continue;
             }
             let now_us = clock::now_us();
-            // Dock request: low for 20 ms (debounce) asks for one cycle; release re-arms.
-            let mut request = None;
-            if cx.local.dock_request.is_low() {
-                let since = *request_low_since.get_or_insert(now_us);
-                if !request_latched && now_us.saturating_sub(since) >= DOCK_REQUEST_DEBOUNCE_US {
-                    request_latched = true;
-                    request = Some(Request::StartCycle);
-                }
-            } else {
-                request_low_since = None;
-                request_latched = false;
-            }
             // The stack's high-water mark, once a second (a walk of the unused part).
             let stack = (now_us.saturating_sub(stack_checked_us) >= 1_000_000).then(|| {
                 stack_checked_us = now_us;
@@ -530,9 +607,6 @@ mod app {
             cx.shared.ctrl.lock(|ctrl| {
                 if let Some((used, size)) = stack {
                     ctrl.set_stack_usage(used, size);
-                }
-                if let Some(r) = request {
-                    ctrl.request(r);
                 }
                 // Bounded work (see console::service), then the flash, then the log.
                 let _ = console.poll(ctrl, term, now_us / 1_000);

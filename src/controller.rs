@@ -382,6 +382,8 @@ pub struct Controller<B: Bsp> {
     estop_open: bool,
     /// Consecutive samples outside the hold envelope while mated.
     hold_out: u8,
+    /// The PLC inputs were read once since the reset.
+    plc_read: bool,
 }
 
 /// Why a command ([`Controller::command`]) was refused.
@@ -671,6 +673,7 @@ impl<B: Bsp> Controller<B> {
             dock: false,
             estop_open: false,
             hold_out: 0,
+            plc_read: false,
         };
         me.load_readings();
         // The switches as they are now: the filter starts from them.
@@ -1355,7 +1358,16 @@ impl<B: Bsp> Controller<B> {
 
     /// The PLC's inputs as read now (the board reads its pins before each step): DOCK
     /// asserted, E-STOP open.
+    ///
+    /// The first reading after a reset sets the DOCK filter without an edge: a DOCK
+    /// still asserted from before the reset is not a request (nothing moves after a reset
+    /// until one) — the PLC releases and asserts it again.
     pub fn set_plc(&mut self, dock_asserted: bool, estop_open: bool) {
+        if !self.plc_read {
+            self.plc_read = true;
+            self.dock = dock_asserted;
+            self.dock_seen = dock_asserted;
+        }
         self.dock_raw = dock_asserted;
         self.estop_open = estop_open;
     }
