@@ -384,6 +384,9 @@ pub struct Controller<B: Bsp> {
     hold_out: u8,
     /// The PLC inputs were read once since the reset.
     plc_read: bool,
+    /// [`Controller::wear_level`] as of `level_key` (cone id, cone cycles, readings).
+    level: WearLevel,
+    level_key: Option<(u16, u32, usize)>,
 }
 
 /// Why a command ([`Controller::command`]) was refused.
@@ -674,6 +677,8 @@ impl<B: Bsp> Controller<B> {
             estop_open: false,
             hold_out: 0,
             plc_read: false,
+            level: WearLevel::Ok,
+            level_key: None,
         };
         me.load_readings();
         // The switches as they are now: the filter starts from them.
@@ -1160,6 +1165,14 @@ impl<B: Bsp> Controller<B> {
         if dt_us <= 3 * period {
             self.wdg.feed();
         }
+        // 7. The wear level the handshake reports, when what it depends on changed (the
+        // estimate's evaluation costs ~22 k instructions: once per cycle, not per step).
+        let cone = self.odo.cone();
+        let key = (cone.id, cone.cycles, self.readings.len());
+        if self.level_key != Some(key) {
+            self.level_key = Some(key);
+            self.level = self.wear_level();
+        }
         result
     }
 
@@ -1435,7 +1448,8 @@ impl<B: Bsp> Controller<B> {
         let state = self.seq.state();
         let sw = self.switches;
         let in_envelope = (self.force_mn - HOLD_EXPECTED_MN).abs() <= HOLD_TOLERANCE_MN;
-        let level = self.wear_level();
+        // As of the last step (cached: see step 7).
+        let level = self.level;
         Handshake {
             dock: self.dock,
             estop: self.estop_open,

@@ -614,6 +614,9 @@ impl Console {
         let measured = ctrl.measurements().last().map(|m| m.wear_nm(base) as i64);
         // The cone's load–distance (Q63.1 mN·µm) in thousandths of N·mm.
         let cone_nmm_milli = (cone.w_q1 / 2_000).min(i64::MAX as u64) as i64;
+        // The cycle in progress (counted into the cone at its end), same unit.
+        let in_cycle_nmm_milli = (ctrl.journal().cone_w_q1.saturating_sub(cone.w_q1) / 2_000)
+            .min(i64::MAX as u64) as i64;
         if json {
             self.reply_json(|j| {
                 j.u64("cone", cone.id as u64)?
@@ -621,6 +624,7 @@ impl Console {
                     .str("serial", cone.serial_str())?
                     .u64("cycles", cone.cycles as u64)?
                     .fixed("load_distance_nmm", cone_nmm_milli, 3)?
+                    .fixed("load_distance_in_cycle_nmm", in_cycle_nmm_milli, 3)?
                     .fixed("wear_mm", wear_nm as i64, 6)?
                     .u64("remaining_cycles", remaining as u64)?
                     .str("level", level.name())?

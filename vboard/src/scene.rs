@@ -3,8 +3,9 @@
 //!
 //! The board sees the firmware only from outside, as a test bench would: the pins (the
 //! axis and lock models record what they were driven to do), the defmt log over RTT, and
-//! the console on USART2. The vehicle asks for each cycle on the dock-request pin (PC4
-//! held low for 30 ms, longer than the firmware's 20 ms debounce).
+//! the console on USART2. The vehicle's PLC docks as it would in service: it asserts
+//! DOCK (PC4, a level) when READY is high and releases it to undock — for a test cycle
+//! once MATED has been high for the hold time (1 s; an hour in `dock-hold`).
 //!
 //! | scene | what happens |
 //! |---|---|
@@ -12,13 +13,19 @@
 //! | the scenes of `hil-sim scene` | the same disturbance at the same moment |
 //! | `sector-move` | the odometer log is filled (through the firmware's own record format) until the next record write makes the firmware erase a sector, with the watchdog running |
 //! | `power-cut-write` | a pin reset at a random instant inside a record write, then a reboot on the same flash |
-//! | `power-cycle` | a pin reset in the middle of an insertion: after the reboot nothing may move until a request (the dock-request input), then the machine homes out of the cone |
+//! | `power-cycle` | a pin reset in the middle of an insertion: after the reboot nothing may move until a request (DOCK released and asserted again), then the machine homes out of the cone |
+//!
+//! `dock-hold`, `vehicle-pull` and `estop` are the host rig's in-service scenes; here the
+//! E-STOP's edge to EN high and the lock bridge low is measured on the pins.
 
 use std::time::Instant;
 
 use hil_sim::flash::{SharedFlash, SimFlash};
 use hil_sim::rig::{Machine, RigOptions};
-use hil_sim::scene::{num, FaultSeen, Progress, SceneDriver, SceneReport, Stage, FLOOD_PIECES};
+use hil_sim::scene::{
+    num, FaultSeen, PlcReport, Progress, SceneDriver, SceneReport, Stage, DOCK_HOLD_S,
+    FLOOD_PIECES, PLC_SCENES,
+};
 
 use crate::cpu::{Board, BoardConfig, Halt};
 use crate::image::Image;
@@ -95,8 +102,16 @@ pub struct Session {
     pub seen: Observed,
     /// Where the rod meets the cone (insertion depth 0), µm.
     pub engage_um: i32,
-    last_press_ps: Option<u64>,
-    press_release_ps: Option<u64>,
+    /// DOCK is asserted (by [`Session::set_dock`]).
+    dock: bool,
+    /// When DOCK last changed, ps.
+    dock_changed_ps: Option<u64>,
+    /// MATED high since, ps.
+    mated_since_ps: Option<u64>,
+    /// How long a test cycle holds mated before the PLC releases DOCK, ps.
+    pub hold_ps: u64,
+    /// A test cycle is under way: release DOCK after the hold (or on a fault).
+    test_cycle: bool,
 }
 
 /// Load `path` (once per process: the table of a loaded image is kept).
@@ -129,8 +144,12 @@ impl Session {
             engage_um: docking_controller::config::MachineConfig::DEFAULT.engage_um,
             opts,
             seen: Observed::default(),
-            last_press_ps: None,
-            press_release_ps: None,
+            dock: false,
+            dock_changed_ps: None,
+            mated_since_ps: None,
+            hold_ps: u64::from(docking_controller::config::MachineConfig::DEFAULT.hold_ms)
+                * PS_PER_MS,
+            test_cycle: false,
         })
     }
 
@@ -171,22 +190,61 @@ impl Session {
         }
     }
 
-    /// Housekeeping every millisecond: release a dock-request press, read the log.
+    /// Housekeeping every millisecond: read the log, watch MATED.
     fn tick(&mut self) {
-        if self.press_release_ps.is_some_and(|t| self.now() >= t) {
-            self.press_release_ps = None;
-            self.machine().dock_request.set(true);
-        }
         self.board.poll_rtt();
         self.observe();
+        let out = self.plc_out();
+        match (out.mated, self.mated_since_ps) {
+            (true, None) => self.mated_since_ps = Some(self.now()),
+            (false, Some(_)) => self.mated_since_ps = None,
+            _ => {}
+        }
+        if self.test_cycle && (out.fault || self.mated_for_ps() >= self.hold_ps) {
+            self.test_cycle = false;
+            self.set_dock(false);
+        }
     }
 
-    /// Press the dock-request button for 30 ms (the firmware debounces 20 ms).
+    /// The PLC asks for one test cycle: DOCK asserted now, released once MATED has been
+    /// high for [`Session::hold_ps`] (or on FAULT).
     pub fn press_dock(&mut self) {
-        let now = self.now();
-        self.machine().dock_request.set(false);
-        self.press_release_ps = Some(now + 30 * PS_PER_MS);
-        self.last_press_ps = Some(now);
+        self.set_dock(true);
+        self.test_cycle = true;
+    }
+
+    /// The PLC asserts (`true`) or releases DOCK.
+    pub fn set_dock(&mut self, asserted: bool) {
+        if self.dock != asserted {
+            self.dock = asserted;
+            self.dock_changed_ps = Some(self.now());
+            self.machine().dock_request.set(!asserted);
+        }
+    }
+
+    /// The PLC opens (`true`) or closes the E-STOP contact. The EXTI sees the edge at
+    /// once (it is asynchronous on the part).
+    pub fn set_estop(&mut self, open: bool) {
+        self.machine().estop.set(open);
+        self.inputs_changed();
+    }
+
+    /// A scene changed an input line: let the EXTI see it now.
+    pub fn inputs_changed(&mut self) {
+        let soc = self.board.soc_mut();
+        soc.sample_exti();
+        soc.update_lines();
+    }
+
+    /// The handshake outputs on the pins.
+    pub fn plc_out(&self) -> crate::world::PlcOutputs {
+        self.board.soc().world.plc_out
+    }
+
+    /// How long MATED has been high, ps (0: low).
+    pub fn mated_for_ps(&self) -> u64 {
+        self.mated_since_ps
+            .map_or(0, |t| self.now().saturating_sub(t))
     }
 
     /// Whether the machine is at rest: idle by the log, home, locked, driver off.
@@ -198,15 +256,20 @@ impl Session {
             && !m.axis.enabled()
     }
 
-    /// Ask for the next docking cycle when the machine is at rest, has no fault, and has
-    /// done fewer than `cycles` (at most one press per 200 ms).
+    /// The PLC's test cycles: a [`Session::press_dock`] when READY (at rest, no fault,
+    /// fewer than `cycles` done, DOCK released for 200 ms at least).
     pub fn auto_dock(&mut self, cycles: u32) {
         let now = self.now();
-        if self.at_rest()
+        let settled = self
+            .dock_changed_ps
+            .is_none_or(|t| now > t + 200 * PS_PER_MS);
+        if !self.dock
+            && self.at_rest()
+            && self.plc_out().ready
             && self.seen.faults.is_empty()
             && self.seen.cycles_completed < cycles
             && self.seen.cycles_started == self.seen.cycles_completed
-            && self.last_press_ps.is_none_or(|t| now > t + 200 * PS_PER_MS)
+            && settled
         {
             self.press_dock();
         }
@@ -268,6 +331,8 @@ impl Session {
         let released = m.lock.fraction_locked() <= 0.0;
         let stage = if !in_cycle {
             Stage::Idle
+        } else if self.plc_out().mated {
+            Stage::Mated
         } else if moving && locked && m.axis.forward() && depth_um < 0 {
             Stage::PreAlign
         } else if moving && released && m.axis.forward() && !self.seen.extracting {
@@ -359,7 +424,7 @@ fn docking_controller_fault_name(s: &str) -> &'static str {
 }
 
 /// The scenes of `vboard scene`.
-pub const SCENES: [&str; 13] = [
+pub const SCENES: [&str; 16] = [
     "boot",
     "nominal",
     "overload",
@@ -373,7 +438,152 @@ pub const SCENES: [&str; 13] = [
     "sector-move",
     "power-cut-write",
     "power-cycle",
+    "dock-hold",
+    "vehicle-pull",
+    "estop",
 ];
+
+/// What the PLC of an in-service scene saw on the pins.
+#[derive(Debug, Default)]
+struct VbPlc {
+    rep: PlcReport,
+    mated_rise_ps: Option<u64>,
+    pos_at_mated_um: f64,
+    w_after_mated: Option<f64>,
+    w_before_undock: Option<f64>,
+    estop_ps: Option<u64>,
+    fault_pos_um: Option<f64>,
+}
+
+/// The cycle in progress's load–distance by the console (`wear --json`), N·mm.
+fn in_cycle_load_distance(s: &mut Session) -> Result<Option<f64>, Halt> {
+    let w = s.console_json("wear --json")?;
+    Ok(json_field(&w, "load_distance_in_cycle_nmm").and_then(|v| v.parse().ok()))
+}
+
+impl VbPlc {
+    /// Each millisecond of the scene.
+    fn tick(&mut self, name: &str, s: &mut Session) -> Result<(), Halt> {
+        let now = s.now();
+        let mated = s.plc_out().mated;
+        let pos = s.machine().axis.pos_um();
+        match (mated, self.mated_rise_ps) {
+            (true, None) => {
+                self.mated_rise_ps = Some(now);
+                self.pos_at_mated_um = pos;
+            }
+            (false, Some(t0)) => {
+                self.rep.mated_s += now.saturating_sub(t0) as f64 / PS_PER_S as f64;
+                self.mated_rise_ps = None;
+                self.rep
+                    .mated_low_before_extraction
+                    .get_or_insert(pos >= self.pos_at_mated_um - 1.0);
+            }
+            _ => {}
+        }
+        if name == "dock-hold" && mated {
+            let for_ps = s.mated_for_ps();
+            if self.w_after_mated.is_none() && for_ps >= PS_PER_S {
+                self.w_after_mated = in_cycle_load_distance(s)?;
+            }
+            if self.w_before_undock.is_none() && for_ps + PS_PER_S >= s.hold_ps {
+                self.w_before_undock = in_cycle_load_distance(s)?;
+                if let (Some(a), Some(b)) = (self.w_after_mated, self.w_before_undock) {
+                    // N·mm (3 decimals) → Q63.1 mN·µm.
+                    self.rep.hold_load_distance_q1 = Some(((b - a) * 2_000.0).round().max(0.0) as u64);
+                }
+            }
+        }
+        if self.estop_ps.is_none() && s.machine().estop.is_high() {
+            self.estop_ps = Some(now);
+        }
+        if self.fault_pos_um.is_none() && !s.seen.faults.is_empty() {
+            self.fault_pos_um = Some(pos);
+            if name == "vehicle-pull" {
+                // MATED dropped: the vehicle stops pulling.
+                s.machine().devices().script.borrow_mut().pull_n_per_s = 0.0;
+            }
+        }
+        Ok(())
+    }
+
+    /// After the scene's loop: the E-STOP's latency on the pins and its clear; the axis
+    /// after a pull.
+    fn finish(
+        &mut self,
+        name: &str,
+        s: &mut Session,
+        checks: &mut Vec<(String, bool, String)>,
+    ) -> Result<(), Halt> {
+        use crate::world::Signal;
+        if name == "vehicle-pull" {
+            let m = s.machine();
+            let held = m.axis.enabled()
+                && self
+                    .fault_pos_um
+                    .is_some_and(|p| (m.axis.pos_um() - p).abs() < 1.0);
+            self.rep.axis_held = Some(held);
+            checks.push((
+                "pulled while mated: MATED low, the axis held where it was, driven".into(),
+                held && !s.plc_out().mated,
+                format!("EN on {}, at {:.3} mm", m.axis.enabled(), m.axis.pos_um() / 1000.0),
+            ));
+        }
+        if let (Some(t0), "estop") = (self.estop_ps, name) {
+            let edges = &s.board.soc().edges;
+            let en = edges
+                .iter()
+                .find(|e| e.signal == Signal::EnN && e.high && e.t_ps >= t0)
+                .map(|e| e.t_ps - t0);
+            let lock_high_after = edges.iter().any(|e| {
+                matches!(e.signal, Signal::LockIn1 | Signal::LockIn2) && e.high && e.t_ps > t0
+            });
+            let lock_off = !lock_high_after && !s.machine().lock.driven();
+            self.rep.estop_latency_s = en.map(|ps| ps as f64 / PS_PER_S as f64);
+            self.rep.lock_off_after_estop = Some(lock_off);
+            checks.push((
+                "E-STOP edge to EN high on the pins".into(),
+                en.is_some_and(|ps| ps <= 100 * 1_000_000),
+                format!("{:?} µs (≤ 100 µs)", en.map(|ps| ps as f64 * 1e-6)),
+            ));
+            checks.push((
+                "lock bridge off after the E-STOP".into(),
+                lock_off,
+                String::new(),
+            ));
+            for cmd in ["pin set 2468", "maint 2468"] {
+                s.console(cmd, 2 * PS_PER_S)?;
+            }
+            let r = s.console("clear-fault", 2 * PS_PER_S)?;
+            let refused = r.contains("E-STOP");
+            self.rep.clear_refused_while_open = Some(refused);
+            checks.push(("clear refused while E-STOP is open".into(), refused, r.trim().into()));
+            s.set_estop(false);
+            s.run_for(100 * PS_PER_MS)?;
+            let r = s.console("clear-fault", 2 * PS_PER_S)?;
+            let ok = r.starts_with("ok");
+            self.rep.clear_accepted_when_closed = Some(ok);
+            checks.push(("clear accepted once E-STOP is closed".into(), ok, r.trim().into()));
+            let deadline = s.now() + 60 * PS_PER_S;
+            let home = s.run_until(deadline, |x| x.at_rest() && x.plc_out().ready)?;
+            checks.push(("recovered home, READY".into(), home, String::new()));
+        }
+        if name == "dock-hold" {
+            checks.push((
+                "no wear while mated".into(),
+                self.rep.hold_load_distance_q1 == Some(0),
+                format!("{:?} / {:?} N·mm", self.w_after_mated, self.w_before_undock),
+            ));
+            checks.push((
+                "MATED high for the hold, low before the extraction".into(),
+                self.rep.mated_s >= s.hold_ps as f64 / PS_PER_S as f64
+                    && self.rep.mated_low_before_extraction == Some(true),
+                format!("{:.3} s", self.rep.mated_s),
+            ));
+        }
+        Ok(())
+    }
+}
 
 /// Options of a scene run.
 #[derive(Clone, Debug)]
@@ -690,7 +900,14 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
     let mut trip: Option<(u64, f64)> = None;
     let mut stop_latency_pins_us = None;
     let (mut max_after, mut min_after) = (f64::MIN, f64::MAX);
-    let max_ps = (cycles as u64 * 150 + 60) * PS_PER_S;
+    let mut plc = PLC_SCENES.contains(&name).then(VbPlc::default);
+    match name {
+        "dock-hold" => s.hold_ps = DOCK_HOLD_S * PS_PER_S,
+        // In service: DOCK stays asserted (until the fault).
+        "vehicle-pull" | "estop" => s.hold_ps = 3_600 * PS_PER_S,
+        _ => {}
+    }
+    let max_ps = (cycles as u64 * 150 + 60) * PS_PER_S + s.hold_ps;
     let mut settle_until: Option<u64> = None;
     let mut flood_rng = hil_sim::rng::Rng::new(opts.session.seed ^ 0xf100d);
     let mut flood_bytes = 0u64;
@@ -763,6 +980,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             let p = s.progress();
             if let Some(d) = driver.as_mut() {
                 d.on_progress(s.machine().devices(), &p);
+                s.inputs_changed();
             }
             let now = s.now();
             // Trip: the first EN rising edge after an overload fault was logged.
@@ -801,6 +1019,9 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
                     ),
                 ));
             }
+            if let Some(p) = plc.as_mut() {
+                p.tick(name, &mut s).map_err(|e| e.to_string())?;
+            }
             let at_rest = s.at_rest();
             let faulted = !s.seen.faults.is_empty();
             s.auto_dock(cycles);
@@ -814,6 +1035,10 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         },
     }
 
+    if let Some(p) = plc.as_mut() {
+        p.finish(name, &mut s, &mut checks)
+            .map_err(|e| e.to_string())?;
+    }
     if opts.flood {
         // Let the line drain before asking.
         let t = s.now() + 3 * PS_PER_S;
@@ -859,6 +1084,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         sim_time_s: sim_s,
         wall_time_s: wall,
         watchdog_bit: s.watchdog_resets() > 0,
+        plc: plc.map(|p| p.rep),
     };
     Ok(Report {
         scene,
@@ -1044,8 +1270,11 @@ fn power_cycle(s: &mut Session, checks: &mut Vec<(String, bool, String)>) -> Res
             moved_pins
         ),
     ));
-    // The request: the dock-request input.
-    s.press_dock();
+    // The request: the PLC releases DOCK (it was asserted through the reset) and asserts
+    // it again.
+    s.set_dock(false);
+    s.run_for(100 * PS_PER_MS)?;
+    s.set_dock(true);
     let deadline = s.now() + 60 * PS_PER_S;
     let homed = s.run_until(deadline, |x| {
         x.machine().axis.pos_um() <= 0.0

@@ -39,8 +39,18 @@ pub enum Signal {
     HxDout,
     /// HX711 PD_SCK (MCU → HX711).
     HxSck,
-    /// Dock request from the vehicle (active low).
-    DockRequest,
+    /// The PLC's DOCK (level, active low: asserted = "be docked").
+    Dock,
+    /// The PLC's E-STOP (normally closed to ground: open = high = stop).
+    Estop,
+    /// READY to the PLC (active high).
+    Ready,
+    /// MATED to the PLC.
+    Mated,
+    /// FAULT to the PLC.
+    Fault,
+    /// MAINTENANCE to the PLC.
+    Maintenance,
     /// Console USART2 TX (alternate function 7).
     ConsoleTx,
     /// Console USART2 RX (alternate function 7).
@@ -52,7 +62,16 @@ impl Signal {
     pub fn is_output(self) -> bool {
         matches!(
             self,
-            Self::Step | Self::Dir | Self::EnN | Self::LockIn1 | Self::LockIn2 | Self::HxSck
+            Self::Step
+                | Self::Dir
+                | Self::EnN
+                | Self::LockIn1
+                | Self::LockIn2
+                | Self::HxSck
+                | Self::Ready
+                | Self::Mated
+                | Self::Fault
+                | Self::Maintenance
         )
     }
 }
@@ -160,8 +179,38 @@ pub const WIRING: &[Wire] = &[
     Wire {
         port: C,
         pin: 4,
-        signal: Signal::DockRequest,
+        signal: Signal::Dock,
         ext: Ext::Float,
+    },
+    Wire {
+        port: C,
+        pin: 5,
+        signal: Signal::Estop,
+        ext: Ext::Float,
+    },
+    Wire {
+        port: D,
+        pin: 0,
+        signal: Signal::Ready,
+        ext: Ext::Down,
+    },
+    Wire {
+        port: D,
+        pin: 1,
+        signal: Signal::Mated,
+        ext: Ext::Down,
+    },
+    Wire {
+        port: D,
+        pin: 2,
+        signal: Signal::Fault,
+        ext: Ext::Down,
+    },
+    Wire {
+        port: D,
+        pin: 3,
+        signal: Signal::Maintenance,
+        ext: Ext::Down,
     },
     Wire {
         port: A,
@@ -204,6 +253,21 @@ pub struct World {
     released: LockPin,
     dout: Hx711Dout<ProfileForce>,
     sck: Hx711Sck<ProfileForce>,
+    /// What the PLC reads: READY, MATED, FAULT, MAINTENANCE.
+    pub plc_out: PlcOutputs,
+}
+
+/// The handshake outputs as the PLC sees them (the pins' levels).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PlcOutputs {
+    /// READY.
+    pub ready: bool,
+    /// MATED.
+    pub mated: bool,
+    /// FAULT.
+    pub fault: bool,
+    /// MAINTENANCE.
+    pub maintenance: bool,
 }
 
 impl World {
@@ -222,6 +286,7 @@ impl World {
             released: lock.released_switch(),
             dout: hx.dout(),
             sck: hx.pd_sck(),
+            plc_out: PlcOutputs::default(),
             machine,
             flash,
         }
@@ -241,6 +306,22 @@ impl World {
             Signal::LockIn1 => &mut self.in1,
             Signal::LockIn2 => &mut self.in2,
             Signal::HxSck => &mut self.sck,
+            Signal::Ready => {
+                self.plc_out.ready = high;
+                return;
+            }
+            Signal::Mated => {
+                self.plc_out.mated = high;
+                return;
+            }
+            Signal::Fault => {
+                self.plc_out.fault = high;
+                return;
+            }
+            Signal::Maintenance => {
+                self.plc_out.maintenance = high;
+                return;
+            }
             _ => return,
         };
         pin.set(high);
@@ -264,7 +345,10 @@ impl World {
                     Some(!self.dout.low())
                 }
             }
-            Signal::DockRequest => (!self.machine.dock_request.is_high()).then_some(false),
+            // A PLC output (a transistor to ground when asserted).
+            Signal::Dock => (!self.machine.dock_request.is_high()).then_some(false),
+            // A normally-closed contact to ground: open leaves the line to the pull-up.
+            Signal::Estop => (!self.machine.estop.is_high()).then_some(false),
             _ => None,
         }
     }
