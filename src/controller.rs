@@ -858,8 +858,17 @@ impl<B: Bsp> Controller<B> {
     }
 
     /// Ask for something; acted on in the next control step.
+    ///
+    /// A pending [`Request::Stop`] is never replaced by another request.
     pub fn request(&mut self, r: Request) {
-        self.pending = Some(r);
+        self.queue(r);
+    }
+
+    /// Queue `r` for the next step, unless a stop waits there: a stop always wins.
+    fn queue(&mut self, r: Request) {
+        if self.pending != Some(Request::Stop) {
+            self.pending = Some(r);
+        }
     }
 
     /// The HX711's output data rate in force, samples/s (commissioned, or the default).
@@ -1020,8 +1029,8 @@ impl<B: Bsp> Controller<B> {
                 (false, s) if s.is_docking() => Some(Request::Undock),
                 (false, _) => None,
             };
-            if r.is_some() {
-                self.pending = r;
+            if let Some(r) = r {
+                self.queue(r);
             }
         }
         self.dock_seen = self.dock_raw;
@@ -1439,7 +1448,7 @@ impl<B: Bsp> Controller<B> {
                 }
             }
         }
-        self.pending = Some(r);
+        self.queue(r);
         Ok(())
     }
 

@@ -42,6 +42,7 @@ pub mod hal;
 pub mod hx711;
 pub mod lock;
 pub mod material;
+pub mod modbus;
 pub mod odometer;
 pub mod profile;
 pub mod propulsion;

@@ -88,3 +88,22 @@ fn outputs_follow_the_machine() {
         .command(docking_controller::sequencer::Request::ClearFault)
         .is_err());
 }
+
+#[test]
+fn a_pending_stop_is_not_replaced_by_a_later_request() {
+    use docking_controller::sequencer::{FaultKind, Request};
+    let mut r = rig();
+    // Stop, then (before the next step) a dock: the stop wins.
+    r.ctrl.command(Request::Stop).unwrap();
+    let _ = r.ctrl.command(Request::Dock);
+    r.ctrl.request(Request::StartCycle);
+    r.tick();
+    r.tick();
+    assert_eq!(
+        r.ctrl.state(),
+        State::Faulted {
+            fault: FaultKind::Stopped
+        }
+    );
+    assert!(!r.axis.enabled());
+}
