@@ -14,6 +14,8 @@
 //! | lock locked / released switch (active low) | PC2 / PC3 | input, pull-up |
 //! | HX711 DOUT / PD_SCK | PB0 (EXTI0, falling edge) / PB1 | input pull-up / low |
 //! | console USART2 TX / RX | PA2 / PA3 | 115200 8N1 |
+//! | Modbus RTU USART3 TX / RX (RS-485 transceiver) | PB10 / PB11 | 19200 8E1 (stored setting) |
+//! | RS-485 driver enable (DE, high = drive the bus) | PB14 | **low** (board pull-down) |
 //! | PLC **DOCK** (level, active low: asserted = "be docked") | PC4 | input, pull-up (an open wire reads released) |
 //! | PLC **E-STOP** (normally closed to ground: open = stop) | PC5 (EXTI5, rising edge) | input, pull-up (a broken wire reads open: a stop) |
 //! | PLC **READY** / **MATED** / **FAULT** / **MAINTENANCE** (active high) | PD0 / PD1 / PD2 / PD3 | **low** (push-pull; low at reset by the board's pull-downs: a dead controller is not ready, not mated) |
@@ -31,8 +33,9 @@
 //! | 4 | `data_ready` (EXTI0: HX711 DOUT falls) | read the sample, judge it, **stop the propulsion** | `kernel` |
 //! | 3 | `step_tick` (SysTick, 20 kHz, only while moving) | step pulses | — |
 //! | 2 | `usart2` (USART2) | console bytes in and out | — |
+//! | 2 | `usart3` (USART3) | Modbus characters in (time-stamped) and out, RS-485 DE | — |
 //! | 1 | `control` (TIM2: each sample, and every sample period) | the control step: the PLC inputs read before it, the handshake outputs written after it | `kernel`, `ctrl` |
-//! | 0 | `idle` | console commands, flash (record writes, erases), the defmt log; **sleeps** (`wfi`) when there is nothing to do | `ctrl` |
+//! | 0 | `idle` | console commands, Modbus requests, flash (record writes, erases), the defmt log; **sleeps** (`wfi`) when there is nothing to do (awake while a Modbus request is being received) | `ctrl` |
 //!
 //! # E-STOP
 //!
@@ -60,6 +63,7 @@ mod console;
 mod crash;
 mod delay;
 mod flash;
+mod modbus;
 mod options;
 mod step;
 
@@ -207,6 +211,29 @@ fn entropy() -> [u8; 32] {
     e
 }
 
+/// The chip's 96-bit unique ID in hex (24 characters): the unit's serial number.
+fn unit_serial() -> [u8; 24] {
+    let uid = stm32f4xx_hal::signature::Uid::get();
+    let mut bytes = [0u8; 12];
+    let parts: [&[u8]; 3] = [
+        &uid.x().to_le_bytes(),
+        &uid.y().to_le_bytes(),
+        uid.lot_num().as_bytes(),
+    ];
+    for (slot, &b) in bytes.iter_mut().zip(parts.into_iter().flatten()) {
+        *slot = b;
+    }
+    const HEX: &[u8; 16] = b"0123456789ABCDEF";
+    let mut out = [b'0'; 24];
+    for (pair, b) in out.chunks_exact_mut(2).zip(bytes) {
+        if let [hi, lo] = pair {
+            *hi = HEX.get(usize::from(b >> 4)).copied().unwrap_or(b'0');
+            *lo = HEX.get(usize::from(b & 0xF)).copied().unwrap_or(b'0');
+        }
+    }
+    out
+}
+
 /// The HX711 on PB0/PB1, its clock phases timed by the core's cycle counter.
 pub type BoardAdc = Hx711<PB0<Input>, PB1<Output>, delay::CycleDelay>;
 
@@ -299,6 +326,9 @@ mod app {
 
     #[local]
     struct Local {
+        modbus_isr: modbus::ModbusIsr,
+        modbus_line: modbus::ModbusLine,
+        modbus_settings: docking_controller::modbus::ModbusSettings,
         stop: BoardStop,
         events_tx: Producer<'static, KernelEvent>,
         events_rx: Consumer<'static, KernelEvent>,
@@ -314,6 +344,8 @@ mod app {
     #[init(local = [
         events: Queue<KernelEvent, 16> = Queue::new(),
         rx_ring: Queue<u16, 257> = Queue::new(),
+        mb_rx: Queue<(u16, u64), 64> = Queue::new(),
+        mb_tx: Queue<u8, 257> = Queue::new(),
         tx_ring: Queue<u8, 1025> = Queue::new(),
         ctrl_slot: MaybeUninit<Controller<Board>> = MaybeUninit::uninit(),
         kernel_slot: MaybeUninit<SafetyKernel<BoardAdc>> = MaybeUninit::uninit(),
@@ -452,7 +484,31 @@ mod app {
         let (rx_in, rx_out) = cx.local.rx_ring.split();
         let (tx_in, tx_out) = cx.local.tx_ring.split();
 
-        // 12. The control tick: TIM2 every sample period (and pended after every sample).
+        // 12. The Modbus line on USART3 (settings as stored, else 19200 8E1 unit 1).
+        let mut mb_buf = [0u8; docking_controller::modbus::ModbusSettings::LEN];
+        let modbus_settings = ctrl
+            .load_record(docking_controller::odometer::kind::MODBUS, &mut mb_buf)
+            .and_then(|n| mb_buf.get(..n))
+            .and_then(docking_controller::modbus::ModbusSettings::from_bytes)
+            .unwrap_or(docking_controller::modbus::ModbusSettings::DEFAULT);
+        let _de = gpiob.pb14.into_push_pull_output_in_state(PinState::Low);
+        let mb_serial = match dp.USART3.serial(
+            (gpiob.pb10, gpiob.pb11),
+            SerialConfig::default()
+                .baudrate(modbus_settings.baud.bps())
+                .wordlength_9()
+                .parity_even(),
+            &mut rcc,
+        ) {
+            Ok(s) => s,
+            Err(_) => halt_safe(),
+        };
+        let (mb_tx, mut mb_rx) = mb_serial.split();
+        mb_rx.listen();
+        let (mb_rx_in, mb_rx_out) = cx.local.mb_rx.split();
+        let (mb_tx_in, mb_tx_out) = cx.local.mb_tx.split();
+
+        // 13. The control tick: TIM2 every sample period (and pended after every sample).
         pac::TIM2::enable(&mut rcc);
         let tim2 = dp.TIM2;
         let period_us = 1_000_000 / rate_sps;
@@ -468,6 +524,17 @@ mod app {
         (
             Shared { ctrl, kernel },
             Local {
+                modbus_isr: modbus::ModbusIsr {
+                    rx: mb_rx,
+                    tx: mb_tx,
+                    rx_in: mb_rx_in,
+                    tx_out: mb_tx_out,
+                },
+                modbus_line: modbus::ModbusLine {
+                    rx_out: mb_rx_out,
+                    tx_in: mb_tx_in,
+                },
+                modbus_settings,
                 stop: BoardStop,
                 events_tx,
                 events_rx,
@@ -529,6 +596,12 @@ mod app {
         };
     }
 
+    /// Modbus characters in and out.
+    #[task(binds = USART3, priority = 2, local = [modbus_isr])]
+    fn usart3(cx: usart3::Context) {
+        cx.local.modbus_isr.on_interrupt();
+    }
+
     /// Step pulses (20 kHz while the axis moves).
     #[task(binds = SysTick, priority = 3, local = [step_gen])]
     fn step_tick(cx: step_tick::Context) {
@@ -575,12 +648,21 @@ mod app {
     #[idle(shared = [ctrl], local = [
         term,
         entropy,
+        modbus_line,
+        modbus_settings,
+        // In a static: 560 bytes.
+        server: docking_controller::modbus::Server =
+            docking_controller::modbus::Server::new(docking_controller::modbus::ModbusSettings::DEFAULT),
         // In a static (it holds the 8 KiB output ring): returned from init it would be
         // moved through init's stack.
         console: Console = Console::new([0; 32]),
     ])]
     fn idle(mut cx: idle::Context) -> ! {
         cx.local.console.seed(*cx.local.entropy);
+        let _ = cx.local.server.set_settings(*cx.local.modbus_settings);
+        // The unit's serial for Modbus device identification: the chip's unique ID.
+        let serial_hex = unit_serial();
+        let serial = core::str::from_utf8(&serial_hex).unwrap_or("");
         let mut stack_checked_us = 0u64;
         loop {
             // Sleep until there is work: the control task signals after each step (at
@@ -588,7 +670,10 @@ mod app {
             // check runs with interrupts masked: one that arrives meanwhile stays pending
             // and `wfi` returns at once.
             let work = cortex_m::interrupt::free(|_| {
-                let w = IDLE_WORK.swap(false, Ordering::Relaxed) || cx.local.term.rx_pending();
+                let w = IDLE_WORK.swap(false, Ordering::Relaxed)
+                    || cx.local.term.rx_pending()
+                    || cx.local.modbus_line.rx_pending()
+                    || cx.local.server.receiving();
                 if !w {
                     cortex_m::asm::wfi();
                 }
@@ -604,9 +689,20 @@ mod app {
                 crash::stack_usage()
             });
             let (term, console) = (&mut *cx.local.term, &mut *cx.local.console);
+            let (line, server) = (&mut *cx.local.modbus_line, &mut *cx.local.server);
             cx.shared.ctrl.lock(|ctrl| {
                 if let Some((used, size)) = stack {
                     ctrl.set_stack_usage(used, size);
+                }
+                // Modbus: the characters in, a reply if a request ended (t3.5 of silence).
+                while let Some((c, t)) = line.next() {
+                    match c {
+                        Ok(b) => server.on_byte(b, t),
+                        Err(()) => server.on_line_error(t),
+                    }
+                }
+                if let Some(reply) = server.poll(clock::now_us(), ctrl, serial) {
+                    line.send(reply);
                 }
                 // Bounded work (see console::service), then the flash, then the log.
                 let _ = console.poll(ctrl, term, now_us / 1_000);

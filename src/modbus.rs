@@ -471,6 +471,12 @@ impl RtuFramer {
         self.rx = Rx::Discarding;
     }
 
+    /// A frame is being received (or has ended and waits for [`RtuFramer::poll`]):
+    /// poll again within t3.5.
+    pub fn receiving(&self) -> bool {
+        self.rx != Rx::Idle
+    }
+
     /// The frame, once the line has been silent for t3.5 after it (returned once).
     pub fn poll(&mut self, now_us: u64) -> Option<&[u8]> {
         let last = self.last_us?;
@@ -1436,6 +1442,12 @@ impl Server {
         self.settings = settings;
         self.framer = RtuFramer::new(&settings);
         true
+    }
+
+    /// A request is being received: [`Server::poll`] is due within t3.5 (a board
+    /// that sleeps between control steps stays awake meanwhile).
+    pub fn receiving(&self) -> bool {
+        self.framer.receiving()
     }
 
     /// A byte received, stamped at the end of its stop bit (µs).

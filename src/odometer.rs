@@ -519,6 +519,9 @@ pub mod kind {
     pub const SETTINGS: u8 = 9;
     /// A retired cone's summary ([`super::RetiredCone`]), written when it is replaced.
     pub const RETIRED: u8 = 10;
+    /// The Modbus line's settings ([`crate::modbus::ModbusSettings`]): unit address and
+    /// baud rate (console `modbus`).
+    pub const MODBUS: u8 = 11;
 }
 
 /// What the odometer's log keeps through its sector moves: the last

@@ -355,3 +355,39 @@ fn dock_undock_stop_from_the_console_with_their_gates() {
     let s = json(&r.command("status --json", 10));
     assert_eq!(s["out_fault"], true);
 }
+
+#[test]
+fn modbus_settings_are_stored_checked_and_shown() {
+    let mut r = rig();
+    assert!(r
+        .command("modbus", 10)
+        .starts_with("modbus unit=1 baud=19200 format=8E1"));
+    assert!(r.command("pin set 1357", 10).starts_with("ok"));
+    assert!(r
+        .command("modbus 7 38400", 10)
+        .contains("maintenance mode required"));
+    assert!(r.command("maint 1357", 10).starts_with("ok"));
+    for bad in [
+        "modbus 0 19200",
+        "modbus 248 19200",
+        "modbus 7 19201",
+        "modbus 7",
+        "modbus x 9600",
+    ] {
+        let e = r.command(bad, 10);
+        assert!(e.starts_with("error: "), "{bad}: {e}");
+    }
+    assert!(r
+        .command("modbus 7 38400", 10)
+        .starts_with("ok: Modbus settings stored"));
+    assert!(r
+        .command("modbus", 10)
+        .starts_with("modbus unit=7 baud=38400"));
+    // Stored: a reboot on the same flash reads them back.
+    let flash = r.flash.clone();
+    let mut r = Rig::with_flash(RigOptions::new(80), flash);
+    r.console_enabled = true;
+    assert!(r
+        .command("modbus", 100)
+        .starts_with("modbus unit=7 baud=38400"));
+}

@@ -18,6 +18,9 @@
 //! undock                                undock (or abort a docking under way)
 //! stop                                  stop all motion now (latched `stopped` fault)
 //! rate <10|80>                          the HX711's RATE pin setting, from the next boot
+//! modbus [<unit> <baud>]                the Modbus line: show, or store (unit 1..=247;
+//!                                       baud 9600|19200|38400|57600|115200; 8E1), from
+//!                                       the next boot
 //! cone replace <material> <serial> [--bore <d0_mm>]
 //!                                       material: zqsn5-2 | qsn6-6-3 | cf-peek
 //!                                       serial: 1..=20 chars of [A-Za-z0-9_-]
@@ -126,6 +129,15 @@ pub enum Command<'a> {
         /// Samples per second.
         sps: u32,
     },
+    /// `modbus`: show the Modbus line's settings.
+    ModbusShow,
+    /// `modbus <unit> <baud>`: store them (from the next boot).
+    ModbusSet {
+        /// Unit address, 1..=247.
+        unit: u8,
+        /// Baud rate.
+        baud: u32,
+    },
     /// `cone replace <material> <serial>`.
     ConeReplace {
         /// The new cone's material.
@@ -180,6 +192,7 @@ impl Command<'_> {
             Self::Undock => "undock",
             Self::Stop => "stop",
             Self::Rate { .. } => "rate",
+            Self::ModbusShow | Self::ModbusSet { .. } => "modbus",
             Self::ConeReplace { .. } => "cone replace",
             Self::Measure { .. } => "measure",
             Self::CalibrateTare => "calibrate tare",
@@ -200,6 +213,7 @@ impl Command<'_> {
                 | Self::Dock
                 | Self::Undock
                 | Self::Rate { .. }
+                | Self::ModbusSet { .. }
                 | Self::ConeReplace { .. }
                 | Self::CalibrateTare
                 | Self::CalibrateSpan { .. }
@@ -251,6 +265,12 @@ impl fmt::Debug for Command<'_> {
             Self::Undock => f.write_str("Undock"),
             Self::Stop => f.write_str("Stop"),
             Self::Rate { sps } => f.debug_struct("Rate").field("sps", sps).finish(),
+            Self::ModbusShow => f.write_str("ModbusShow"),
+            Self::ModbusSet { unit, baud } => f
+                .debug_struct("ModbusSet")
+                .field("unit", unit)
+                .field("baud", baud)
+                .finish(),
             Self::ConeReplace {
                 material,
                 serial,
@@ -441,6 +461,7 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
             | "undock"
             | "stop"
             | "rate"
+            | "modbus"
             | "cone"
             | "measure"
             | "calibrate"
@@ -495,6 +516,25 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
                 "10" => Ok(Command::Rate { sps: 10 }),
                 "80" => Ok(Command::Rate { sps: 80 }),
                 _ => Err(ParseError::BadArgument("rate_sps")),
+            }
+        }
+        "modbus" => {
+            a.action(2)?;
+            match a.pos.as_slice() {
+                [] => Ok(Command::ModbusShow),
+                [unit, baud] => {
+                    let unit = (unit.len() <= 3 && unit.bytes().all(|b| b.is_ascii_digit()))
+                        .then(|| unit.parse::<u8>().ok())
+                        .flatten()
+                        .filter(|u| (1..=247).contains(u))
+                        .ok_or(ParseError::BadArgument("unit"))?;
+                    let baud = crate::modbus::BAUD_RATES
+                        .into_iter()
+                        .find(|b| baud.parse::<u32>().ok() == Some(*b) && baud.len() <= 6)
+                        .ok_or(ParseError::BadArgument("baud"))?;
+                    Ok(Command::ModbusSet { unit, baud })
+                }
+                _ => Err(ParseError::MissingArgument("baud")),
             }
         }
         "cone" => {

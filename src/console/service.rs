@@ -62,6 +62,8 @@ pub mod action {
     /// while the machine moves, when no flash is written; the cycle's history entry
     /// records it.)
     pub const DOCK: u8 = 9;
+    /// The Modbus line's settings were stored.
+    pub const MODBUS: u8 = 10;
 }
 
 /// What one poll did.
@@ -369,6 +371,33 @@ impl Console {
                 }
                 Err(e) => self.err(&e),
             },
+            Command::ModbusShow => {
+                let mut buf = [0u8; crate::modbus::ModbusSettings::LEN];
+                let st = ctrl
+                    .load_record(kind::MODBUS, &mut buf)
+                    .and_then(|n| buf.get(..n))
+                    .and_then(crate::modbus::ModbusSettings::from_bytes)
+                    .unwrap_or(crate::modbus::ModbusSettings::DEFAULT);
+                self.reply(|o| {
+                    write!(
+                        o,
+                        "modbus unit={} baud={} format=8E1 (stored; the line uses them from the boot after they were stored)\r\n",
+                        st.unit, st.baud
+                    )
+                });
+            }
+            Command::ModbusSet { unit, baud } => {
+                match crate::modbus::ModbusSettings::new(unit, baud) {
+                    Some(st) => match ctrl.store_record(kind::MODBUS, &st.to_bytes()) {
+                        Ok(()) => {
+                            self.audit(ctrl, action::MODBUS, now_ms, &st.to_bytes());
+                            self.ok(&"Modbus settings stored; they take effect at the next boot");
+                        }
+                        Err(e) => self.err(&e),
+                    },
+                    None => self.err(&"unit 1..=247, baud 9600|19200|38400|57600|115200"),
+                }
+            }
             Command::ConeReplace {
                 material,
                 serial,
@@ -473,7 +502,7 @@ impl Console {
     }
 
     fn help(&mut self, json: bool) {
-        const CMDS: [&str; 20] = [
+        const CMDS: [&str; 21] = [
             "help [--json]",
             "version [--json]",
             "status [--json]",
@@ -487,6 +516,7 @@ impl Console {
             "undock",
             "stop",
             "rate <10|80>",
+            "modbus [<unit> <baud>]",
             "cone replace <material> <serial> [--bore <d0_mm>]",
             "measure [--baseline] <bore_diameter_mm>",
             "calibrate tare",
