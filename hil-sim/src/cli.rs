@@ -16,7 +16,7 @@ impl std::fmt::Display for UsageError {
 }
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--readings FILE.csv] [--json] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS]";
+pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--readings FILE.csv] [--json] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS] (stdin: dock on|off, estop open|close, plc)";
 
 /// Parse `--rate` as one of the HX711 rates.
 fn hx_rate(o: &Opts) -> Result<u32, UsageError> {
@@ -182,7 +182,11 @@ fn accuracy(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
 }
 
 fn serve(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
-    let o = Opts::parse(args, &["tcp", "scene", "speed", "rate", "for"], &["pty"])?;
+    let o = Opts::parse(
+        args,
+        &["tcp", "modbus-tcp", "scene", "speed", "rate", "for"],
+        &["pty", "modbus-pty", "plc"],
+    )?;
     let link = match (o.flag("pty"), o.get("tcp")) {
         (true, Some(_)) => return err("give --pty or --tcp, not both"),
         (_, Some(a)) => crate::serve::Link::Tcp(a.parse().map_err(|_| {
@@ -192,8 +196,20 @@ fn serve(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         })?),
         _ => crate::serve::Link::Pty,
     };
+    let modbus = match (o.flag("modbus-pty"), o.get("modbus-tcp")) {
+        (true, Some(_)) => return err("give --modbus-pty or --modbus-tcp, not both"),
+        (_, Some(a)) => Some(crate::serve::Link::Tcp(a.parse().map_err(|_| {
+            UsageError(format!(
+                "--modbus-tcp must be an address like 127.0.0.1:7001, got '{a}'"
+            ))
+        })?)),
+        (true, None) => Some(crate::serve::Link::Pty),
+        (false, None) => None,
+    };
     let opts = crate::serve::ServeOptions {
         link,
+        modbus,
+        plc: o.flag("plc"),
         scene: o.get("scene").unwrap_or("nominal").to_string(),
         speed: o.num("speed", 1.0f64, 1e-3, 1e4)?,
         rate_sps: hx_rate(&o)?,

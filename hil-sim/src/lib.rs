@@ -36,5 +36,6 @@ pub mod lock;
 pub mod profile_cmd;
 pub mod rig;
 pub mod rng;
+pub mod rtu_line;
 pub mod scene;
 pub mod serve;

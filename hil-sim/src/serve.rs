@@ -1,22 +1,74 @@
 //! `hil-sim serve`: the simulated controller in (scaled) real time, its technician
 //! console bridged to a pseudo-terminal or a loopback TCP port, so a technician can
-//! connect with `picocom`/`screen` (or `nc`) and practise.
+//! connect with `picocom`/`screen` (or `nc`) and practise; optionally its Modbus RTU
+//! port on a second link, and the PLC's hard-wired inputs on stdin.
 //!
-//! The first line on stdout is the pty's path or the bound address; the machine then
-//! docks continuously (a new cycle whenever it is idle), with the scene's disturbance
-//! injected in its first cycle. The bridge applies back-pressure: bytes are taken from
-//! the link only as fast as the board's 256-byte receive ring drains, so a paste is not
-//! lost to an overrun (a real UART without flow control would lose it).
+//! ## stdout
+//!
+//! The first line is the console's pty path or bound address. With a Modbus link
+//! (`--modbus-pty` / `--modbus-tcp`), the second line is `modbus <pty path or bound
+//! address>`. Then only the replies to `plc` (below).
+//!
+//! ## Console
+//!
+//! The bridge applies back-pressure: bytes are taken from the link only as fast as the
+//! board's 256-byte receive ring drains, so a paste is not lost to an overrun (a real
+//! UART without flow control would lose it).
+//!
+//! ## Modbus RTU
+//!
+//! The second link carries raw Modbus **RTU** frames (address, PDU, CRC; no MBAP
+//! header), as a transparent serial-to-Ethernet gateway would: the bytes go onto a
+//! simulated RS-485 line at 19 200 baud 8E1 into the controller's server, unit 1, in
+//! virtual time ([`crate::rtu_line`]: timing, one request at a time, back-pressure). A
+//! reply comes within a tick (≤ 12.5 ms at 80 SPS, 100 ms at 10 SPS, virtual time) of
+//! the request's t3.5 silence. Device identification object 0x80 (the unit's serial
+//! number) is [`UNIT_SERIAL`], `HILSIM-0001`. A TCP address must be on loopback; one
+//! client at a time.
+//!
+//! ## PLC inputs on stdin
+//!
+//! One command a line (surrounding blanks ignored, blank lines ignored):
+//!
+//! | line | effect |
+//! |---|---|
+//! | `dock on` / `dock off` | the DOCK line asserted (low) / released (high) |
+//! | `estop open` / `estop close` | the E-STOP loop open (a stop) / closed |
+//! | `plc` | one line on stdout: `plc dock=on\|off estop=open\|closed ready=0\|1 mated=0\|1 fault=0\|1 maintenance=0\|1` |
+//!
+//! `plc` prints the controller's handshake ([`Controller::handshake`]: DOCK as
+//! filtered, E-STOP as read, and the outputs). A line takes effect at the next tick, and
+//! the controller reads DOCK over two control steps (its debounce): a `plc` after a
+//! `dock`/`estop` command is answered once two control steps have run since, so
+//! `estop open` then `plc` reports the open E-STOP and the fault it latched. Any other
+//! line: one line on stderr, and it is ignored. stdin is read by a thread, so the
+//! simulation never waits for it; its end (EOF) changes nothing.
+//!
+//! ## Who starts cycles
+//!
+//! Without a Modbus link and without `--plc`, the machine docks continuously (a test
+//! cycle whenever it is idle), with the scene's disturbance injected in its first
+//! cycle. With a Modbus link or `--plc`, the PLC is in charge: **no automatic cycles**;
+//! the machine docks when the PLC commands it (Modbus, or DOCK on stdin), and the
+//! scene's disturbance comes in the first docking.
+//!
+//! [`Controller::handshake`]: docking_controller::controller::Controller::handshake
 
-use std::io::Write;
+use std::collections::VecDeque;
+use std::io::{BufRead, Write};
 use std::net::SocketAddr;
+use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+use docking_controller::controller::Handshake;
+use docking_controller::modbus::ModbusSettings;
 use docking_controller::sequencer::{Request, State};
 
 use crate::console::RX_RING;
-use crate::link::Bridge;
+use crate::link::{Bridge, Pty};
 use crate::rig::{AdcMode, Rig, RigOptions};
+use crate::rtu_line::RtuLine;
+pub use crate::rtu_line::UNIT_SERIAL;
 use crate::scene::SceneDriver;
 
 /// Where the console goes.
@@ -33,6 +85,10 @@ pub enum Link {
 pub struct ServeOptions {
     /// Link.
     pub link: Link,
+    /// The Modbus RTU link (`None`: no Modbus).
+    pub modbus: Option<Link>,
+    /// The PLC is in charge (no automatic cycles) even without a Modbus link.
+    pub plc: bool,
     /// Scene whose disturbance to inject.
     pub scene: String,
     /// Virtual seconds per wall second.
@@ -43,8 +99,88 @@ pub struct ServeOptions {
     pub duration_s: Option<f64>,
 }
 
-/// Run the live simulator; prints the link's address first, then runs until killed (or
-/// `duration_s`).
+/// A PLC input command from stdin.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PlcCommand {
+    /// DOCK asserted (`true`) or released.
+    Dock(bool),
+    /// E-STOP open (`true`) or closed.
+    Estop(bool),
+    /// Print the handshake.
+    Report,
+}
+
+impl PlcCommand {
+    /// Parse one stdin line: `Ok(None)` for a blank line, `Err` (the message for stderr)
+    /// for anything unknown.
+    pub fn parse(line: &str) -> Result<Option<Self>, String> {
+        let words: Vec<&str> = line.split_whitespace().collect();
+        Ok(Some(match words.as_slice() {
+            [] => return Ok(None),
+            ["dock", "on"] => Self::Dock(true),
+            ["dock", "off"] => Self::Dock(false),
+            ["estop", "open"] => Self::Estop(true),
+            ["estop", "close"] => Self::Estop(false),
+            ["plc"] => Self::Report,
+            _ => {
+                return Err(format!(
+                    "unknown command '{}' (dock on|off, estop open|close, plc)",
+                    line.trim()
+                ))
+            }
+        }))
+    }
+}
+
+/// The `plc` line for handshake `h`.
+pub fn plc_line(h: &Handshake) -> String {
+    let b = |x: bool| u8::from(x);
+    format!(
+        "plc dock={} estop={} ready={} mated={} fault={} maintenance={}",
+        if h.dock { "on" } else { "off" },
+        if h.estop { "open" } else { "closed" },
+        b(h.ready),
+        b(h.mated),
+        b(h.fault),
+        b(h.maintenance)
+    )
+}
+
+/// Control steps after a PLC input change before `plc` answers (DOCK's debounce).
+const SETTLE_STEPS: u64 = 2;
+
+/// Open the Modbus link; its address is printed as `modbus ADDRESS`.
+fn open_modbus(link: &Link, out: &mut dyn Write) -> Result<Bridge, String> {
+    let bridge = match link {
+        Link::Pty => Bridge::Pty(Pty::open()?),
+        Link::Tcp(addr) => {
+            let (listener, _) = crate::link::listen(*addr)?;
+            Bridge::Tcp {
+                listener,
+                client: None,
+            }
+        }
+    };
+    let _ = writeln!(out, "modbus {}", bridge.address());
+    Ok(bridge)
+}
+
+/// Lines of stdin, read by a thread (the loop never waits for them).
+fn stdin_lines() -> mpsc::Receiver<String> {
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::stdin().lock().lines() {
+            let Ok(line) = line else { break };
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+/// Run the live simulator; prints the links' addresses first, then runs until killed
+/// (or `duration_s`).
 pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
     let mut driver = SceneDriver::new(&opts.scene, 1)?;
     if !(opts.speed.is_finite() && opts.speed > 0.0) {
@@ -53,8 +189,25 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
             opts.speed
         ));
     }
+    if let Some(Link::Tcp(addr)) = &opts.modbus {
+        if !addr.ip().is_loopback() {
+            return Err(format!(
+                "--modbus-tcp must be a loopback address (127.0.0.1:PORT), got {addr}"
+            ));
+        }
+    }
     let mut bridge = Bridge::open(&opts.link, out)?;
+    let mut modbus = match &opts.modbus {
+        None => None,
+        Some(link) => Some((
+            open_modbus(link, out)?,
+            RtuLine::new(ModbusSettings::DEFAULT),
+        )),
+    };
     let _ = out.flush();
+    let auto_cycles = modbus.is_none() && !opts.plc;
+    let stdin = stdin_lines();
+    let mut commands: VecDeque<PlcCommand> = VecDeque::new();
     let mut rig = Rig::new(RigOptions {
         adc: AdcMode::Pins,
         ..RigOptions::new(opts.rate_sps)
@@ -64,19 +217,56 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
         .boot(docking_controller::diag::ResetCause::PowerOn, None, &[]);
     rig.console_enabled = true;
     driver.setup(rig.devices(), 1, opts.rate_sps, 1_000);
+    // Control steps run, and the count at the last PLC input change.
+    let mut steps: u64 = 0;
+    let mut changed_at: Option<u64> = None;
     let start = Instant::now();
     loop {
         let wall = start.elapsed().as_secs_f64();
         if opts.duration_s.is_some_and(|d| wall >= d) {
             return Ok(());
         }
+        // PLC inputs: they take effect at the next tick.
+        while let Ok(line) = stdin.try_recv() {
+            match PlcCommand::parse(&line) {
+                Ok(Some(c)) => commands.push_back(c),
+                Ok(None) => {}
+                Err(e) => eprintln!("hil-sim serve: {e}"),
+            }
+        }
+        while let Some(&c) = commands.front() {
+            match c {
+                PlcCommand::Report => {
+                    if changed_at.is_some_and(|at| steps < at + SETTLE_STEPS) {
+                        break; // the controller has not read the change yet
+                    }
+                    let _ = writeln!(out, "{}", plc_line(&rig.ctrl.handshake()));
+                    let _ = out.flush();
+                }
+                PlcCommand::Dock(on) => {
+                    rig.dock_line.set(!on); // active low
+                    changed_at = Some(steps);
+                }
+                PlcCommand::Estop(open) => {
+                    rig.estop_line.set(open);
+                    changed_at = Some(steps);
+                }
+            }
+            commands.pop_front();
+        }
         let target_ns = (wall * opts.speed * 1e9) as u64;
         while rig.clock.now_ns() < target_ns {
-            rig.tick();
+            if rig.tick().stepped {
+                steps += 1;
+            }
             let st = rig.ctrl.status();
             driver.on_tick(&mut rig, &st);
-            if st.state == State::Idle && !rig.ctrl.persist_pending() {
+            if auto_cycles && st.state == State::Idle && !rig.ctrl.persist_pending() {
                 rig.ctrl.request(Request::StartCycle);
+            }
+            if let Some((link, line)) = modbus.as_mut() {
+                let now_us = rig.clock.now_ns() / 1_000;
+                link.write(&line.service(now_us, &mut rig.ctrl, UNIT_SERIAL));
             }
         }
         let room = RX_RING.saturating_sub(rig.term.rx_pending());
@@ -85,6 +275,74 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
             rig.term.send(&bytes);
         }
         bridge.write(&rig.term.take_output());
+        if let Some((link, line)) = modbus.as_mut() {
+            let room = line.room();
+            if room > 0 {
+                let bytes = link.read(room);
+                line.receive(&bytes, rig.clock.now_ns() / 1_000);
+            }
+        }
         std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plc_commands_parse() {
+        assert_eq!(
+            PlcCommand::parse("dock on"),
+            Ok(Some(PlcCommand::Dock(true)))
+        );
+        assert_eq!(
+            PlcCommand::parse("  dock   off \r"),
+            Ok(Some(PlcCommand::Dock(false)))
+        );
+        assert_eq!(
+            PlcCommand::parse("estop open"),
+            Ok(Some(PlcCommand::Estop(true)))
+        );
+        assert_eq!(
+            PlcCommand::parse("estop close"),
+            Ok(Some(PlcCommand::Estop(false)))
+        );
+        assert_eq!(PlcCommand::parse("plc"), Ok(Some(PlcCommand::Report)));
+        assert_eq!(PlcCommand::parse("   "), Ok(None));
+        for bad in [
+            "dock",
+            "dock maybe",
+            "estop closed",
+            "plc now",
+            "DOCK ON",
+            "x",
+        ] {
+            assert!(PlcCommand::parse(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn plc_line_formats_the_handshake() {
+        let h = Handshake {
+            dock: true,
+            estop: false,
+            ready: false,
+            mated: true,
+            fault: false,
+            maintenance: true,
+        };
+        assert_eq!(
+            plc_line(&h),
+            "plc dock=on estop=closed ready=0 mated=1 fault=0 maintenance=1"
+        );
+        assert_eq!(
+            plc_line(&Handshake {
+                estop: true,
+                fault: true,
+                ..Handshake::default()
+            }),
+            "plc dock=off estop=open ready=0 mated=0 fault=1 maintenance=0"
+        );
     }
 }

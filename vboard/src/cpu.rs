@@ -1029,7 +1029,14 @@ impl Board {
                 (Some(0xB672), _) => sites.push((addr, Site::Disable)),
                 (Some(0xB662), _) => sites.push((addr, Site::Enable)),
                 (Some(h1), Some(0x8810)) if h1 & 0xFFF0 == 0xF380 => {
-                    if let Some(&r) = GP_REGS.get((h1 & 0xF) as usize) {
+                    // Any of r0–r12 and lr (the compiler keeps PRIMASK in lr too:
+                    // `mrs lr, primask` … `msr primask, lr`; a missed restore would make
+                    // a window look as long as the time to the next unmask elsewhere).
+                    let r = match h1 & 0xF {
+                        14 => Some(RegisterARM::LR),
+                        n => GP_REGS.get(n as usize).copied(),
+                    };
+                    if let Some(r) = r {
                         sites.push((addr, Site::Restore(r)));
                     }
                 }

@@ -413,6 +413,95 @@ impl Session {
     }
 }
 
+/// A Modbus RTU frame for `unit`: `pdu` and its CRC.
+pub fn rtu(unit: u8, pdu: &[u8]) -> Vec<u8> {
+    let mut f = vec![unit];
+    f.extend_from_slice(pdu);
+    let crc = docking_controller::modbus::crc16(&f);
+    f.extend_from_slice(&crc.to_le_bytes());
+    f
+}
+
+/// A Modbus master that floods the line (`--flood`): reads of every table for this
+/// unit, for another unit, device identification, a wrong CRC, garbage, a frame over
+/// 256 bytes — never a write (a flood must change nothing). A frame goes out once the
+/// line has been quiet 3 ms (> t3.5), so most are frames the server must answer.
+#[derive(Debug, Default)]
+struct ModbusFlood {
+    bytes: u64,
+    quiet_since_ps: Option<u64>,
+}
+
+impl ModbusFlood {
+    fn pieces() -> Vec<Vec<u8>> {
+        let mut bad_crc = rtu(1, &[0x04, 0, 0, 0, 10]);
+        if let Some(b) = bad_crc.last_mut() {
+            *b ^= 0x55;
+        }
+        vec![
+            rtu(1, &[0x04, 0, 0, 0, 68]),
+            rtu(1, &[0x03, 0, 0, 0, 1]),
+            rtu(1, &[0x01, 0, 0, 0, 5]),
+            rtu(1, &[0x02, 0, 0, 0, 11]),
+            rtu(1, &[0x2B, 0x0E, 0x01, 0x00]),
+            rtu(1, &[0x04, 0x7F, 0xFF, 0, 2]),
+            rtu(1, &[0x63]),
+            rtu(9, &[0x04, 0, 0, 0, 10]),
+            bad_crc,
+            b"\xff\x00garbage\x01\x04".to_vec(),
+            vec![0x01; 300],
+        ]
+    }
+
+    fn tick(&mut self, s: &mut Session, rng: &mut hil_sim::rng::Rng) {
+        let now = s.now();
+        if s.board.soc().usart3.far_pending() > 0 {
+            self.quiet_since_ps = None;
+            return;
+        }
+        let t0 = *self.quiet_since_ps.get_or_insert(now);
+        if now < t0 + 3 * PS_PER_MS {
+            return;
+        }
+        let pieces = Self::pieces();
+        let i = (rng.next_u64() % pieces.len() as u64) as usize;
+        if let Some(p) = pieces.get(i) {
+            if s.board.soc_mut().modbus_send(p) {
+                self.bytes += p.len() as u64;
+            }
+        }
+        self.quiet_since_ps = None;
+    }
+}
+
+impl Session {
+    /// The PLC sends `frame` on the Modbus line; the reply bytes that reached the bus
+    /// (empty: none within `timeout_ps`; a reply ends after 5 ms of silence).
+    pub fn modbus(&mut self, frame: &[u8], timeout_ps: u64) -> Result<Vec<u8>, Halt> {
+        let start = self.board.soc().modbus_out.len();
+        let _ = self.board.soc_mut().modbus_send(frame);
+        let deadline = self.now() + timeout_ps;
+        let mut quiet: Option<(usize, u64)> = None;
+        self.run_until(deadline, |x| {
+            let n = x.board.soc().modbus_out.len();
+            if n == start {
+                return false;
+            }
+            match quiet {
+                Some((m, t)) if m == n => x.now() >= t + 5 * PS_PER_MS,
+                _ => {
+                    quiet = Some((n, x.now()));
+                    false
+                }
+            }
+        })?;
+        Ok(self.board.soc().modbus_out[start..]
+            .iter()
+            .map(|&(_, b)| b)
+            .collect())
+    }
+}
+
 /// The firmware's fault names, as `'static` strings.
 fn docking_controller_fault_name(s: &str) -> &'static str {
     use docking_controller::sequencer::FaultKind;
@@ -490,7 +579,8 @@ impl VbPlc {
                 self.w_before_undock = in_cycle_load_distance(s)?;
                 if let (Some(a), Some(b)) = (self.w_after_mated, self.w_before_undock) {
                     // N·mm (3 decimals) → Q63.1 mN·µm.
-                    self.rep.hold_load_distance_q1 = Some(((b - a) * 2_000.0).round().max(0.0) as u64);
+                    self.rep.hold_load_distance_q1 =
+                        Some(((b - a) * 2_000.0).round().max(0.0) as u64);
                 }
             }
         }
@@ -526,7 +616,11 @@ impl VbPlc {
             checks.push((
                 "pulled while mated: MATED low, the axis held where it was, driven".into(),
                 held && !s.plc_out().mated,
-                format!("EN on {}, at {:.3} mm", m.axis.enabled(), m.axis.pos_um() / 1000.0),
+                format!(
+                    "EN on {}, at {:.3} mm",
+                    m.axis.enabled(),
+                    m.axis.pos_um() / 1000.0
+                ),
             ));
         }
         if let (Some(t0), "estop") = (self.estop_ps, name) {
@@ -557,13 +651,21 @@ impl VbPlc {
             let r = s.console("clear-fault", 2 * PS_PER_S)?;
             let refused = r.contains("E-STOP");
             self.rep.clear_refused_while_open = Some(refused);
-            checks.push(("clear refused while E-STOP is open".into(), refused, r.trim().into()));
+            checks.push((
+                "clear refused while E-STOP is open".into(),
+                refused,
+                r.trim().into(),
+            ));
             s.set_estop(false);
             s.run_for(100 * PS_PER_MS)?;
             let r = s.console("clear-fault", 2 * PS_PER_S)?;
             let ok = r.starts_with("ok");
             self.rep.clear_accepted_when_closed = Some(ok);
-            checks.push(("clear accepted once E-STOP is closed".into(), ok, r.trim().into()));
+            checks.push((
+                "clear accepted once E-STOP is closed".into(),
+                ok,
+                r.trim().into(),
+            ));
             let deadline = s.now() + 60 * PS_PER_S;
             let home = s.run_until(deadline, |x| x.at_rest() && x.plc_out().ready)?;
             checks.push(("recovered home, READY".into(), home, String::new()));
@@ -634,6 +736,13 @@ pub struct Report {
     pub console_overruns: u64,
     /// Bytes the flooding terminal sent (`--flood`).
     pub console_flood_bytes: u64,
+    /// Bytes the flooding Modbus master sent (`--flood`), and the reply bytes that
+    /// reached the bus.
+    pub modbus_flood_bytes: u64,
+    /// See [`Report::modbus_flood_bytes`].
+    pub modbus_reply_bytes: u64,
+    /// Reply bytes sent with the RS-485 driver off (lost): must be 0.
+    pub modbus_de_losses: u64,
     /// Cycles per instruction used.
     pub cpi: f64,
     /// LSI frequency used, Hz.
@@ -714,7 +823,7 @@ impl Report {
             })
             .collect();
         format!(
-            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_flood_bytes\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{}}}",
+            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{}}}",
             self.reset_count,
             strs(&causes),
             num(self.instructions_per_control_step),
@@ -729,6 +838,9 @@ impl Report {
             self.hx711_power_downs,
             self.console_overruns,
             self.console_flood_bytes,
+            self.modbus_flood_bytes,
+            self.modbus_reply_bytes,
+            self.modbus_de_losses,
             num(self.cpi),
             self.lsi_hz,
             self.flash_timing,
@@ -787,6 +899,12 @@ impl Report {
             s += &format!(
                 "\n  console: {} bytes of flood sent, {} lost to overruns",
                 self.console_flood_bytes, self.console_overruns
+            );
+        }
+        if self.modbus_flood_bytes > 0 {
+            s += &format!(
+                "\n  modbus: {} bytes of flood sent, {} reply bytes on the bus, {} sent with DE low",
+                self.modbus_flood_bytes, self.modbus_reply_bytes, self.modbus_de_losses
             );
         }
         s += &format!(
@@ -911,6 +1029,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
     let mut settle_until: Option<u64> = None;
     let mut flood_rng = hil_sim::rng::Rng::new(opts.session.seed ^ 0xf100d);
     let mut flood_bytes = 0u64;
+    let mut mb_flood = ModbusFlood::default();
     let mut pos_checked = false;
 
     match name {
@@ -975,6 +1094,9 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
                     }
                     flood_bytes += FLOOD_PIECES[i].len() as u64;
                 }
+            }
+            if opts.flood {
+                mb_flood.tick(&mut s, &mut flood_rng);
             }
             s.run_for(PS_PER_MS).map_err(|e| e.to_string())?;
             let p = s.progress();
@@ -1136,6 +1258,9 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             .collect(),
         diagnostics: soc.diagnostics.iter().map(|d| d.what.clone()).collect(),
         console_flood_bytes: flood_bytes,
+        modbus_flood_bytes: mb_flood.bytes,
+        modbus_reply_bytes: soc.modbus_out.len() as u64,
+        modbus_de_losses: soc.modbus_de_losses,
         checks,
         motion_before_request,
         step: m.axis.step_timing(),

@@ -21,6 +21,8 @@ use crate::world::{wire_at, wire_of, Ext, Signal, World, WIRING};
 
 /// Console baud rate of the far end (the technician's terminal).
 pub const CONSOLE_BAUD: u32 = 115_200;
+/// The PLC's Modbus RTU line (USART3, 8E1), baud.
+pub const MODBUS_BAUD: u32 = 19_200;
 
 /// A peripheral of the bus map.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -31,6 +33,8 @@ pub enum Periph {
     Iwdg,
     /// USART2.
     Usart2,
+    /// USART3.
+    Usart3,
     /// Power controller.
     Pwr,
     /// SYSCFG.
@@ -56,6 +60,7 @@ pub const BUS_MAP: &[(u32, u32, Periph, ClockEnable)] = &[
     (0x4000_0C00, 0x400, Periph::Tim(3), Some((Bus::Apb1, 3))),
     (0x4000_3000, 0x400, Periph::Iwdg, None),
     (0x4000_4400, 0x400, Periph::Usart2, Some((Bus::Apb1, 17))),
+    (0x4000_4800, 0x400, Periph::Usart3, Some((Bus::Apb1, 18))),
     (0x4000_7000, 0x400, Periph::Pwr, Some((Bus::Apb1, 28))),
     (0x4001_3800, 0x400, Periph::Syscfg, Some((Bus::Apb2, 14))),
     (0x4001_3C00, 0x400, Periph::Exti, None),
@@ -76,6 +81,8 @@ pub mod irq {
     pub const TIM: [u32; 4] = [28, 29, 30, 50];
     /// USART2.
     pub const USART2: u32 = 38;
+    /// USART3.
+    pub const USART3: u32 = 39;
 }
 
 /// Something the board noticed that software should not have done, but that the
@@ -166,6 +173,18 @@ pub struct Soc {
     pub dwt: Dwt,
     /// USART2 (console).
     pub usart2: Usart,
+    /// USART3 (Modbus RTU to the PLC, through an RS-485 transceiver whose driver PB14
+    /// enables).
+    pub usart3: Usart,
+    /// Modbus bytes that reached the bus (the transceiver's driver enabled), with their
+    /// time.
+    pub modbus_out: Vec<(u64, u8)>,
+    /// Modbus bytes the MCU sent with the transceiver's driver off (DE low): they never
+    /// reach the bus.
+    pub modbus_de_losses: u64,
+    /// Bytes the far end sent while our driver was on (DE high): they collide on the bus
+    /// and are lost.
+    pub modbus_collisions: u64,
     /// IWDG.
     pub iwdg: Iwdg,
     /// EXTI and SYSCFG.
@@ -268,6 +287,10 @@ impl Soc {
                 d
             },
             usart2: Usart::new("USART2", CONSOLE_BAUD),
+            usart3: Usart::new("USART3", MODBUS_BAUD).with_far_bits(11), // 8E1
+            modbus_out: Vec::new(),
+            modbus_de_losses: 0,
+            modbus_collisions: 0,
             iwdg: Iwdg::new(lsi_hz),
             exti: Exti::default(),
             pwr: Pwr::default(),
@@ -338,6 +361,8 @@ impl Soc {
         self.dwt.reset();
         self.usart2.sync(now, self.rcc.clocks().pclk1);
         self.usart2.reset();
+        self.usart3.sync(now, self.rcc.clocks().pclk1);
+        self.usart3.reset();
         self.iwdg.reset();
         self.exti.reset();
         self.pwr.reset();
@@ -496,6 +521,7 @@ impl Soc {
             at(tim.next_event(self.tim_clk(i)));
         }
         at(self.usart2.next_event());
+        at(self.usart3.next_event());
         at(self.iwdg.next_event());
         at(self.flash.busy_until());
         if self.exti.armed() != 0 {
@@ -519,6 +545,8 @@ impl Soc {
         }
         self.usart2.sync(now, c.pclk1);
         self.collect_console();
+        self.usart3.sync(now, c.pclk1);
+        self.collect_modbus();
         if self.iwdg.running() {
             self.rcc.force_lsi(now);
         }
@@ -543,6 +571,51 @@ impl Soc {
             self.console_pin_losses += sent.len() as u64;
             self.diag("USART2 sent bytes but PA2 is not in alternate function 7".into());
         }
+    }
+
+    /// Move the bytes USART3 sent to the bus: only with PB10 in alternate function 7 and
+    /// the transceiver's driver enabled (DE, PB14, high) at the byte's time.
+    fn collect_modbus(&mut self) {
+        let sent = self.usart3.take_sent();
+        if sent.is_empty() {
+            return;
+        }
+        let af = self.af_ok(Signal::ModbusTx, 7);
+        for (t, b) in sent {
+            // DE's level when the byte's stop bit ended (a byte starts 11 bit times
+            // earlier; DE must have been high all along: checked at both ends).
+            let start = t.saturating_sub(11 * crate::time::PS_PER_S / MODBUS_BAUD as u64);
+            if af && self.de_high_at(start) && self.de_high_at(t) {
+                self.modbus_out.push((t, b));
+            } else {
+                self.modbus_de_losses += 1;
+            }
+        }
+    }
+
+    /// The DE line's level at `t_ps`, from its edges.
+    fn de_high_at(&self, t_ps: u64) -> bool {
+        self.edges
+            .iter()
+            .rev()
+            .find(|e| e.signal == Signal::ModbusDe && e.t_ps <= t_ps)
+            .is_some_and(|e| e.high)
+    }
+
+    /// The PLC sends `bytes` on the Modbus line (they arrive at its rate). Lost at once
+    /// when PB11 is not USART3's RX, or when our transceiver's driver is on (DE high: a
+    /// collision on the bus).
+    pub fn modbus_send(&mut self, bytes: &[u8]) -> bool {
+        let now = self.now();
+        if !self.af_ok(Signal::ModbusRx, 7) {
+            return false;
+        }
+        if self.de_high_at(now) {
+            self.modbus_collisions += bytes.len() as u64;
+            return false;
+        }
+        self.usart3.far_send(bytes, now);
+        true
     }
 
     fn af_ok(&self, signal: Signal, af: u32) -> bool {
@@ -571,6 +644,7 @@ impl Soc {
     /// Set the NVIC's interrupt lines from the models.
     pub fn update_lines(&mut self) {
         self.nvic.set_line(irq::USART2, self.usart2.irq());
+        self.nvic.set_line(irq::USART3, self.usart3.irq());
         self.nvic.set_line(irq::FLASH, self.flash.irq());
         for (i, t) in self.tims.iter().enumerate() {
             self.nvic.set_line(irq::TIM[i], t.irq());
@@ -638,6 +712,11 @@ impl Soc {
                 self.collect_console();
                 r
             }
+            Periph::Usart3 => {
+                let r = self.usart3.read(off, size, now, c.pclk1);
+                self.collect_modbus();
+                r
+            }
             Periph::Pwr => self.pwr.read(off, size),
             Periph::Syscfg => self.exti.read_syscfg(off, size),
             Periph::Exti => self.exti.read(off, size),
@@ -686,6 +765,7 @@ impl Soc {
                 }
             }),
             Periph::Usart2 => self.usart2.write(off, size, value, now, c.pclk1),
+            Periph::Usart3 => self.usart3.write(off, size, value, now, c.pclk1),
             Periph::Pwr => self.pwr.write(off, size, value),
             Periph::Syscfg => self.exti.write_syscfg(off, size, value),
             Periph::Exti => self.exti.write(off, size, value),

@@ -53,6 +53,12 @@ pub enum Signal {
     Maintenance,
     /// Console USART2 TX (alternate function 7).
     ConsoleTx,
+    /// Modbus USART3 TX (alternate function 7) to the RS-485 transceiver.
+    ModbusTx,
+    /// Modbus USART3 RX (alternate function 7).
+    ModbusRx,
+    /// The RS-485 transceiver's driver enable (high: we drive the bus).
+    ModbusDe,
     /// Console USART2 RX (alternate function 7).
     ConsoleRx,
 }
@@ -72,6 +78,7 @@ impl Signal {
                 | Self::Mated
                 | Self::Fault
                 | Self::Maintenance
+                | Self::ModbusDe
         )
     }
 }
@@ -210,6 +217,24 @@ pub const WIRING: &[Wire] = &[
         port: D,
         pin: 3,
         signal: Signal::Maintenance,
+        ext: Ext::Down,
+    },
+    Wire {
+        port: B,
+        pin: 10,
+        signal: Signal::ModbusTx,
+        ext: Ext::Float,
+    },
+    Wire {
+        port: B,
+        pin: 11,
+        signal: Signal::ModbusRx,
+        ext: Ext::Float,
+    },
+    Wire {
+        port: B,
+        pin: 14,
+        signal: Signal::ModbusDe,
         ext: Ext::Down,
     },
     Wire {

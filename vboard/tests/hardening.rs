@@ -49,6 +49,25 @@ fn overload_stop_during_a_flood(rate_sps: u32) {
     assert_eq!(r.samples_missed, 0);
     assert!(r.scene.motors_disabled);
     assert!(r.core_faults.is_empty(), "{:?}", r.core_faults);
+    // The Modbus line flooded at the same time (reads, garbage, bad CRCs, over-long
+    // frames): answered, every reply with the RS-485 driver on, nothing delayed.
+    assert!(r.modbus_flood_bytes > 1_000, "{}", r.modbus_flood_bytes);
+    assert!(r.modbus_reply_bytes > 0);
+    assert_eq!(r.modbus_de_losses, 0);
+}
+
+/// The board's masked-window meter missed `msr primask, lr` (the compiler keeps the
+/// saved PRIMASK in lr in `clock::now_us`): a window opened there looked as long as the
+/// time to the next unmask anywhere (42 µs under a Modbus flood).
+#[test]
+fn a_critical_section_restored_from_lr_was_measured_as_still_masked() {
+    let r = run("overload", &flooded(80)).expect("board runs");
+    assert!(
+        r.masked_max_us < 20.0,
+        "longest all-masked window {} µs in {}",
+        r.masked_max_us,
+        r.masked_max_at
+    );
 }
 
 #[test]

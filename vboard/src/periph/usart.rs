@@ -4,7 +4,8 @@
 //!
 //! * Receive: the far end's bytes arrive at its line rate (one frame each). A byte that
 //!   arrives while `RXNE` is still set is lost and sets `ORE` (the old byte stays). A far
-//!   end whose baud rate differs from ours by more than 3 % produces framing errors.
+//!   end whose baud rate differs from ours by more than 3 %, or whose frame has another
+//!   length (8N1 against 8E1), produces framing errors.
 //!   `RXNE` clears on a `DR` read; `ORE`/`FE`/`NF`/`PE` clear by an `SR` read followed by
 //!   a `DR` read.
 //! * Transmit: a `DR` write moves to the shift register at once if it is idle (`TXE`
@@ -62,6 +63,9 @@ pub struct Usart {
     rx_line_end: u64,
     /// Far end's baud rate.
     pub far_baud: u32,
+    /// Far end's frame, bits (10: 8N1; 11: 8E1 or 8N2). A receiver set to another
+    /// frame length sees framing errors.
+    pub far_bits: u64,
     /// Bytes sent to the far end, with the time each frame ended.
     pub sent: Vec<(u64, u8)>,
     /// Bytes lost to overrun.
@@ -88,12 +92,19 @@ impl Usart {
             rx_line: VecDeque::new(),
             rx_line_end: 0,
             far_baud,
+            far_bits: 10,
             sent: Vec::new(),
             overruns: 0,
             framing_errors: 0,
         };
         u.reset();
         u
+    }
+
+    /// The far end's frame length, bits (10: 8N1, 11: 8E1).
+    pub fn with_far_bits(mut self, bits: u64) -> Self {
+        self.far_bits = bits;
+        self
     }
 
     /// Registers to reset values (a frame on the line is lost; the far end keeps its
@@ -147,7 +158,7 @@ impl Usart {
 
     /// The far end sends `bytes` at its line rate, starting no earlier than `now`.
     pub fn far_send(&mut self, bytes: &[u8], now: u64) {
-        let frame = 10 * PS_PER_S / self.far_baud.max(1) as u64;
+        let frame = self.far_bits * PS_PER_S / self.far_baud.max(1) as u64;
         let mut t = self.rx_line_end.max(now);
         for &b in bytes {
             t += frame;
@@ -179,7 +190,8 @@ impl Usart {
             }
             let ours = self.baud(pclk) as i64;
             let far = self.far_baud as i64;
-            let mismatch = (ours - far).abs() * 100 > far * 3;
+            let mismatch =
+                (ours - far).abs() * 100 > far * 3 || self.bits_per_frame() != self.far_bits;
             if self.sr & bit::RXNE != 0 {
                 self.sr |= bit::ORE;
                 self.overruns += 1;
