@@ -49,6 +49,65 @@ pub struct GuardConfig {
     pub warn_pct: u32,
     /// Clear the warning below this percentage.
     pub warn_clear_pct: u32,
+    /// The machine's nominal contact force along the stroke (the envelope's base): Eq. 7
+    /// by default ([`EQ7_NOMINAL`]); another machine's from its force model
+    /// ([`NominalProfile::from_fn`], computed on the host at commissioning).
+    pub nominal: &'static NominalProfile,
+}
+
+/// A machine's nominal N3 per 0.1 mm cell of insertion depth over the 30 mm stroke,
+/// maximised over the cell ± [`ENVELOPE_WINDOW_UM`], mN (`i32`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct NominalProfile {
+    /// The table, cell `i` covering depths `[100·i, 100·(i+1))` µm.
+    pub n3_max_mn: [i32; ENV_LEN],
+}
+
+/// Eq. 7's nominal profile, computed at build time: the paper's machine.
+pub static EQ7_NOMINAL: NominalProfile = NominalProfile {
+    n3_max_mn: NOMINAL_MAX_MN,
+};
+
+impl NominalProfile {
+    /// From a force model: `n3_n(depth_um)` is the nominal N3 at a depth (N); `jumps`
+    /// are the depths where it is discontinuous (each is sampled exactly, as well as
+    /// every 10 µm), so the maximum over each window is found. Non-finite or negative
+    /// values count as 0; values are clamped to ±2 000 N.
+    pub fn from_fn(n3_n: impl Fn(i32) -> f64, jumps: &[i32]) -> Self {
+        let mut t = [0i32; ENV_LEN];
+        for (i, cell) in t.iter_mut().enumerate() {
+            let lo = (i as i32 * ENV_STEP_UM - ENVELOPE_WINDOW_UM).max(0);
+            let hi = ((i as i32 + 1) * ENV_STEP_UM + ENVELOPE_WINDOW_UM).min(STROKE_UM);
+            let mut max_n = 0.0f64;
+            let mut take = |d: i32| {
+                let f = n3_n(d);
+                if f.is_finite() && f > max_n {
+                    max_n = f.min(2_000.0);
+                }
+            };
+            let mut d = lo;
+            while d <= hi {
+                take(d);
+                d += 10;
+            }
+            for &j in jumps {
+                // Both sides of a jump inside the window.
+                if (lo..=hi).contains(&j) {
+                    take(j);
+                }
+                if (lo..=hi).contains(&(j - 1)) {
+                    take(j - 1);
+                }
+            }
+            *cell = (max_n * 1000.0) as i32;
+        }
+        Self { n3_max_mn: t }
+    }
+
+    /// The largest nominal N3 over the stroke, mN.
+    pub fn peak_mn(&self) -> i32 {
+        self.n3_max_mn.iter().copied().max().unwrap_or(0)
+    }
 }
 
 impl GuardConfig {
@@ -63,6 +122,7 @@ impl GuardConfig {
         slew_mn: 40_000,
         warn_pct: 90,
         warn_clear_pct: 80,
+        nominal: &EQ7_NOMINAL,
     };
 }
 
@@ -73,9 +133,9 @@ impl Default for GuardConfig {
 }
 
 /// Resolution of the envelope table, µm.
-const ENV_STEP_UM: i32 = 100;
+pub const ENV_STEP_UM: i32 = 100;
 /// Entries of the envelope table (0..=30 mm).
-const ENV_LEN: usize = (STROKE_UM / ENV_STEP_UM) as usize + 1;
+pub const ENV_LEN: usize = (STROKE_UM / ENV_STEP_UM) as usize + 1;
 /// The nominal force is maximised over ±this depth around each table cell, µm (half a
 /// millimetre of position error at a phase boundary cannot trip the envelope).
 pub const ENVELOPE_WINDOW_UM: i32 = 500;
@@ -177,11 +237,11 @@ pub struct OverloadGuard {
 }
 
 impl OverloadGuard {
-    /// A guard with its envelope table computed from Eq. 7.
+    /// A guard with its envelope from the configuration's nominal profile.
     pub fn new(cfg: GuardConfig) -> Self {
-        // Integer margins over the build-time nominal table.
+        // Integer margins over the nominal table.
         let mut envelope_mn = [0i32; ENV_LEN];
-        for (e, &nominal_mn) in envelope_mn.iter_mut().zip(NOMINAL_MAX_MN.iter()) {
+        for (e, &nominal_mn) in envelope_mn.iter_mut().zip(cfg.nominal.n3_max_mn.iter()) {
             let scaled = nominal_mn as i64 * (100 + cfg.rel_pct as i64) / 100;
             *e = (scaled + cfg.abs_mn as i64).min(cfg.hard_limit_mn as i64) as i32;
         }
@@ -364,7 +424,40 @@ impl SensorMonitor {
 
 #[cfg(test)]
 mod tests {
+    extern crate std;
     use super::*;
+
+    #[test]
+    fn a_nominal_profile_from_eq7_is_the_build_time_table() {
+        let p = NominalProfile::from_fn(
+            |d| crate::profile::forces_at_depth_um(d as f64).n3_n,
+            &BOUNDARY_UM,
+        );
+        assert_eq!(p, EQ7_NOMINAL);
+        assert_eq!(p.peak_mn(), 206_341);
+    }
+
+    #[test]
+    fn a_heavier_machine_gets_its_own_envelope() {
+        // Everything ×1.5: the envelope follows, nothing NaN or negative leaks in.
+        static HEAVY: std::sync::OnceLock<NominalProfile> = std::sync::OnceLock::new();
+        let heavy = HEAVY.get_or_init(|| {
+            NominalProfile::from_fn(
+                |d| 1.5 * crate::profile::forces_at_depth_um(d as f64).n3_n,
+                &BOUNDARY_UM,
+            )
+        });
+        let g0 = OverloadGuard::new(GuardConfig::DEFAULT);
+        let g = OverloadGuard::new(GuardConfig {
+            hard_limit_mn: 450_000,
+            nominal: heavy,
+            ..GuardConfig::DEFAULT
+        });
+        let d = Some(20_000);
+        assert!(g.limit_mn(d) > g0.limit_mn(d) + 50_000);
+        let junk = NominalProfile::from_fn(|d| if d % 20 == 0 { f64::NAN } else { -5.0 }, &[]);
+        assert_eq!(junk.peak_mn(), 0);
+    }
     use crate::profile::forces_at_depth_um;
 
     #[test]

@@ -75,6 +75,11 @@ pub struct WearConfig {
     pub limit_nm: u32,
     /// Warn from this percentage of the limit on (80 % by default).
     pub warn_pct: u8,
+    /// This machine's nominal load–distance per cycle, Q63.1 mN·µm: the unit of the
+    /// remaining-life figure ([`Odometer::remaining_cycles`]). The paper's machine
+    /// ([`W_NOM_Q1`]) by default; another machine's from its force model. The wear
+    /// itself does not depend on it (it follows the measured load–distance).
+    pub nominal_w_q1: u64,
 }
 
 impl WearConfig {
@@ -82,6 +87,7 @@ impl WearConfig {
     pub const DEFAULT: Self = Self {
         limit_nm: 800_000,
         warn_pct: 80,
+        nominal_w_q1: W_NOM_Q1,
     };
 
     /// Validate: limit 10 µm – 5 mm, warning 1–99 %.
@@ -89,7 +95,11 @@ impl WearConfig {
         if limit_nm < 10_000 || limit_nm > 5_000_000 || warn_pct == 0 || warn_pct > 99 {
             None
         } else {
-            Some(Self { limit_nm, warn_pct })
+            Some(Self {
+                limit_nm,
+                warn_pct,
+                nominal_w_q1: W_NOM_Q1,
+            })
         }
     }
 }
@@ -319,10 +329,13 @@ impl Odometer {
         let e_q32 = equivalent_cycles_q32(self.cone.w_q1, self.cone.material);
         let left = self.e_limit_q32.saturating_sub(e_q32) as u128;
         let k = wear_factor_q32(self.cone.material).max(1) as u128;
+        // Equivalent nominal cycles of the paper's machine → this machine's cycles.
+        let per_cycle = k * self.cfg.nominal_w_q1.max(1) as u128;
         self.derived = Derived {
             e_q32,
             wear_nm: depth_nm(e_q32),
-            remaining_cycles: (left / k).min(u32::MAX as u128) as u32,
+            remaining_cycles: (left * W_NOM_Q1 as u128 / per_cycle).min(u32::MAX as u128)
+                as u32,
         };
     }
 
@@ -966,6 +979,23 @@ mod tests {
 
     fn eq17_nm(m: f64) -> f64 {
         (0.01372 * m.powf(0.3813) - 0.01774) * 1e6
+    }
+
+    #[test]
+    fn remaining_life_counts_in_this_machines_own_cycles() {
+        // A machine whose nominal cycle carries 1.5× the load–distance: the same wear,
+        // two thirds of the remaining cycles.
+        let mut c = Cone::new(1, Material::ZQSn5_2, "A1", 0);
+        c.w_q1 = W_NOM_Q1 * 3;
+        let cfg = WearConfig {
+            nominal_w_q1: W_NOM_Q1 * 3 / 2,
+            ..WearConfig::DEFAULT
+        };
+        let heavy = Odometer::new(cfg, c, Lifetime::default());
+        let paper = Odometer::new(WearConfig::DEFAULT, c, Lifetime::default());
+        assert_eq!(heavy.wear_nm(), paper.wear_nm());
+        let (h, p) = (heavy.remaining_cycles() as i64, paper.remaining_cycles() as i64);
+        assert!((h - p * 2 / 3).abs() <= 1, "{h} vs {p}");
     }
 
     fn nominal(n: u32) -> Odometer {
