@@ -117,6 +117,10 @@ pub struct ControllerConfig {
     pub wear: WearConfig,
     /// Cone material assumed when the flash holds no cone record (a new machine).
     pub default_material: Material,
+    /// The mated contact force, mN: the nominal N3 at the end of the stroke
+    /// ([`HOLD_EXPECTED_MN`] for the paper's machine; another machine's from its force
+    /// model). MATED and the hold envelope ([`HOLD_TOLERANCE_MN`]) are around it.
+    pub hold_expected_mn: i32,
 }
 
 impl ControllerConfig {
@@ -130,6 +134,7 @@ impl ControllerConfig {
             tare_tolerance_mn: 20_000,
             wear: WearConfig::DEFAULT,
             default_material: Material::ZQSn5_2,
+            hold_expected_mn: HOLD_EXPECTED_MN,
         }
     }
 }
@@ -1049,7 +1054,7 @@ impl<B: Bsp> Controller<B> {
             },
         ) = (sample, state)
         {
-            if (self.force_mn - HOLD_EXPECTED_MN).abs() > HOLD_TOLERANCE_MN {
+            if (self.force_mn - self.cfg.hold_expected_mn).abs() > HOLD_TOLERANCE_MN {
                 self.hold_out = self.hold_out.saturating_add(1);
             } else {
                 self.hold_out = 0;
@@ -1057,7 +1062,7 @@ impl<B: Bsp> Controller<B> {
             if self.hold_out >= 2 {
                 warn!(
                     "mated force {} mN outside {}±{} mN: the vehicle pulls or drifts",
-                    self.force_mn, HOLD_EXPECTED_MN, HOLD_TOLERANCE_MN
+                    self.force_mn, self.cfg.hold_expected_mn, HOLD_TOLERANCE_MN
                 );
                 fault = fault.or(Some(FaultKind::HoldForce));
             }
@@ -1456,7 +1461,7 @@ impl<B: Bsp> Controller<B> {
     pub fn handshake(&self) -> Handshake {
         let state = self.seq.state();
         let sw = self.switches;
-        let in_envelope = (self.force_mn - HOLD_EXPECTED_MN).abs() <= HOLD_TOLERANCE_MN;
+        let in_envelope = (self.force_mn - self.cfg.hold_expected_mn).abs() <= HOLD_TOLERANCE_MN;
         // As of the last step (cached: see step 7).
         let level = self.level;
         Handshake {

@@ -334,8 +334,7 @@ impl Odometer {
         self.derived = Derived {
             e_q32,
             wear_nm: depth_nm(e_q32),
-            remaining_cycles: (left * W_NOM_Q1 as u128 / per_cycle).min(u32::MAX as u128)
-                as u32,
+            remaining_cycles: (left * W_NOM_Q1 as u128 / per_cycle).min(u32::MAX as u128) as u32,
         };
     }
 
@@ -994,7 +993,10 @@ mod tests {
         let heavy = Odometer::new(cfg, c, Lifetime::default());
         let paper = Odometer::new(WearConfig::DEFAULT, c, Lifetime::default());
         assert_eq!(heavy.wear_nm(), paper.wear_nm());
-        let (h, p) = (heavy.remaining_cycles() as i64, paper.remaining_cycles() as i64);
+        let (h, p) = (
+            heavy.remaining_cycles() as i64,
+            paper.remaining_cycles() as i64,
+        );
         assert!((h - p * 2 / 3).abs() <= 1, "{h} vs {p}");
     }
 

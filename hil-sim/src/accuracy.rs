@@ -767,3 +767,575 @@ impl AccuracyReport {
         s
     }
 }
+
+// ---------------------------------------------------------------------------------------
+// The plant model (`docking_controller::plant`): the equilibrium systems behind Eq. 7.
+// ---------------------------------------------------------------------------------------
+
+use docking_controller::plant::{
+    Contact, Plant, PlantParams, REFERENCE_TABLE, TILT_MAX_ITER, TILT_TOL_RAD,
+};
+use docking_controller::profile::forces_at_time;
+
+/// Sampling step of the plant's residuals against Eq. 7, s.
+pub const PLANT_RESIDUAL_STEP_S: f64 = 0.001;
+
+/// Trapezoid steps of the ∫N3 dt convergence, s.
+pub const PLANT_INTEGRAL_STEPS_S: [f64; 4] = [1.0, 0.1, 0.01, 0.001];
+
+/// The reference's ∫N3 dt of the plant over 0–25 s (`force-model.md` §0), N·s.
+pub const PLANT_N3_INTEGRAL_REF_NS: f64 = 3377.1;
+
+/// Tilt solver iteration caps compared (with no tolerance: exactly that many).
+pub const PLANT_TILT_CAPS: [u32; 6] = [1, 2, 3, 4, 5, 6];
+
+/// Tilt solver tolerances compared, rad.
+pub const PLANT_TILT_TOLS_RAD: [f64; 3] = [1e-3, 1e-6, 1e-9];
+
+/// Plant evaluations timed.
+pub const PLANT_TIMED_EVALS: u32 = 200_000;
+
+/// Stability sweep grid: mass kg, µ1, µ2, γ °, θ0 °, v_model mm/s.
+pub const SWEEP_MASS_KG: [f64; 4] = [8.0, 12.0, 16.0, 20.0];
+/// µ1 values of the sweep.
+pub const SWEEP_MU1: [f64; 5] = [0.05, 0.1125, 0.175, 0.2375, 0.3];
+/// µ2 values of the sweep.
+pub const SWEEP_MU2: [f64; 5] = [0.05, 0.1125, 0.175, 0.2375, 0.3];
+/// γ values of the sweep, degrees.
+pub const SWEEP_GAMMA_DEG: [f64; 4] = [10.0, 15.0, 20.0, 25.0];
+/// θ0 values of the sweep, degrees.
+pub const SWEEP_THETA0_DEG: [f64; 5] = [1.5, 2.125, 2.75, 3.375, 4.0];
+/// Both readings of Eq. 7's time axis, mm/s.
+pub const SWEEP_V_MODEL: [f64; 2] = [1.2, 4.0];
+/// Sweep times: 0 to this, s (the 25 s stroke and 5 s of overtravel, where N4 lifts).
+pub const SWEEP_T_END_S: f64 = 30.0;
+/// Sweep time step, s.
+pub const SWEEP_DT_S: f64 = 0.05;
+
+/// ∫N3 dt at one step size.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IntegralRow {
+    /// Step, s.
+    pub step_s: f64,
+    /// Trapezoid per phase (boundaries hit exactly, each phase's own system at both
+    /// ends: no smoothing across the jumps), N·s.
+    pub per_phase_ns: f64,
+    /// Trapezoid on a uniform grid from 0 across the jumps, N·s.
+    pub uniform_ns: f64,
+}
+
+/// The tilt at one solver setting, against the converged tilt.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TiltRow {
+    /// Iteration cap.
+    pub cap: u32,
+    /// Step tolerance, rad.
+    pub tol_rad: f64,
+    /// Largest |θ − θ converged| over the phase-4 samples, degrees.
+    pub max_theta_err_deg: f64,
+    /// Largest force difference that causes, N.
+    pub max_force_err_n: f64,
+    /// Largest iteration count used.
+    pub worst_iterations: u32,
+}
+
+/// The stability sweep's counts.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SweepCounts {
+    /// Parameter sets.
+    pub param_sets: u64,
+    /// Evaluations.
+    pub evaluations: u64,
+    /// Evaluations with a NaN or infinite output (must be 0).
+    pub nan: u64,
+    /// Evaluations with a negative force (must be 0).
+    pub negative: u64,
+    /// Parameter sets whose evaluation panicked (must be 0).
+    pub panics: u64,
+    /// Evaluations reporting a lift-off, by contact (N1–N4).
+    pub lifted: [u64; 4],
+    /// Parameter sets with at least one lift-off, by contact.
+    pub sets_lifted: [u64; 4],
+    /// Evaluations not resolved (moment unbalanced after a lift-off, or clamped).
+    pub unresolved: u64,
+    /// Evaluations whose nominal contact set had a negative force but no lift-off was
+    /// reported (must be 0).
+    pub unreported: u64,
+    /// Evaluations reporting a lift-off with no negative nominal force (must be 0).
+    pub spurious: u64,
+    /// Singular nominal systems or unbracketed tilts.
+    pub singular: u64,
+    /// Worst tilt-solver iteration count.
+    pub worst_iterations: u32,
+    /// Phase-4 evaluations (those that run the tilt solver).
+    pub phase4: u64,
+    /// Wall time of the sweep, s.
+    pub wall_s: f64,
+}
+
+/// Everything the accuracy report says about the plant.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlantStudy {
+    /// Largest force error against the reference's table ([`PlantParams::REFERENCE`]), N.
+    pub table_max_err_n: f64,
+    /// Largest tilt error there, degrees.
+    pub table_max_err_theta_deg: f64,
+    /// The default (geometric) phase 3→4 boundary, s.
+    pub geometric_t3_s: f64,
+    /// Largest force difference, default boundary minus the table, over the table rows
+    /// that stay in their phase (all but 12.4449 s), N.
+    pub geometric_table_max_dev_n: f64,
+    /// Max |plant − Eq. 7| per phase (rows) and force N1–N4 (columns), N.
+    pub residuals_n: [[f64; 4]; 4],
+    /// ∫N3 dt against the step.
+    pub integral: Vec<IntegralRow>,
+    /// ∫N3 dt with the default (geometric) boundary, per phase at 0.001 s, N·s.
+    pub integral_geometric_ns: f64,
+    /// θ error against the solver's cap and tolerance.
+    pub tilt: Vec<TiltRow>,
+    /// Wall time per evaluation over the stroke, ns.
+    pub ns_per_eval: f64,
+    /// Wall time per phase-4 evaluation (tilt solver included), ns.
+    pub ns_per_eval_phase4: f64,
+    /// The stability sweep.
+    pub sweep: SweepCounts,
+}
+
+fn max_abs_diff(a: [f64; 4], b: [f64; 4]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
+/// ∫N3 dt over 0–25 s of Eq. 7's axis by the trapezoid, per phase and uniform.
+pub fn plant_n3_integral(plant: &Plant, step_s: f64) -> IntegralRow {
+    let v = plant.params().v_model_mm_s;
+    let [t1, t2, t3] = plant.boundaries_s();
+    let end = docking_controller::plant::STROKE_S;
+    let mut per_phase = 0.0;
+    for (ph, a, b) in [(1u8, 0.0, t1), (2, t1, t2), (3, t2, t3), (4, t3, end)] {
+        let (a, b) = (a.min(end), b.min(end));
+        if b <= a {
+            continue;
+        }
+        let n = ((b - a) / step_s).ceil().max(1.0) as u64;
+        let h = (b - a) / n as f64;
+        let f = |t: f64| plant.in_phase(ph, v * t).n3_n;
+        let mut s = 0.5 * (f(a) + f(b));
+        for k in 1..n {
+            s += f(a + k as f64 * h);
+        }
+        per_phase += s * h;
+    }
+    let n = (end / step_s).round() as u64;
+    let h = end / n as f64;
+    let f = |t: f64| plant.at_time(t).n3_n;
+    let mut s = 0.5 * (f(0.0) + f(end));
+    for k in 1..n {
+        s += f(k as f64 * h);
+    }
+    IntegralRow {
+        step_s,
+        per_phase_ns: per_phase,
+        uniform_ns: s * h,
+    }
+}
+
+/// Run the stability sweep over the grid of `SWEEP_*`.
+pub fn plant_sweep() -> SweepCounts {
+    let started = Instant::now();
+    let mut c = SweepCounts::default();
+    let samples = (SWEEP_T_END_S / SWEEP_DT_S).round() as u64;
+    for &mass_kg in &SWEEP_MASS_KG {
+        for &mu1 in &SWEEP_MU1 {
+            for &mu2 in &SWEEP_MU2 {
+                for &gamma_deg in &SWEEP_GAMMA_DEG {
+                    for &theta0_deg in &SWEEP_THETA0_DEG {
+                        for &v_model_mm_s in &SWEEP_V_MODEL {
+                            let p = PlantParams {
+                                mass_kg,
+                                mu1,
+                                mu2,
+                                gamma_deg,
+                                theta0_deg,
+                                v_model_mm_s,
+                                ..PlantParams::PAPER
+                            };
+                            c.param_sets += 1;
+                            let one = std::panic::catch_unwind(|| sweep_one(p, samples));
+                            match one {
+                                Ok(Some(s)) => c.add(&s),
+                                _ => c.panics += 1,
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    c.wall_s = started.elapsed().as_secs_f64();
+    c
+}
+
+impl SweepCounts {
+    fn add(&mut self, s: &SweepCounts) {
+        self.evaluations += s.evaluations;
+        self.nan += s.nan;
+        self.negative += s.negative;
+        for k in 0..4 {
+            self.lifted[k] += s.lifted[k];
+            self.sets_lifted[k] += u64::from(s.lifted[k] > 0);
+        }
+        self.unresolved += s.unresolved;
+        self.unreported += s.unreported;
+        self.spurious += s.spurious;
+        self.singular += s.singular;
+        self.worst_iterations = self.worst_iterations.max(s.worst_iterations);
+        self.phase4 += s.phase4;
+    }
+
+    /// Whether every invariant holds: no NaN, no negative force, no panic, every
+    /// lift-off reported and none reported without cause.
+    pub fn ok(&self) -> bool {
+        self.nan == 0
+            && self.negative == 0
+            && self.panics == 0
+            && self.unreported == 0
+            && self.spurious == 0
+    }
+}
+
+/// One parameter set of the sweep; `None` if the parameters are invalid (they never are).
+fn sweep_one(p: PlantParams, samples: u64) -> Option<SweepCounts> {
+    let plant = Plant::new(p).ok()?;
+    let mut c = SweepCounts::default();
+    for k in 0..=samples {
+        let t = k as f64 * SWEEP_DT_S;
+        let pt = plant.at_time(t);
+        c.evaluations += 1;
+        let f = pt.forces();
+        if f.iter().any(|x| !x.is_finite()) || !pt.theta_deg.is_finite() {
+            c.nan += 1;
+        }
+        if f.iter().any(|&x| x < 0.0) {
+            c.negative += 1;
+        }
+        if let Some(l) = pt.lifted {
+            c.lifted[l.index()] += 1;
+        }
+        if !pt.resolved {
+            c.unresolved += 1;
+        }
+        if pt.phase == 4 {
+            c.phase4 += 1;
+            c.worst_iterations = c.worst_iterations.max(pt.iterations);
+        }
+        match plant.nominal_forces(pt.depth_mm) {
+            None => c.singular += 1,
+            Some(raw) => {
+                let negative = raw.iter().any(|&x| x < 0.0);
+                if negative && pt.lifted.is_none() {
+                    c.unreported += 1;
+                }
+                if !negative && pt.lifted.is_some() {
+                    c.spurious += 1;
+                }
+            }
+        }
+    }
+    Some(c)
+}
+
+/// Wall time per `at_time` evaluation over `times`, ns (at least [`PLANT_TIMED_EVALS`]).
+fn ns_per_eval(plant: &Plant, times: &[f64]) -> f64 {
+    let rounds = (PLANT_TIMED_EVALS as usize).div_ceil(times.len().max(1));
+    let started = Instant::now();
+    let mut acc = 0.0;
+    for _ in 0..rounds {
+        for &t in times {
+            acc += std::hint::black_box(plant)
+                .at_time(std::hint::black_box(t))
+                .n3_n;
+        }
+    }
+    std::hint::black_box(acc);
+    started.elapsed().as_secs_f64() * 1e9 / (rounds * times.len()) as f64
+}
+
+/// Run the plant study (about a second in release, most of it the sweep).
+pub fn plant_study() -> PlantStudy {
+    let reference = Plant::new(PlantParams::REFERENCE).expect("reference parameters are valid");
+    let geometric = Plant::new(PlantParams::PAPER).expect("paper parameters are valid");
+
+    let (mut table_max_err_n, mut table_max_err_theta_deg, mut geo_dev) = (0.0f64, 0.0f64, 0.0f64);
+    for r in REFERENCE_TABLE {
+        let pt = reference.at_time(r.t_s);
+        table_max_err_n = table_max_err_n.max(max_abs_diff(pt.forces(), r.forces_n));
+        table_max_err_theta_deg = table_max_err_theta_deg.max((pt.theta_deg - r.theta_deg).abs());
+        let g = geometric.at_time(r.t_s);
+        if g.phase == r.phase {
+            geo_dev = geo_dev.max(max_abs_diff(g.forces(), r.forces_n));
+        }
+    }
+
+    let mut residuals_n = [[0.0f64; 4]; 4];
+    let n = (docking_controller::plant::STROKE_S / PLANT_RESIDUAL_STEP_S).round() as u64;
+    for k in 0..=n {
+        let t = k as f64 * PLANT_RESIDUAL_STEP_S;
+        let pt = reference.at_time(t);
+        let e = forces_at_time(t);
+        let d = [
+            (pt.n1_n - e.n1_n).abs(),
+            (pt.n2_n - e.n2_n).abs(),
+            (pt.n3_n - e.n3_n).abs(),
+            (pt.n4_n - e.n4_n).abs(),
+        ];
+        if let Some(row) = residuals_n.get_mut(usize::from(pt.phase.saturating_sub(1))) {
+            for (a, b) in row.iter_mut().zip(d) {
+                *a = a.max(b);
+            }
+        }
+    }
+
+    let integral = PLANT_INTEGRAL_STEPS_S
+        .iter()
+        .map(|&h| plant_n3_integral(&reference, h))
+        .collect();
+    let integral_geometric_ns = plant_n3_integral(&geometric, 0.001).per_phase_ns;
+
+    // Tilt: every 0.01 s of phase 4 (12.445–25 s), against the default solver.
+    let phase4_times: Vec<f64> = (0..=1255).map(|k| 12.445 + k as f64 * 0.01).collect();
+    let converged: Vec<_> = phase4_times.iter().map(|&t| reference.at_time(t)).collect();
+    let settings = PLANT_TILT_CAPS
+        .iter()
+        .map(|&cap| (cap, 0.0))
+        .chain(PLANT_TILT_TOLS_RAD.iter().map(|&tol| (TILT_MAX_ITER, tol)));
+    let tilt = settings
+        .map(|(cap, tol_rad)| {
+            let p = reference.with_tilt_solver(cap, tol_rad);
+            let mut row = TiltRow {
+                cap,
+                tol_rad,
+                max_theta_err_deg: 0.0,
+                max_force_err_n: 0.0,
+                worst_iterations: 0,
+            };
+            for (&t, c) in phase4_times.iter().zip(&converged) {
+                let pt = p.at_time(t);
+                row.max_theta_err_deg = row
+                    .max_theta_err_deg
+                    .max((pt.theta_deg - c.theta_deg).abs());
+                row.max_force_err_n = row
+                    .max_force_err_n
+                    .max(max_abs_diff(pt.forces(), c.forces()));
+                row.worst_iterations = row.worst_iterations.max(pt.iterations);
+            }
+            row
+        })
+        .collect();
+
+    let stroke_times: Vec<f64> = (0..=2500).map(|k| k as f64 * 0.01).collect();
+    let ns_per_eval = ns_per_eval(&geometric, &stroke_times);
+    let ns_per_eval_phase4 = self::ns_per_eval(&reference, &phase4_times);
+
+    PlantStudy {
+        table_max_err_n,
+        table_max_err_theta_deg,
+        geometric_t3_s: geometric.boundaries_s()[2],
+        geometric_table_max_dev_n: geo_dev,
+        residuals_n,
+        integral,
+        integral_geometric_ns,
+        tilt,
+        ns_per_eval,
+        ns_per_eval_phase4,
+        sweep: plant_sweep(),
+    }
+}
+
+impl PlantStudy {
+    /// The plant's fields, as a JSON object.
+    pub fn to_json(&self) -> String {
+        let res: Vec<String> = self
+            .residuals_n
+            .iter()
+            .enumerate()
+            .map(|(k, r)| {
+                format!(
+                    "{{\"phase\":{},\"n1_n\":{:.4},\"n2_n\":{:.4},\"n3_n\":{:.4},\"n4_n\":{:.4}}}",
+                    k + 1,
+                    r[0],
+                    r[1],
+                    r[2],
+                    r[3]
+                )
+            })
+            .collect();
+        let int: Vec<String> = self
+            .integral
+            .iter()
+            .map(|r| {
+                format!(
+                    "{{\"step_s\":{},\"per_phase_ns\":{:.6},\"uniform_ns\":{:.6}}}",
+                    r.step_s, r.per_phase_ns, r.uniform_ns
+                )
+            })
+            .collect();
+        let tilt: Vec<String> = self
+            .tilt
+            .iter()
+            .map(|r| {
+                format!(
+                    "{{\"cap\":{},\"tol_rad\":{:e},\"max_theta_err_deg\":{:e},\"max_force_err_n\":{:e},\"worst_iterations\":{}}}",
+                    r.cap, r.tol_rad, r.max_theta_err_deg, r.max_force_err_n, r.worst_iterations
+                )
+            })
+            .collect();
+        let s = &self.sweep;
+        let list = |v: &[f64]| {
+            v.iter()
+                .map(|x| x.to_string())
+                .collect::<Vec<_>>()
+                .join(",")
+        };
+        let by_contact = |v: [u64; 4]| {
+            Contact::ALL
+                .iter()
+                .zip(v)
+                .map(|(c, n)| format!("\"{}\":{n}", c.name()))
+                .collect::<Vec<_>>()
+                .join(",")
+        };
+        format!(
+            "{{\"table_max_err_n\":{:e},\"table_max_err_theta_deg\":{:e},\"geometric_t3_s\":{:.6},\"geometric_table_max_dev_n\":{:.6},\"residual_step_s\":{PLANT_RESIDUAL_STEP_S},\"residuals_vs_eq7\":[{}],\"n3_integral_ref_ns\":{PLANT_N3_INTEGRAL_REF_NS},\"n3_integral\":[{}],\"n3_integral_geometric_ns\":{:.6},\"tilt_default\":{{\"cap\":{TILT_MAX_ITER},\"tol_rad\":{TILT_TOL_RAD:e}}},\"tilt\":[{}],\"ns_per_eval\":{:.1},\"ns_per_eval_phase4\":{:.1},\"sweep\":{{\"mass_kg\":[{}],\"mu1\":[{}],\"mu2\":[{}],\"gamma_deg\":[{}],\"theta0_deg\":[{}],\"v_model_mm_s\":[{}],\"t_end_s\":{SWEEP_T_END_S},\"dt_s\":{SWEEP_DT_S},\"param_sets\":{},\"evaluations\":{},\"nan\":{},\"negative\":{},\"panics\":{},\"lifted\":{{{}}},\"sets_lifted\":{{{}}},\"unresolved\":{},\"unreported\":{},\"spurious\":{},\"singular\":{},\"phase4\":{},\"worst_iterations\":{},\"ok\":{},\"wall_s\":{:.3}}}}}",
+            self.table_max_err_n,
+            self.table_max_err_theta_deg,
+            self.geometric_t3_s,
+            self.geometric_table_max_dev_n,
+            res.join(","),
+            int.join(","),
+            self.integral_geometric_ns,
+            tilt.join(","),
+            self.ns_per_eval,
+            self.ns_per_eval_phase4,
+            list(&SWEEP_MASS_KG),
+            list(&SWEEP_MU1),
+            list(&SWEEP_MU2),
+            list(&SWEEP_GAMMA_DEG),
+            list(&SWEEP_THETA0_DEG),
+            list(&SWEEP_V_MODEL),
+            s.param_sets,
+            s.evaluations,
+            s.nan,
+            s.negative,
+            s.panics,
+            by_contact(s.lifted),
+            by_contact(s.sets_lifted),
+            s.unresolved,
+            s.unreported,
+            s.spurious,
+            s.singular,
+            s.phase4,
+            s.worst_iterations,
+            s.ok(),
+            s.wall_s
+        )
+    }
+
+    /// The plant's tables for a terminal.
+    pub fn to_text(&self) -> String {
+        let mut s = format!(
+            "# plant (equilibrium systems of Eqs. 3–6, src/plant.rs) vs the reference's table (t3 = 12.445 s): max |ΔN| {:.2e} N, max |Δθ| {:.2e}°\n",
+            self.table_max_err_n, self.table_max_err_theta_deg
+        );
+        s += &format!(
+            "# default t3 from the geometry: {:.4} s; the table's rows that stay in their phase move by up to {:.4} N with it\n",
+            self.geometric_t3_s, self.geometric_table_max_dev_n
+        );
+        s += &format!(
+            "# max |plant − Eq. 7| every {PLANT_RESIDUAL_STEP_S} s, N (t3 = 12.445 s as Eq. 7)\nphase |     N1 |     N2 |     N3 |     N4\n"
+        );
+        for (k, r) in self.residuals_n.iter().enumerate() {
+            s += &format!(
+                "{:>5} | {:>6.3} | {:>6.3} | {:>6.3} | {:>6.3}\n",
+                k + 1,
+                r[0],
+                r[1],
+                r[2],
+                r[3]
+            );
+        }
+        s += &format!(
+            "# ∫N3 dt over 0–25 s, N·s (reference {PLANT_N3_INTEGRAL_REF_NS}; Eq. 7 {:.2}); default t3: {:.4}\n  step s | per phase      | uniform grid (across the jumps)\n",
+            docking_controller::profile::N3_STROKE_INTEGRAL_NS,
+            self.integral_geometric_ns
+        );
+        for r in &self.integral {
+            s += &format!(
+                "{:>8} | {:>14.6} | {:>14.6}\n",
+                r.step_s, r.per_phase_ns, r.uniform_ns
+            );
+        }
+        s += &format!(
+            "# Eq. 6 tilt (bracketed Newton on G) against the default solver (cap {TILT_MAX_ITER}, tol {TILT_TOL_RAD:e} rad), every 0.01 s of phase 4\n  cap | tol rad | max |Δθ| ° | max |ΔN| N | worst iterations\n"
+        );
+        for r in &self.tilt {
+            let tol = if r.tol_rad > 0.0 {
+                format!("{:.0e}", r.tol_rad)
+            } else {
+                "-".to_string()
+            };
+            s += &format!(
+                "{:>5} | {:>7} | {:>10.2e} | {:>10.2e} | {:>3}\n",
+                r.cap, tol, r.max_theta_err_deg, r.max_force_err_n, r.worst_iterations
+            );
+        }
+        s += &format!(
+            "# wall time per evaluation on this host: {:.0} ns over the stroke, {:.0} ns in phase 4 ({} evaluations each)\n",
+            self.ns_per_eval, self.ns_per_eval_phase4, PLANT_TIMED_EVALS
+        );
+        let w = &self.sweep;
+        let by = |v: [u64; 4]| {
+            Contact::ALL
+                .iter()
+                .zip(v)
+                .map(|(c, n)| format!("{} {n}", c.name()))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        s += &format!(
+            "# stability sweep: mass {:?} kg × µ1 {:?} × µ2 {:?} × γ {:?}° × θ0 {:?}° × v_model {:?} mm/s, t 0–{SWEEP_T_END_S} s every {SWEEP_DT_S} s\n",
+            SWEEP_MASS_KG, SWEEP_MU1, SWEEP_MU2, SWEEP_GAMMA_DEG, SWEEP_THETA0_DEG, SWEEP_V_MODEL
+        );
+        s += &format!(
+            "sweep: {} parameter sets, {} evaluations ({} in phase 4) in {:.2} s: NaN {}, negative {}, panics {}, unreported lift-offs {}, spurious {}, singular {}; lift-offs (evaluations): {}; (parameter sets): {}; unresolved {}; worst tilt iterations {} — {}\n",
+            w.param_sets,
+            w.evaluations,
+            w.phase4,
+            w.wall_s,
+            w.nan,
+            w.negative,
+            w.panics,
+            w.unreported,
+            w.spurious,
+            w.singular,
+            by(w.lifted),
+            by(w.sets_lifted),
+            w.unresolved,
+            w.worst_iterations,
+            if w.ok() { "ok" } else { "FAILED" }
+        );
+        s
+    }
+}
+
+/// The accuracy report's JSON with the plant study as its `plant` field.
+pub fn json_with_plant(report: &AccuracyReport, plant: &PlantStudy) -> String {
+    let mut j = report.to_json();
+    if j.ends_with('}') {
+        j.pop();
+        j += &format!(",\"plant\":{}}}", plant.to_json());
+    }
+    j
+}

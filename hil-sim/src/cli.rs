@@ -16,7 +16,7 @@ impl std::fmt::Display for UsageError {
 }
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--readings FILE.csv] [--json] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS] (stdin: dock on|off, estop open|close, plc)";
+pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] [--plot FILE.svg] [--model eq7|plant] [--mass-kg M] [--mu1 X] [--mu2 X] [--gamma-deg G] [--theta0-deg T] [--v-model MM_PER_S] [--t3-s S] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] [--plot FILE.svg] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--readings FILE.csv] [--json] [--plot FILE.svg] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] [--plot FILE.svg] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS] (stdin: dock on|off, estop open|close, plc)";
 
 /// Parse `--rate` as one of the HX711 rates.
 fn hx_rate(o: &Opts) -> Result<u32, UsageError> {
@@ -36,14 +36,21 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
             crate::scene::SCENES.join(", ")
         ));
     };
-    let o = Opts::parse(rest, &["cycles", "rate", "seed"], &["json"])?;
+    let o = Opts::parse(rest, &["cycles", "rate", "seed", "plot"], &["json"])?;
     let opts = crate::scene::SceneOptions {
         cycles: o.num("cycles", 1u32, 1, 100_000)?,
         rate_sps: hx_rate(&o)?,
         seed: o.num("seed", 1u64, 0, u64::MAX)?,
         adc: crate::rig::AdcMode::Pins,
     };
-    let report = crate::scene::run(name, opts).map_err(UsageError)?;
+    let report = match o.get("plot") {
+        None => crate::scene::run(name, opts).map_err(UsageError)?,
+        Some(path) => {
+            let (report, trace) = crate::scene::run_traced(name, opts).map_err(UsageError)?;
+            crate::plot::scene(path.as_ref(), &report, &trace)?;
+            report
+        }
+    };
     print(out, &o, || report.to_json(), || report.to_text());
     Ok(())
 }
@@ -51,7 +58,7 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
 fn life(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
     let o = Opts::parse(
         args,
-        &["cycles", "material", "at", "rate", "readings"],
+        &["cycles", "material", "at", "rate", "readings", "plot"],
         &["json"],
     )?;
     if o.get("cycles").is_none() {
@@ -89,7 +96,15 @@ fn life(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         rate_sps: hx_rate(&o)?,
         readings,
     };
-    let report = crate::life::run(&opts);
+    let report = match o.get("plot") {
+        None => crate::life::run(&opts),
+        Some(path) => {
+            let curve_at = crate::life::curve_checkpoints(cycles);
+            let (report, curve) = crate::life::run_with_curve(&opts, &curve_at);
+            crate::plot::life(path.as_ref(), &opts, &report, &curve)?;
+            report
+        }
+    };
     print(out, &o, || report.to_json(), || report.to_text());
     Ok(())
 }
@@ -175,9 +190,18 @@ fn endurance(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
 }
 
 fn accuracy(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
-    let o = Opts::parse(args, &[], &["json"])?;
+    let o = Opts::parse(args, &["plot"], &["json"])?;
     let r = crate::accuracy::run();
-    print(out, &o, || r.to_json(), || r.to_text());
+    if let Some(path) = o.get("plot") {
+        crate::plot::accuracy(path.as_ref(), &r)?;
+    }
+    let plant = crate::accuracy::plant_study();
+    print(
+        out,
+        &o,
+        || crate::accuracy::json_with_plant(&r, &plant),
+        || r.to_text() + &plant.to_text(),
+    );
     Ok(())
 }
 
@@ -346,7 +370,12 @@ fn print(
 pub const PROFILE_RATE_MAX_HZ: f64 = 100_000.0;
 
 fn profile(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
-    let o = Opts::parse(args, &["rate", "stroke"], &[])?;
+    let valued: Vec<&str> = ["rate", "stroke", "plot"]
+        .into_iter()
+        .chain(profile_cmd::MODEL_OPTIONS)
+        .collect();
+    let o = Opts::parse(args, &valued, &[])?;
+    let model = profile_cmd::model(&o)?;
     let rate = match o.get("rate") {
         None => 80.0,
         Some(v) => match v.trim().parse::<f64>() {
@@ -363,7 +392,23 @@ fn profile(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         Some("extract") => Stroke::Extract,
         Some(s) => return err(format!("--stroke must be 'insert' or 'extract', got '{s}'")),
     };
+    if let (Some(_), profile_cmd::Model::Plant(_)) = (o.get("plot"), model) {
+        return err("--plot draws Eq. 7 only; not with --model plant");
+    }
+    if let Some(path) = o.get("plot") {
+        crate::plot::eq7_profile(path.as_ref(), rate, stroke)?;
+    }
     let mut buf = std::io::BufWriter::new(out);
+    if let profile_cmd::Model::Plant(plant) = model {
+        // A closed pipe (`| head`) is not an error of ours; lift-offs are noted on stderr.
+        if let Ok(sum) = profile_cmd::write_plant_csv(&mut buf, &plant, rate, stroke) {
+            let _ = buf.flush();
+            if let Some(note) = sum.note() {
+                eprintln!("hil-sim: {note}");
+            }
+        }
+        return Ok(());
+    }
     // A closed pipe (`| head`) is not an error of ours.
     let _ = profile_cmd::write_csv(&mut buf, rate, stroke).and_then(|_| buf.flush());
     Ok(())

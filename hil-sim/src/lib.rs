@@ -33,6 +33,8 @@ pub mod life;
 pub mod line;
 pub mod link;
 pub mod lock;
+pub mod machine;
+pub mod plot;
 pub mod profile_cmd;
 pub mod rig;
 pub mod rng;

@@ -161,6 +161,55 @@ pub fn run(opts: &LifeOptions) -> LifeReport {
     }
 }
 
+/// About this many points on a `--plot` curve (plus 1, 2, 5, 10, 20, 50, … early on,
+/// where the wear rises fastest).
+pub const CURVE_POINTS: u32 = 300;
+
+/// Cycles at which a wear curve of an `n`-cycle run is sampled: [`CURVE_POINTS`] evenly
+/// spaced, and 1, 2, 5, 10, 20, 50, … below `n`.
+pub fn curve_checkpoints(n: u32) -> Vec<u32> {
+    let mut v: Vec<u32> = (1..=CURVE_POINTS)
+        .map(|i| (n as u64 * i as u64 / CURVE_POINTS as u64) as u32)
+        .chain(
+            std::iter::successors(Some(1u32), |x| x.checked_mul(10))
+                .flat_map(|d| [d, 2 * d, 5 * d])
+                .take_while(|&x| x < n),
+        )
+        .filter(|&c| (1..=n).contains(&c))
+        .collect();
+    v.sort_unstable();
+    v.dedup();
+    v
+}
+
+/// [`run`], with the wear also taken at the cycles of `curve` (for `--plot`): the report
+/// is the one [`run`] gives for `opts` (the curve's checkpoints are not in it), and the
+/// curve's points come apart, the report's checkpoints among them.
+pub fn run_with_curve(opts: &LifeOptions, curve: &[u32]) -> (LifeReport, Vec<LifePoint>) {
+    let mut all: Vec<u32> = opts.at.iter().chain(curve).copied().collect();
+    all.sort_unstable();
+    all.dedup();
+    let mut report = run(&LifeOptions {
+        at: all.clone(),
+        ..opts.clone()
+    });
+    // `run` takes one point per checkpoint, in order, until the cone is worn out.
+    let curve_points = std::mem::take(&mut report.points);
+    report.points = all
+        .iter()
+        .zip(&curve_points)
+        .filter(|(c, _)| opts.at.contains(c))
+        .map(|(_, p)| *p)
+        .collect();
+    report.not_reached = all
+        .iter()
+        .skip(curve_points.len())
+        .filter(|c| opts.at.contains(c))
+        .copied()
+        .collect();
+    (report, curve_points)
+}
+
 fn mm(nm: u32) -> String {
     format!("{}.{:06}", nm / 1_000_000, nm % 1_000_000)
 }

@@ -8,7 +8,7 @@ use docking_controller::config::MachineConfig;
 use docking_controller::controller::{Bsp, Controller, ControllerConfig, Parts};
 use docking_controller::hal::{LoadCellAdc, StepPulses, StopLatch, Watchdog};
 use docking_controller::hx711::{Calibration, Gain, Hx711};
-use docking_controller::profile::{forces_at_depth_um, STROKE_UM};
+use docking_controller::profile::STROKE_UM;
 use docking_controller::safety::{GatedEn, GatedHigh, SafetyKernel};
 
 use crate::axis::{AxisPin, AxisPulses, SimAxis};
@@ -283,13 +283,14 @@ pub struct ProfileForce {
 impl ProfileForce {
     fn new(
         machine: MachineConfig,
+        model: &crate::machine::ForceModel,
         axis: SimAxis,
         script: Rc<RefCell<ForceScript>>,
         conversions: Rc<Cell<u64>>,
     ) -> Self {
         let um_per_step = 1000.0 / machine.steps_per_mm as f64;
         let table: Vec<f64> = (0..=machine.um_to_steps(STROKE_UM))
-            .map(|k| forces_at_depth_um(k as f64 * um_per_step).n3_n)
+            .map(|k| model.n3_at_depth_um(k as f64 * um_per_step))
             .collect();
         Self {
             axis,
@@ -381,7 +382,13 @@ impl Machine {
         let lock = SimLock::new_locked(clock.clone());
         let script = Rc::new(RefCell::new(ForceScript::default()));
         let conversions = Rc::new(Cell::new(0u64));
-        let source = ProfileForce::new(machine, axis.clone(), script.clone(), conversions.clone());
+        let source = ProfileForce::new(
+            machine,
+            &opts.force_model,
+            axis.clone(),
+            script.clone(),
+            conversions.clone(),
+        );
         let mut hx_config = Hx711Config::default_for_rate(opts.rate_sps);
         if let Some(n) = opts.noise_counts {
             hx_config.noise_counts = n;
@@ -417,6 +424,11 @@ pub struct RigOptions {
     /// A technician has calibrated the load cell: a new machine's flash gets the
     /// calibration record (without one the controller refuses to dock).
     pub commissioned: bool,
+    /// The machine's contact forces: Eq. 7 (the paper's machine) or the plant of another.
+    pub force_model: crate::machine::ForceModel,
+    /// The controller configured for another machine (commissioning); `None`: the
+    /// build's defaults (the paper's machine).
+    pub tuning: Option<crate::machine::Tuning>,
 }
 
 impl RigOptions {
@@ -429,6 +441,8 @@ impl RigOptions {
             material: docking_controller::material::Material::ZQSn5_2,
             noise_counts: None,
             commissioned: true,
+            force_model: crate::machine::ForceModel::Eq7,
+            tuning: None,
         }
     }
 }
@@ -569,6 +583,9 @@ impl Rig {
         };
         let mut cfg = ControllerConfig::new(opts.rate_sps, sim_calibration(&hx_cfg));
         cfg.default_material = opts.material;
+        if let Some(t) = &opts.tuning {
+            t.apply(&mut cfg);
+        }
         let ctrl = match Controller::new(parts, cfg) {
             Ok(c) => c,
             Err(e) => unreachable!("simulated pins are infallible: {e:?}"),

@@ -508,6 +508,185 @@ pub fn run(name: &str, opts: SceneOptions) -> Result<SceneReport, String> {
     run_inner(name, opts, &mut |_, _| {})
 }
 
+/// Which way the carriage was going when a [`TraceSample`] was taken.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TraceStroke {
+    /// Compliant insertion (`Inserting`).
+    Insertion,
+    /// Extraction (`Extracting`).
+    Extraction,
+    /// Any other state in the cone: holding, backing off after a trip, faulted.
+    Other,
+}
+
+/// One load-cell sample of a [`SceneTrace`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TraceSample {
+    /// Insertion depth (counted position − engagement point), mm.
+    pub depth_mm: f64,
+    /// The controller's measured (tared) force, N.
+    pub force_n: f64,
+    /// The guard's limit in force for this sample, N.
+    pub limit_n: f64,
+    /// Stroke.
+    pub stroke: TraceStroke,
+    /// Virtual time, s.
+    pub t_s: f64,
+}
+
+/// What happened at a marked point of a [`SceneTrace`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TraceEventKind {
+    /// The first over-limit sample of the episode that latched an overload (or
+    /// tension) fault.
+    Trip,
+    /// A single-sample spike the guard rejected (the spike's own sample).
+    SpikeRejected,
+    /// A fault latched (its name).
+    Fault(&'static str),
+}
+
+/// A marked point of a [`SceneTrace`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TraceEvent {
+    /// What.
+    pub kind: TraceEventKind,
+    /// Where, mm of insertion depth.
+    pub depth_mm: f64,
+    /// The force measured there, N.
+    pub force_n: f64,
+    /// When, s.
+    pub t_s: f64,
+}
+
+/// A scene's force trace (for `--plot`): the samples taken within 2 mm of the cone or
+/// deeper in the scene's last cycle (the one with the disturbance), and the events.
+/// Samples are kept when the stroke changes, the carriage has moved or the force has
+/// changed by 2 N (a long hold adds a handful, not one per sample); faults are kept
+/// whatever the cycle.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SceneTrace {
+    /// The cycle traced (1-based).
+    pub cycle: u32,
+    /// Samples in time order.
+    pub samples: Vec<TraceSample>,
+    /// Events in time order.
+    pub events: Vec<TraceEvent>,
+}
+
+/// Depth from which samples are traced, µm (a little before the cone).
+const TRACE_FROM_UM: i32 = -2_000;
+
+/// Builds a [`SceneTrace`] from the rig between ticks.
+struct TraceRecorder {
+    trace: SceneTrace,
+    last_conv_ns: Option<u64>,
+    /// The previous sample (kept or not).
+    prev: Option<TraceSample>,
+    /// The first over-limit sample of the current episode.
+    over_since: Option<TraceSample>,
+    spikes_seen: u32,
+    fault_seen: bool,
+}
+
+impl TraceRecorder {
+    fn new(cycle: u32) -> Self {
+        Self {
+            trace: SceneTrace {
+                cycle,
+                ..SceneTrace::default()
+            },
+            last_conv_ns: None,
+            prev: None,
+            over_since: None,
+            spikes_seen: 0,
+            fault_seen: false,
+        }
+    }
+
+    fn event(&mut self, kind: TraceEventKind, s: &TraceSample) {
+        self.trace.events.push(TraceEvent {
+            kind,
+            depth_mm: s.depth_mm,
+            force_n: s.force_n,
+            t_s: s.t_s,
+        });
+    }
+
+    /// Look at the rig after a tick.
+    fn observe(&mut self, rig: &Rig) {
+        let st = rig.ctrl.status();
+        let conv = rig.hx.last_read().map(|(_, t)| t);
+        let new_sample = conv.is_some() && conv != self.last_conv_ns;
+        self.last_conv_ns = conv;
+        let depth_um = st.pos_um - rig.ctrl.config().machine.engage_um;
+        let s = TraceSample {
+            depth_mm: depth_um as f64 / 1000.0,
+            force_n: st.force_mn as f64 / 1000.0,
+            limit_n: st.limit_mn as f64 / 1000.0,
+            stroke: match st.state {
+                State::Inserting { .. } => TraceStroke::Insertion,
+                State::Extracting { .. } => TraceStroke::Extraction,
+                _ => TraceStroke::Other,
+            },
+            t_s: rig.clock.now_s(),
+        };
+        let in_cycle = st.cycles_completed + 1 >= self.trace.cycle;
+        if new_sample {
+            if st.force_mn > st.limit_mn {
+                self.over_since.get_or_insert(s);
+            } else if st.fault.is_none() {
+                self.over_since = None;
+            }
+            let spikes = rig.kernel.spikes_rejected();
+            if spikes > self.spikes_seen && in_cycle {
+                if let Some(p) = self
+                    .prev
+                    .filter(|p| p.depth_mm * 1000.0 >= TRACE_FROM_UM as f64)
+                {
+                    self.event(TraceEventKind::SpikeRejected, &p);
+                }
+            }
+            self.spikes_seen = spikes;
+            let keep = in_cycle
+                && depth_um >= TRACE_FROM_UM
+                && self.trace.samples.last().is_none_or(|l| {
+                    l.stroke != s.stroke
+                        || l.depth_mm != s.depth_mm
+                        || (l.force_n - s.force_n).abs() >= 2.0
+                });
+            // (A spike's own sample is kept: it is 2 N off its neighbours.)
+            if keep {
+                self.trace.samples.push(s);
+            }
+            self.prev = Some(s);
+        }
+        match st.fault {
+            Some(f) if !self.fault_seen => {
+                self.fault_seen = true;
+                let name = f.name();
+                if matches!(name, "overload" | "tension") {
+                    if let Some(o) = self.over_since {
+                        self.event(TraceEventKind::Trip, &o);
+                    }
+                }
+                self.event(TraceEventKind::Fault(name), &s);
+            }
+            None => self.fault_seen = false,
+            _ => {}
+        }
+    }
+}
+
+/// [`run`], tracing the force against depth in the last cycle (for `--plot`).
+pub fn run_traced(name: &str, opts: SceneOptions) -> Result<(SceneReport, SceneTrace), String> {
+    let mut rec = TraceRecorder::new(opts.cycles.max(1));
+    let report = run_inner(name, opts, &mut |rig: &mut Rig, _: &mut Rng| {
+        rec.observe(rig)
+    })?;
+    Ok((report, rec.trace))
+}
+
 fn run_inner(
     name: &str,
     opts: SceneOptions,

@@ -1,0 +1,270 @@
+//! Another machine: its contact forces from the quasi-static plant
+//! ([`docking_controller::plant`]) and the controller configuration that matches it.
+//!
+//! # Where the configuration comes from: commissioning, on the host
+//!
+//! The guard's envelope, the hold force and the odometer's nominal load–distance follow
+//! from the machine's parameters (mass, friction coefficients, chamfer, tilt). They are
+//! computed **on the host at commissioning** ([`matching_config`]) and given to the
+//! controller as its configuration; the firmware never evaluates the plant (no floating
+//! point trigonometry, no root finder, no flash for them on the board — it carries
+//! tables). The paper's machine is the build's default (Eq. 7's table, computed at build
+//! time); another machine's board is built with the tables this module computes (the
+//! same `GuardConfig::nominal`, `WearConfig::nominal_w_q1` and
+//! `ControllerConfig::hold_expected_mn` fields), and the host rig uses them directly.
+//!
+//! # The margin
+//!
+//! Friction coefficients are the least known parameters and µ2 moves the phase-4 peak
+//! most (155–289 N over µ2 0.30–0.05, reference §6). The envelope's nominal profile is
+//! the **largest N3 over µ1 ± [`MU_SPREAD`] and µ2 ± [`MU_SPREAD`]** (a 3 × 3 grid, at
+//! every 10 µm of depth and at both sides of each phase boundary), and the guard then adds
+//! its usual margins (×1.25 + 30 N). The hard limit follows the envelope's peak (never
+//! below the default 300 N, never above the load cell's rating [`CELL_RATED_MN`]); a
+//! machine whose nominal peak, spread included, comes within the absolute margin (30 N)
+//! of the rating gets an error, not a guard that cannot trip.
+//!
+//! # Depth and time
+//!
+//! The controller tracks insertion depth; the plant is evaluated on Eq. 7's time axis at
+//! `t = depth / v0` (v0 = 1.2 mm/s, the same mapping as Eq. 7's profile everywhere in
+//! this code), with its own travel per second of that axis (`--v-model`) inside.
+
+use docking_controller::controller::ControllerConfig;
+use docking_controller::guard::{GuardConfig, NominalProfile};
+use docking_controller::plant::{Plant, PlantError, PlantParams};
+use docking_controller::profile::{forces_at_depth_um, STROKE_UM, V0_UM_PER_S};
+
+/// The spread of µ1 and µ2 the envelope covers, ±.
+pub const MU_SPREAD: f64 = 0.02;
+/// The load cell's rating, mN (500 N): no hard limit above it.
+pub const CELL_RATED_MN: i32 = 500_000;
+
+/// Where the rig's contact force comes from.
+// A plant is ~450 bytes (its geometry); a rig holds one model, so boxing buys nothing.
+#[allow(clippy::large_enum_variant)]
+#[derive(Clone, Copy, Debug)]
+pub enum ForceModel {
+    /// Eq. 7, the paper's machine.
+    Eq7,
+    /// The quasi-static plant with these parameters.
+    Plant(Plant),
+}
+
+impl ForceModel {
+    /// The plant for `params`, or why not.
+    pub fn plant(params: PlantParams) -> Result<Self, PlantError> {
+        Plant::new(params).map(Self::Plant)
+    }
+
+    /// Nominal N3 at insertion depth `depth_um` (clamped to the stroke), N.
+    pub fn n3_at_depth_um(&self, depth_um: f64) -> f64 {
+        let d = depth_um.clamp(0.0, STROKE_UM as f64);
+        match self {
+            Self::Eq7 => forces_at_depth_um(d).n3_n,
+            Self::Plant(p) => p.at_time(d / V0_UM_PER_S as f64).n3_n,
+        }
+    }
+
+    /// The depths (µm) where N3 jumps: the phase boundaries.
+    pub fn jumps_um(&self) -> [i32; 3] {
+        match self {
+            Self::Eq7 => docking_controller::profile::BOUNDARY_UM,
+            Self::Plant(p) => p
+                .boundaries_s()
+                .map(|t| (t * V0_UM_PER_S as f64).round().clamp(0.0, 1e9) as i32),
+        }
+    }
+}
+
+/// Why a machine cannot be configured.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ConfigError {
+    /// A plant parameter out of range.
+    Plant(PlantError),
+    /// The nominal peak plus the absolute margin is above the load cell's rating, mN.
+    BeyondCell(i32),
+}
+
+impl core::fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Plant(e) => write!(f, "{e}"),
+            Self::BeyondCell(mn) => write!(
+                f,
+                "this machine's nominal peak needs {:.1} N with its margin, above the load cell's {:.0} N rating",
+                *mn as f64 / 1000.0,
+                CELL_RATED_MN as f64 / 1000.0
+            ),
+        }
+    }
+}
+
+/// The nominal load–distance of one cycle (insertion and extraction over the stroke) of
+/// `model`, Q63.1 mN·µm: 2 × ∫ N3 d(depth), by the midpoint rule at 10 µm.
+pub fn nominal_cycle_w_q1(model: &ForceModel) -> u64 {
+    let step = 10.0;
+    let n = (STROKE_UM as f64 / step) as u32;
+    let stroke_mn_um: f64 = (0..n)
+        .map(|k| model.n3_at_depth_um((k as f64 + 0.5) * step) * 1000.0 * step)
+        .sum();
+    // Two strokes, ×2 for Q63.1.
+    (4.0 * stroke_mn_um).round().max(1.0) as u64
+}
+
+/// What commissioning sets for a machine: the guard (its nominal profile and hard
+/// limit), the odometer's nominal load–distance, the hold force.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Tuning {
+    /// The guard's configuration.
+    pub guard: GuardConfig,
+    /// Nominal load–distance per cycle, Q63.1 mN·µm.
+    pub nominal_w_q1: u64,
+    /// Mated contact force, mN.
+    pub hold_expected_mn: i32,
+}
+
+impl Tuning {
+    /// The machine of `params`.
+    pub fn for_plant(params: PlantParams) -> Result<Self, ConfigError> {
+        let base = ControllerConfig::new(80, docking_controller::hx711::Calibration::SIM_DEFAULT);
+        matching_config(base, params).map(|c| Self::of(&c))
+    }
+
+    /// The machine-specific part of `cfg`.
+    pub fn of(cfg: &ControllerConfig) -> Self {
+        Self {
+            guard: cfg.guard,
+            nominal_w_q1: cfg.wear.nominal_w_q1,
+            hold_expected_mn: cfg.hold_expected_mn,
+        }
+    }
+
+    /// Apply to `cfg`.
+    pub fn apply(&self, cfg: &mut ControllerConfig) {
+        cfg.guard = self.guard;
+        cfg.wear.nominal_w_q1 = self.nominal_w_q1;
+        cfg.hold_expected_mn = self.hold_expected_mn;
+    }
+}
+
+/// The controller configuration that matches the machine of `params`, from `base` (the
+/// rate, calibration and the rest are kept): the guard's nominal profile with the µ
+/// spread, its hard limit, the hold force and the nominal load–distance.
+pub fn matching_config(
+    base: ControllerConfig,
+    params: PlantParams,
+) -> Result<ControllerConfig, ConfigError> {
+    let nominal = ForceModel::plant(params).map_err(ConfigError::Plant)?;
+    let mut spread = Vec::new();
+    for d1 in [-MU_SPREAD, 0.0, MU_SPREAD] {
+        for d2 in [-MU_SPREAD, 0.0, MU_SPREAD] {
+            let p = PlantParams {
+                mu1: (params.mu1 + d1).max(0.0),
+                mu2: (params.mu2 + d2).max(0.0),
+                ..params
+            };
+            spread.push(ForceModel::plant(p).map_err(ConfigError::Plant)?);
+        }
+    }
+    let jumps: Vec<i32> = spread.iter().flat_map(|m| m.jumps_um()).collect();
+    let profile = NominalProfile::from_fn(
+        |d| {
+            spread
+                .iter()
+                .map(|m| m.n3_at_depth_um(d as f64))
+                .fold(0.0, f64::max)
+        },
+        &jumps,
+    );
+    let g = base.guard;
+    let peak = profile.peak_mn() as i64;
+    // The envelope's own peak, capped at the cell's rating; a machine whose nominal
+    // peak (spread included) leaves less than the absolute margin below the rating
+    // cannot be protected by this cell.
+    if peak + g.abs_mn as i64 > CELL_RATED_MN as i64 {
+        return Err(ConfigError::BeyondCell((peak + g.abs_mn as i64) as i32));
+    }
+    let needed = (peak * (100 + g.rel_pct as i64) / 100 + g.abs_mn as i64) as i32;
+    let hard = needed.clamp(GuardConfig::DEFAULT.hard_limit_mn, CELL_RATED_MN);
+    let mut cfg = base;
+    cfg.guard = GuardConfig {
+        hard_limit_mn: hard,
+        // Commissioning runs once per machine: the table lives as long as the program.
+        nominal: Box::leak(Box::new(profile)),
+        ..g
+    };
+    cfg.wear.nominal_w_q1 = nominal_cycle_w_q1(&nominal);
+    cfg.hold_expected_mn = (nominal.n3_at_depth_um(STROKE_UM as f64) * 1000.0).round() as i32;
+    Ok(cfg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use docking_controller::odometer::W_NOM_Q1;
+
+    #[test]
+    fn eq7s_nominal_cycle_is_the_odometers_constant() {
+        let w = nominal_cycle_w_q1(&ForceModel::Eq7) as f64;
+        assert!(
+            (w / W_NOM_Q1 as f64 - 1.0).abs() < 1e-4,
+            "{w} vs {W_NOM_Q1}"
+        );
+    }
+
+    #[test]
+    fn the_paper_machine_matches_todays_configuration_within_the_residuals() {
+        let base = ControllerConfig::new(80, docking_controller::hx711::Calibration::SIM_DEFAULT);
+        let cfg = matching_config(base, PlantParams::PAPER).unwrap();
+        // Within the µ spread's reach of Eq. 7, and never below it by more than the
+        // plant's residual (phase 3: 1.7 N).
+        for (i, (&m, &e)) in cfg
+            .guard
+            .nominal
+            .n3_max_mn
+            .iter()
+            .zip(docking_controller::guard::EQ7_NOMINAL.n3_max_mn.iter())
+            .enumerate()
+        {
+            assert!(m >= e - 1_800, "cell {i}: {m} < {e}");
+            assert!(m <= e + 40_000, "cell {i}: {m} ≫ {e}");
+        }
+        // The µ spread lifts the phase-4 peak by ≈ 14 N: the hard limit follows a little.
+        assert!((300_000..=310_000).contains(&cfg.guard.hard_limit_mn));
+        let w = cfg.wear.nominal_w_q1 as f64 / W_NOM_Q1 as f64;
+        assert!((w - 1.0).abs() < 0.01, "{w}");
+        assert!(
+            (cfg.hold_expected_mn - 125_098).abs() < 1_000,
+            "{}",
+            cfg.hold_expected_mn
+        );
+    }
+
+    #[test]
+    fn a_heavier_machine_gets_a_higher_envelope_and_a_machine_beyond_the_cell_an_error() {
+        let base = ControllerConfig::new(80, docking_controller::hx711::Calibration::SIM_DEFAULT);
+        let heavy = PlantParams {
+            mass_kg: 18.0,
+            mu2: 0.1,
+            ..PlantParams::PAPER
+        };
+        let cfg = matching_config(base, heavy).unwrap();
+        assert!(
+            cfg.guard.nominal.peak_mn() > 300_000,
+            "{}",
+            cfg.guard.nominal.peak_mn()
+        );
+        assert!(cfg.guard.hard_limit_mn > 300_000);
+        assert!(cfg.wear.nominal_w_q1 > W_NOM_Q1);
+        let beyond = PlantParams {
+            mass_kg: 40.0,
+            mu2: 0.05,
+            ..PlantParams::PAPER
+        };
+        assert!(matches!(
+            matching_config(base, beyond),
+            Err(ConfigError::BeyondCell(_))
+        ));
+    }
+}
