@@ -36,27 +36,23 @@
 //!   within one step (5 µm): at 320/1280 SPS pre-alignment stops at −5 µm (+0.28 N·mm
 //!   credited for no contact) and the mate at 29 995 µm (−0.63 N·mm); the extraction
 //!   ends at +5 µm at 80–1280 SPS (−0.56 N·mm).
-//! * **The homing overshoot (10 SPS).** The home switch is read once per control
-//!   step, so the carriage stops up to `v · T` past it and that point is called zero.
-//!   At 10 SPS the boot homing starts at full speed (the whole acceleration ramp fits in
-//!   one 100 ms period) and overshoots by 120 µm: every counted position is 120 µm ahead
-//!   of the truth, the mate is really at 29.88 mm, and each stroke loses ≈ 15.05 N·mm
-//!   (0.37 %) at its deep end; the extraction chain then runs 120 µm past the cone edge
-//!   and its trapezoid credits +6.76 N·mm of the edge jump. This is most of the 10 SPS
-//!   error (insertion −15.65 N·mm, −0.387 %; extraction −8.89 N·mm, −0.220 %). At 80
-//!   SPS the boot homing does not overshoot, but the fast return to home does: 55–60 µm on
-//!   every other cycle (cycles 2, 4, … measure ≈ −0.18 % per stroke, not shown here).
+//! * **The homing overshoot.** The home switch is read once per control step, so a
+//!   carriage moving onto it stops up to `v · T` past it and that point is called zero.
+//!   The homing now creeps onto the switch (0.4 mm/s: 5 µm per period at 80 SPS), so
+//!   the counted offset measures 0 µm at every rate (the `# counted depth` lines of the
+//!   report); earlier firmware homed at full speed and lost ≈ 0.37 % per stroke at 10
+//!   SPS to a 120 µm overshoot.
 //! * **Load conversion.** The odometer's forces minus the exact forces at the same
 //!   positions: −0.0095 N·mm per stroke (−2.3e-6): the floor of the counts → mN
 //!   conversion (−0.5 mN mean), whole-count codes (±0.06 mN) and the tare mean's
 //!   truncation to whole counts. Negligible.
 //!
-//! Totals, N·mm per stroke (insertion / extraction): 10 SPS −15.65 / −8.89; 80 SPS
-//! +0.073 / −0.490; 320 and 1280 SPS −0.227 / −1.072 (identical: every 5-µm step is
-//! sampled from 320 SPS on). So the error falls by two orders from 10 to 80 SPS and
-//! then sits at the one-step floor; strictly, 320 SPS is a few thousandths of a percent
-//! worse than 80 SPS, because of where the two runs' strokes happen to start and end
-//! (one step), not because of the rate. With the default noise (0.3 N RMS) the tare's
+//! Totals as measured now (`hil-sim accuracy`, the table in the README), per stroke
+//! (insertion / extraction): 10 SPS −0.015 % / +0.263 % (the contact edges and the
+//! jumps at a 120 µm sample spacing, above), 80 SPS +0.0003 % /
+//! +0.0078 %, 320 and 1280 SPS −0.0056 % both (identical: every 5-µm step is sampled
+//! from 320 SPS on, so the one-step floor, not the rate, sets the error).
+//! With the default noise (0.3 N RMS) the tare's
 //! error (≈ 0.075 N over the stroke) makes cycles scatter by ≈ ±0.1 % at every rate.
 
 use std::time::Instant;

@@ -16,7 +16,7 @@ impl std::fmt::Display for UsageError {
 }
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] [--plot FILE.svg] [--model eq7|plant] [--mass-kg M] [--mu1 X] [--mu2 X] [--gamma-deg G] [--theta0-deg T] [--v-model MM_PER_S] [--t3-s S] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] [--plot FILE.svg] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--readings FILE.csv] [--json] [--plot FILE.svg] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] [--plot FILE.svg] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS] (stdin: dock on|off, estop open|close, plc)";
+pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] [--plot FILE.svg] [--model eq7|plant] [--mass-kg M] [--mu1 X] [--mu2 X] [--gamma-deg G] [--theta0-deg T] [--v-model MM_PER_S] [--t3-s S] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] [--plot FILE.svg] [--model eq7|plant (plant options as for profile)] [--config default|matching] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--readings FILE.csv] [--json] [--plot FILE.svg] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] [--plot FILE.svg] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS] (stdin: dock on|off, estop open|close, plc)";
 
 /// Parse `--rate` as one of the HX711 rates.
 fn hx_rate(o: &Opts) -> Result<u32, UsageError> {
@@ -36,18 +36,44 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
             crate::scene::SCENES.join(", ")
         ));
     };
-    let o = Opts::parse(rest, &["cycles", "rate", "seed", "plot"], &["json"])?;
+    let valued: Vec<&str> = ["cycles", "rate", "seed", "plot", "config"]
+        .into_iter()
+        .chain(profile_cmd::MODEL_OPTIONS)
+        .collect();
+    let o = Opts::parse(rest, &valued, &["json"])?;
+    // The machine (`--model plant …`: another machine's forces) and the controller's
+    // configuration: the build's (`default`) or commissioned for that machine
+    // (`matching`).
+    let force_model = match profile_cmd::model(&o)? {
+        profile_cmd::Model::Eq7 => crate::machine::ForceModel::Eq7,
+        profile_cmd::Model::Plant(p) => crate::machine::ForceModel::Plant(p),
+    };
+    let tuning = match (o.get("config"), &force_model) {
+        (None | Some("default"), _) => None,
+        (Some("matching"), crate::machine::ForceModel::Eq7) => None,
+        (Some("matching"), crate::machine::ForceModel::Plant(p)) => Some(
+            crate::machine::Tuning::for_plant(*p.params())
+                .map_err(|e| UsageError(format!("--config matching: {e}")))?,
+        ),
+        (Some(c), _) => {
+            return err(format!(
+                "--config must be 'default' or 'matching', got '{c}'"
+            ))
+        }
+    };
     let opts = crate::scene::SceneOptions {
         cycles: o.num("cycles", 1u32, 1, 100_000)?,
-        rate_sps: hx_rate(&o)?,
         seed: o.num("seed", 1u64, 0, u64::MAX)?,
-        adc: crate::rig::AdcMode::Pins,
+        force_model,
+        tuning,
+        ..crate::scene::SceneOptions::new(hx_rate(&o)?)
     };
     let report = match o.get("plot") {
         None => crate::scene::run(name, opts).map_err(UsageError)?,
         Some(path) => {
             let (report, trace) = crate::scene::run_traced(name, opts).map_err(UsageError)?;
-            crate::plot::scene(path.as_ref(), &report, &trace)?;
+            let guard = tuning.map_or(docking_controller::guard::GuardConfig::DEFAULT, |t| t.guard);
+            crate::plot::scene(path.as_ref(), &report, &trace, &guard)?;
             report
         }
     };
@@ -253,9 +279,9 @@ fn bench(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         "nominal",
         crate::scene::SceneOptions {
             cycles,
-            rate_sps,
             seed: 1,
             adc: crate::rig::AdcMode::Word,
+            ..crate::scene::SceneOptions::new(rate_sps)
         },
     )
     .map_err(UsageError)?;
@@ -392,11 +418,14 @@ fn profile(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         Some("extract") => Stroke::Extract,
         Some(s) => return err(format!("--stroke must be 'insert' or 'extract', got '{s}'")),
     };
-    if let (Some(_), profile_cmd::Model::Plant(_)) = (o.get("plot"), model) {
-        return err("--plot draws Eq. 7 only; not with --model plant");
-    }
-    if let Some(path) = o.get("plot") {
-        crate::plot::eq7_profile(path.as_ref(), rate, stroke)?;
+    match (o.get("plot"), &model) {
+        (Some(path), profile_cmd::Model::Plant(plant)) => {
+            crate::plot::plant_profile(path.as_ref(), plant, rate, stroke)?
+        }
+        (Some(path), profile_cmd::Model::Eq7) => {
+            crate::plot::eq7_profile(path.as_ref(), rate, stroke)?
+        }
+        (None, _) => {}
     }
     let mut buf = std::io::BufWriter::new(out);
     if let profile_cmd::Model::Plant(plant) = model {

@@ -200,7 +200,12 @@ fn signed3(x: f64) -> String {
 /// The guard's envelope as a step line over the stroke, (depth mm, limit N): the limit
 /// in force at each depth of the default configuration, as the controller uses it.
 pub fn guard_envelope() -> Vec<(f64, f64)> {
-    let g = OverloadGuard::new(GuardConfig::DEFAULT);
+    guard_envelope_of(&GuardConfig::DEFAULT)
+}
+
+/// [`guard_envelope`] of the configuration `cfg` (another machine's, commissioned).
+pub fn guard_envelope_of(cfg: &GuardConfig) -> Vec<(f64, f64)> {
+    let g = OverloadGuard::new(*cfg);
     let mut v: Vec<(f64, f64)> = Vec::new();
     let step = 100;
     let mut d = 0;
@@ -428,6 +433,7 @@ pub fn scene(
     path: &Path,
     report: &SceneReport,
     trace: &crate::scene::SceneTrace,
+    guard: &GuardConfig,
 ) -> Result<(), PlotError> {
     let title = format!(
         "scene {}: force against insertion depth (cycle {}, {} SPS, seed {})",
@@ -438,8 +444,8 @@ pub fn scene(
         &title,
         &trace.samples,
         &trace.events,
-        &guard_envelope(),
-        hard_limit_n(),
+        &guard_envelope_of(guard),
+        guard.hard_limit_mn as f64 / 1000.0,
     )
 }
 
@@ -552,6 +558,41 @@ pub fn eq7_profile(
             tick(rate_hz)
         ),
         x_desc,
+        &rows,
+    )
+}
+
+/// [`profile`] of `hil-sim profile --model plant`'s rows.
+pub fn plant_profile(
+    path: &Path,
+    plant: &docking_controller::plant::Plant,
+    rate_hz: f64,
+    stroke: crate::profile_cmd::Stroke,
+) -> Result<(), PlotError> {
+    use crate::profile_cmd::{sample_count, Stroke};
+    let rows: Vec<(f64, u8, [f64; 4])> = (0..sample_count(rate_hz))
+        .map(|k| {
+            let t = k as f64 / rate_hz;
+            let t_ins = match stroke {
+                Stroke::Insert => t,
+                Stroke::Extract => docking_controller::profile::STROKE_S - t,
+            };
+            let p = plant.at_time(t_ins);
+            (t, p.phase, [p.n1_n, p.n2_n, p.n3_n, p.n4_n])
+        })
+        .collect();
+    let which = match stroke {
+        Stroke::Insert => "insertion",
+        Stroke::Extract => "extraction",
+    };
+    let p = plant.params();
+    profile(
+        path,
+        &format!(
+            "plant contact forces, {which} stroke: m {} kg, µ1 {}, µ2 {}, γ {}°, θ0 {}°, v_model {} mm/s",
+            p.mass_kg, p.mu1, p.mu2, p.gamma_deg, p.theta0_deg, p.v_model_mm_s
+        ),
+        "time on Eq. 7's axis (s)",
         &rows,
     )
 }

@@ -73,6 +73,25 @@ pub struct SceneOptions {
     pub seed: u64,
     /// How the controller reads the load cell.
     pub adc: AdcMode,
+    /// The machine's contact forces (Eq. 7, or the plant of another machine).
+    pub force_model: crate::machine::ForceModel,
+    /// The controller commissioned for another machine; `None`: the build's defaults.
+    pub tuning: Option<crate::machine::Tuning>,
+}
+
+impl SceneOptions {
+    /// One cycle at `rate_sps`, seed 1, the firmware's HX711 driver on the pins, the
+    /// paper's machine with the default configuration.
+    pub fn new(rate_sps: u32) -> Self {
+        Self {
+            cycles: 1,
+            rate_sps,
+            seed: 1,
+            adc: AdcMode::Pins,
+            force_model: crate::machine::ForceModel::Eq7,
+            tuning: None,
+        }
+    }
 }
 
 /// A fault as the scene saw it.
@@ -697,6 +716,8 @@ fn run_inner(
     let mut rig = Rig::new(RigOptions {
         seed: opts.seed,
         adc: opts.adc,
+        force_model: opts.force_model,
+        tuning: opts.tuning,
         ..RigOptions::new(opts.rate_sps)
     });
     let cycles = opts.cycles.max(1);

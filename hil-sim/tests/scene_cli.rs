@@ -54,3 +54,55 @@ fn bench_reports_figures() {
         "{out}"
     );
 }
+
+#[test]
+fn another_machine_runs_from_the_command_line_with_its_configuration() {
+    let heavy = [
+        "--model",
+        "plant",
+        "--mass-kg",
+        "18",
+        "--mu2",
+        "0.1",
+        "--json",
+    ];
+    let args = |cfg: &'static str| {
+        let mut v = vec!["scene", "nominal"];
+        v.extend(heavy);
+        v.extend(["--config", cfg]);
+        v
+    };
+    let (code, out, _) = run(&args("matching"));
+    assert_eq!(code, 0);
+    assert!(
+        out.contains("\"faults\":[]") && out.contains("\"cycles_completed\":1"),
+        "{out}"
+    );
+    let (code, out, _) = run(&args("default"));
+    assert_eq!(code, 0);
+    assert!(out.contains("\"kind\":\"overload\""), "{out}");
+    // A machine this load cell cannot protect, an unknown configuration, plant options
+    // without the plant: one line on stderr, exit 2.
+    for bad in [
+        &[
+            "scene",
+            "nominal",
+            "--model",
+            "plant",
+            "--mass-kg",
+            "40",
+            "--mu2",
+            "0.05",
+            "--config",
+            "matching",
+        ][..],
+        &["scene", "nominal", "--config", "bespoke"],
+        &["scene", "nominal", "--mass-kg", "18"],
+        &["scene", "nominal", "--model", "plant", "--mu2", "0.9"],
+    ] {
+        let (code, out, err) = run(bad);
+        assert_eq!(code, 2, "{bad:?}");
+        assert!(out.is_empty());
+        assert_eq!(err.lines().count(), 1, "{bad:?}: {err}");
+    }
+}

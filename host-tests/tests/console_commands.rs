@@ -275,10 +275,8 @@ fn calibration_tare_and_span_persist() {
 fn console_flood_does_not_delay_the_overload_stop() {
     for rate in [10, 80] {
         let opts = SceneOptions {
-            cycles: 1,
-            rate_sps: rate,
             seed: 3,
-            adc: hil_sim::rig::AdcMode::Pins,
+            ..SceneOptions::new(rate)
         };
         let quiet = run("overload", opts).unwrap();
         let flooded = hil_sim::scene::run_with_console_flood("overload", opts).unwrap();

@@ -9,9 +9,9 @@ fn scene(name: &str, cycles: u32, rate_sps: u32, seed: u64) -> SceneReport {
         name,
         SceneOptions {
             cycles,
-            rate_sps,
             seed,
             adc: AdcMode::Pins,
+            ..SceneOptions::new(rate_sps)
         },
     )
     .unwrap()
@@ -180,4 +180,76 @@ fn estop_during_insertion_stops_latches_and_needs_the_input_back_to_clear() {
         assert_eq!(p.clear_accepted_when_closed, Some(true));
         assert_eq!(r.final_state, "idle", "recovered home after the clear");
     }
+}
+
+/// Another machine (18 kg, µ2 0.1: its phase-4 peak is ≈ 352 N, the paper's 206 N).
+fn heavy_machine() -> docking_controller::plant::PlantParams {
+    docking_controller::plant::PlantParams {
+        mass_kg: 18.0,
+        mu2: 0.1,
+        ..docking_controller::plant::PlantParams::PAPER
+    }
+}
+
+#[test]
+fn a_heavier_machine_commissioned_for_its_forces_docks_without_a_trip() {
+    let p = heavy_machine();
+    let r = run(
+        "nominal",
+        SceneOptions {
+            force_model: hil_sim::machine::ForceModel::plant(p).unwrap(),
+            tuning: Some(hil_sim::machine::Tuning::for_plant(p).unwrap()),
+            ..SceneOptions::new(80)
+        },
+    )
+    .unwrap();
+    assert!(r.faults.is_empty(), "{}", r.to_json());
+    assert_eq!(r.cycles_completed, 1);
+    assert_eq!(r.insertion_phases, vec![vec![1, 2, 3, 4]]);
+    assert!(
+        r.peak_force_n > 330.0,
+        "the heavier machine's forces: {}",
+        r.peak_force_n
+    );
+}
+
+#[test]
+fn a_heavier_machine_on_the_default_configuration_is_caught_by_the_guard() {
+    let p = heavy_machine();
+    let r = run(
+        "nominal",
+        SceneOptions {
+            force_model: hil_sim::machine::ForceModel::plant(p).unwrap(),
+            ..SceneOptions::new(80)
+        },
+    )
+    .unwrap();
+    assert_eq!(
+        r.faults.first().map(|f| f.kind),
+        Some("overload"),
+        "{}",
+        r.to_json()
+    );
+    assert_eq!(r.cycles_completed, 0);
+    assert!(r.motors_disabled);
+}
+
+#[test]
+fn the_paper_machine_as_a_plant_behaves_as_eq7_does() {
+    // Default configuration, the plant at the paper's parameters: no trip, the same
+    // phases, the peak within the plant's residual of Eq. 7's.
+    let r = run(
+        "nominal",
+        SceneOptions {
+            force_model: hil_sim::machine::ForceModel::plant(
+                docking_controller::plant::PlantParams::PAPER,
+            )
+            .unwrap(),
+            ..SceneOptions::new(80)
+        },
+    )
+    .unwrap();
+    assert!(r.faults.is_empty(), "{}", r.to_json());
+    assert_eq!(r.insertion_phases, vec![vec![1, 2, 3, 4]]);
+    assert!((r.peak_force_n - 206.0).abs() < 3.0, "{}", r.peak_force_n);
 }
