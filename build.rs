@@ -10,13 +10,31 @@
 use std::{env, fs, path::PathBuf};
 
 fn main() {
+    // The machine's tuning (guard envelope, hard limit, hold force, nominal
+    // load-distance): `hil-sim commission` writes it for another machine; without
+    // DOCKING_TUNING the board runs the paper's machine (the library's defaults).
+    println!("cargo:rerun-if-env-changed=DOCKING_TUNING");
+    let out_dir = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
+    let tuning = out_dir.join("tuning.rs");
+    match env::var_os("DOCKING_TUNING") {
+        Some(path) => {
+            println!("cargo:rerun-if-changed={}", PathBuf::from(&path).display());
+            fs::copy(&path, &tuning).expect("DOCKING_TUNING names a readable file");
+        }
+        None => fs::write(
+            &tuning,
+            "/// The paper's machine: the library's defaults.\n\
+             pub fn apply(_cfg: &mut docking_controller::controller::ControllerConfig) {}\n",
+        )
+        .expect("write the default tuning"),
+    }
     println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rerun-if-changed=odometer-guard.x");
     println!("cargo:rerun-if-changed=build.rs");
     if env::var("CARGO_CFG_TARGET_OS").as_deref() != Ok("none") {
         return;
     }
-    let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
+    let out = out_dir;
     fs::copy("memory.x", out.join("memory.x")).expect("copy memory.x");
     fs::copy("odometer-guard.x", out.join("odometer-guard.x")).expect("copy odometer-guard.x");
     println!("cargo:rustc-link-search={}", out.display());

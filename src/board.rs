@@ -90,6 +90,11 @@ use stm32f4xx_hal::watchdog::IndependentWatchdog;
 use flash::OdometerFlash;
 use step::{BoardStepPulses, BoardStop};
 
+/// The machine's tuning, generated at build time (build.rs).
+mod tuning {
+    include!(concat!(env!("OUT_DIR"), "/tuning.rs"));
+}
+
 /// Core clock, Hz (HSE 8 MHz → PLL → 168 MHz).
 pub const SYSCLK_HZ: u32 = 168_000_000;
 /// Independent watchdog period, ms (fed by a control step that keeps its period).
@@ -442,7 +447,10 @@ mod app {
             stop: BoardStop,
             wdg: BoardWatchdog(iwdg),
         };
-        let cfg = ControllerConfig::new(DEFAULT_SAMPLE_RATE_SPS, DEFAULT_CALIBRATION);
+        let mut cfg = ControllerConfig::new(DEFAULT_SAMPLE_RATE_SPS, DEFAULT_CALIBRATION);
+        // Another machine's guard envelope, hold force and nominal load-distance, if the
+        // image was built for one (`DOCKING_TUNING`, see build.rs and the README).
+        tuning::apply(&mut cfg);
         let ctrl = match Controller::new(parts, cfg) {
             Ok(c) => cx.local.ctrl_slot.write(c),
             Err(_) => halt_safe(),

@@ -16,7 +16,7 @@ impl std::fmt::Display for UsageError {
 }
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] [--plot FILE.svg] [--model eq7|plant] [--mass-kg M] [--mu1 X] [--mu2 X] [--gamma-deg G] [--theta0-deg T] [--v-model MM_PER_S] [--t3-s S] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] [--plot FILE.svg] [--model eq7|plant (plant options as for profile)] [--config default|matching] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--readings FILE.csv] [--json] [--plot FILE.svg] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] [--plot FILE.svg] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS] (stdin: dock on|off, estop open|close, plc)";
+pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] [--plot FILE.svg] [--model eq7|plant] [--mass-kg M] [--mu1 X] [--mu2 X] [--gamma-deg G] [--theta0-deg T] [--v-model MM_PER_S] [--t3-s S] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] [--plot FILE.svg] [--model eq7|plant (plant options as for profile)] [--config default|matching] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--readings FILE.csv] [--json] [--plot FILE.svg] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] [--plot FILE.svg] | commission --model plant [plant options] (Rust source for DOCKING_TUNING) | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS] (stdin: dock on|off, estop open|close, plc)";
 
 /// Parse `--rate` as one of the HX711 rates.
 fn hx_rate(o: &Opts) -> Result<u32, UsageError> {
@@ -443,6 +443,29 @@ fn profile(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
     Ok(())
 }
 
+/// `commission --model plant [plant options]`: the controller's tuning for that machine
+/// as Rust source for the firmware's build (`DOCKING_TUNING=FILE`).
+fn commission(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
+    let o = Opts::parse(args, &profile_cmd::MODEL_OPTIONS, &[])?;
+    let profile_cmd::Model::Plant(plant) = profile_cmd::model(&o)? else {
+        return err("commission needs --model plant (the paper's machine is the build's default)");
+    };
+    let p = *plant.params();
+    let tuning = crate::machine::Tuning::for_plant(p).map_err(|e| UsageError(e.to_string()))?;
+    let origin = format!(
+        "m {} kg, µ1 {}, µ2 {}, γ {}°, θ0 {}°, v_model {} mm/s, µ spread ±{}",
+        p.mass_kg,
+        p.mu1,
+        p.mu2,
+        p.gamma_deg,
+        p.theta0_deg,
+        p.v_model_mm_s,
+        crate::machine::MU_SPREAD
+    );
+    let _ = write!(out, "{}", tuning.to_rust(&origin));
+    Ok(())
+}
+
 /// Run the command line `args` (without the program name), writing to `out`.
 pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
     let Some((cmd, rest)) = args.split_first() else {
@@ -456,6 +479,7 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         "endurance" => endurance(rest, out),
         "accuracy" => accuracy(rest, out),
         "serve" => serve(rest, out),
+        "commission" => commission(rest, out),
         // The odometer's integer workload, for comparison with the same code on a
         // Cortex-M4 under QEMU (.ci/run, qemu-check/).
         "odometer-reference" => {

@@ -1,0 +1,73 @@
+//! `hil-sim commission`: another machine's tuning as Rust source for the firmware's build
+//! (`DOCKING_TUNING=FILE`). The example in `docs/` is compiled here exactly as `build.rs`
+//! gives it to the board, and must be what the command makes today.
+
+mod common;
+
+use common::run;
+
+mod example {
+    include!("../../docs/tuning-example-18kg.rs");
+}
+
+fn heavy() -> docking_controller::plant::PlantParams {
+    docking_controller::plant::PlantParams {
+        mass_kg: 18.0,
+        mu2: 0.1,
+        ..docking_controller::plant::PlantParams::PAPER
+    }
+}
+
+#[test]
+fn the_generated_tuning_compiles_and_sets_what_commissioning_computed() {
+    let mut cfg = docking_controller::controller::ControllerConfig::new(
+        80,
+        docking_controller::hx711::Calibration::SIM_DEFAULT,
+    );
+    example::apply(&mut cfg);
+    let want = hil_sim::machine::Tuning::for_plant(heavy()).unwrap();
+    assert_eq!(hil_sim::machine::Tuning::of(&cfg), want);
+}
+
+#[test]
+fn the_example_is_what_the_command_makes_today() {
+    let (code, out, _) = run(&[
+        "commission",
+        "--model",
+        "plant",
+        "--mass-kg",
+        "18",
+        "--mu2",
+        "0.1",
+    ]);
+    assert_eq!(code, 0);
+    let kept = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../docs/tuning-example-18kg.rs"
+    ))
+    .unwrap();
+    assert_eq!(out, kept, "regenerate: hil-sim commission --model plant --mass-kg 18 --mu2 0.1 > docs/tuning-example-18kg.rs");
+}
+
+#[test]
+fn commission_refuses_what_it_cannot_tune() {
+    for bad in [
+        &["commission"][..],
+        &["commission", "--model", "eq7"],
+        &[
+            "commission",
+            "--model",
+            "plant",
+            "--mass-kg",
+            "40",
+            "--mu2",
+            "0.05",
+        ],
+        &["commission", "--model", "plant", "--mu1", "x"],
+    ] {
+        let (code, out, err) = run(bad);
+        assert_eq!(code, 2, "{bad:?}");
+        assert!(out.is_empty());
+        assert_eq!(err.lines().count(), 1, "{bad:?}: {err}");
+    }
+}
