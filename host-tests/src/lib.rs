@@ -1,3 +1,49 @@
-//! Host tests live in `tests/`; this crate has no code of its own (and is an empty
-//! `no_std` crate on bare metal, so a workspace-wide thumb build works).
+//! Host tests live in `tests/`; this crate holds only what several of them share (and is
+//! an empty `no_std` crate on bare metal, so a workspace-wide thumb build works).
 #![no_std]
+
+#[cfg(not(target_os = "none"))]
+extern crate std;
+
+#[cfg(not(target_os = "none"))]
+mod shared {
+    use docking_controller::sequencer::{Request, State};
+    use hil_sim::rig::Rig;
+    use std::path::PathBuf;
+    use std::vec::Vec;
+
+    /// Run `n` more test cycles on `r` (each started when idle and persisted); panics if
+    /// they do not complete.
+    pub fn run_cycles(r: &mut Rig, n: u32) {
+        let target = r.ctrl.odometer().lifetime().cycles + n;
+        for _ in 0..(n as usize * 6_000) {
+            r.tick();
+            if r.ctrl.state() == State::Idle && !r.ctrl.persist_pending() {
+                if r.ctrl.odometer().lifetime().cycles >= target {
+                    return;
+                }
+                r.ctrl.request(Request::StartCycle);
+            }
+        }
+        panic!("cycles did not complete");
+    }
+
+    /// The files of the kept fuzz corpus `fuzz-corpus/NAME/`, sorted; panics with fewer
+    /// than 20.
+    pub fn corpus_files(name: &str) -> Vec<PathBuf> {
+        let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("fuzz-corpus")
+            .join(name);
+        let mut files: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.is_file())
+            .collect();
+        files.sort();
+        assert!(files.len() >= 20, "only {} corpus files", files.len());
+        files
+    }
+}
+
+#[cfg(not(target_os = "none"))]
+pub use shared::{corpus_files, run_cycles};

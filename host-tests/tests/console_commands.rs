@@ -20,20 +20,7 @@ fn json(reply: &str) -> Value {
     serde_json::from_str(reply.trim_end()).unwrap_or_else(|e| panic!("not JSON ({e}): {reply:?}"))
 }
 
-fn run_cycles(r: &mut Rig, n: u32) {
-    use docking_controller::sequencer::{Request, State};
-    let target = r.ctrl.odometer().lifetime().cycles + n;
-    for _ in 0..(n as usize * 6_000) {
-        r.tick();
-        if r.ctrl.state() == State::Idle && !r.ctrl.persist_pending() {
-            if r.ctrl.odometer().lifetime().cycles >= target {
-                return;
-            }
-            r.ctrl.request(Request::StartCycle);
-        }
-    }
-    panic!("cycles did not complete");
-}
+use host_tests::run_cycles;
 
 #[test]
 fn read_commands_in_text_and_json() {

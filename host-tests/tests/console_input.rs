@@ -1298,14 +1298,7 @@ proptest! {
 
 #[test]
 fn corpus_inputs_keep_invariants() {
-    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/fuzz-corpus/console");
-    let mut files: Vec<_> = std::fs::read_dir(dir)
-        .unwrap_or_else(|e| panic!("{dir}: {e}"))
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.is_file())
-        .collect();
-    files.sort();
-    assert!(files.len() >= 20, "only {} corpus files", files.len());
+    let files = host_tests::corpus_files("console");
     let mut total = Seen::default();
     for path in &files {
         let bytes = std::fs::read(path).unwrap();

@@ -236,19 +236,7 @@ fn run_until(r: &mut Rig, max_ticks: usize, mut f: impl FnMut(&Rig) -> bool) -> 
     false
 }
 
-fn run_cycles(r: &mut Rig, n: u32) {
-    let target = r.ctrl.odometer().lifetime().cycles + n;
-    for _ in 0..(n as usize * 6_000) {
-        r.tick();
-        if r.ctrl.state() == State::Idle && !r.ctrl.persist_pending() {
-            if r.ctrl.odometer().lifetime().cycles >= target {
-                return;
-            }
-            r.ctrl.request(Request::StartCycle);
-        }
-    }
-    panic!("cycles did not complete");
-}
+use host_tests::run_cycles;
 
 /// What a read must not change.
 #[derive(Debug, PartialEq)]
@@ -1341,14 +1329,7 @@ proptest! {
 
 #[test]
 fn corpus_frames_keep_invariants() {
-    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/fuzz-corpus/modbus");
-    let mut files: Vec<_> = std::fs::read_dir(dir)
-        .unwrap_or_else(|e| panic!("{dir}: {e}"))
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.is_file())
-        .collect();
-    files.sort();
-    assert!(files.len() >= 20, "only {} corpus files", files.len());
+    let files = host_tests::corpus_files("modbus");
     let mut total = Seen::default();
     for path in &files {
         let bytes = std::fs::read(path).unwrap();
