@@ -581,10 +581,12 @@ impl Soc {
             return;
         }
         let af = self.af_ok(Signal::ModbusTx, 7);
+        // The character time at the rate USART3 is set to (the stored setting).
+        let baud = self.usart3.baud(self.rcc.clocks().pclk1).max(1);
         for (t, b) in sent {
             // DE's level when the byte's stop bit ended (a byte starts 11 bit times
             // earlier; DE must have been high all along: checked at both ends).
-            let start = t.saturating_sub(11 * crate::time::PS_PER_S / MODBUS_BAUD as u64);
+            let start = t.saturating_sub(11 * crate::time::PS_PER_S / baud);
             if af && self.de_high_at(start) && self.de_high_at(t) {
                 self.modbus_out.push((t, b));
             } else {

@@ -124,3 +124,31 @@ fn the_plc_docks_and_undocks_through_the_map_and_the_reply_waits_t3_5() {
     assert_eq!(&r[..3], &[1, 0x85, 0x04], "{r:02x?}");
     assert_eq!(s.board.soc().modbus_de_losses, 0);
 }
+
+#[test]
+fn stored_modbus_settings_take_effect_on_the_board_after_a_reset() {
+    let mut s = booted();
+    for cmd in ["pin set 2468", "maint 2468"] {
+        assert!(s.console(cmd, PS_PER_S).unwrap().starts_with("ok"), "{cmd}");
+    }
+    let r = s.console("modbus 7 38400", 2 * PS_PER_S).unwrap();
+    assert!(r.starts_with("ok"), "{r}");
+    // Until the next boot the line keeps 19200 and unit 1.
+    assert_eq!(read_inputs(&mut s, ir::STATUS, 1).len(), 1);
+    s.board.reset_pin();
+    s.run_for(2 * PS_PER_S).unwrap();
+    // The old settings get nothing now (a 19200 master garbles at 38400: framing errors).
+    assert!(s
+        .modbus(&rtu(1, &[0x04, 0, 0, 0, 1]), 300 * PS_PER_MS)
+        .unwrap()
+        .is_empty());
+    s.board.soc_mut().usart3.far_baud = 38_400;
+    // Unit 1 is no longer ours; unit 7 answers.
+    assert!(s
+        .modbus(&rtu(1, &[0x04, 0, 0, 0, 1]), 300 * PS_PER_MS)
+        .unwrap()
+        .is_empty());
+    let r = s.modbus(&rtu(7, &[0x04, 0, 0, 0, 1]), PS_PER_S).unwrap();
+    assert_eq!(&r[..2], &[7, 0x04], "{r:02x?}");
+    assert_eq!(s.board.soc().modbus_de_losses, 0);
+}
