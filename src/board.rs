@@ -286,12 +286,12 @@ impl PlcPins {
     }
 }
 
-/// The E-STOP's outputs: propulsion EN (PE11) high, lock IN1/IN2 (PD12/PD13) low, MATED
-/// (PD1) low — three set/reset stores, no read-modify-write, from any context.
-fn estop_outputs_off() {
-    // SAFETY: fixed MMIO set/reset registers of GPIOE and GPIOD (clocked since init).
+/// The E-STOP's outputs besides the propulsion (whose EN the safety path's
+/// [`BoardStop::stop_now`] sets): lock IN1/IN2 (PD12/PD13) and MATED (PD1) low — one
+/// set/reset store, no read-modify-write, from any context.
+fn estop_lock_and_mated_off() {
+    // SAFETY: a fixed MMIO set/reset register of GPIOD (clocked since init).
     unsafe {
-        core::ptr::write_volatile((GPIOE_BASE + BSRR) as *mut u32, 1 << 11);
         core::ptr::write_volatile(
             (GPIOD_BASE + BSRR) as *mut u32,
             (1 << (12 + 16)) | (1 << (13 + 16)) | (1 << (1 + 16)),
@@ -493,12 +493,7 @@ mod app {
         let (tx_in, tx_out) = cx.local.tx_ring.split();
 
         // 12. The Modbus line on USART3 (settings as stored, else 19200 8E1 unit 1).
-        let mut mb_buf = [0u8; docking_controller::modbus::ModbusSettings::LEN];
-        let modbus_settings = ctrl
-            .load_record(docking_controller::odometer::kind::MODBUS, &mut mb_buf)
-            .and_then(|n| mb_buf.get(..n))
-            .and_then(docking_controller::modbus::ModbusSettings::from_bytes)
-            .unwrap_or(docking_controller::modbus::ModbusSettings::DEFAULT);
+        let modbus_settings = docking_controller::modbus::ModbusSettings::stored(ctrl);
         let _de = gpiob.pb14.into_push_pull_output_in_state(PinState::Low);
         let mb_serial = match dp.USART3.serial(
             (gpiob.pb10, gpiob.pb11),
@@ -594,8 +589,9 @@ mod app {
     /// now, latched; the control step latches the `emergency_stop` fault.
     #[task(binds = EXTI9_5, priority = 5, local = [estop_stop])]
     fn estop(cx: estop::Context) {
-        estop_outputs_off();
+        // The propulsion first, by the same stop and latch as the overload's.
         let _ = cx.local.estop_stop.stop_now();
+        estop_lock_and_mated_off();
         // SAFETY: EXTI PR is write-1-to-clear; line 5 is ours.
         unsafe {
             (*pac::EXTI::ptr())

@@ -1026,7 +1026,7 @@ impl<B: Bsp> Controller<B> {
         self.track_phase(now_ms, depth_um, sample.is_some());
 
         // The PLC: DOCK counts once two steps read it alike, and acts at its edges.
-        if self.dock_raw == self.dock_prev_raw() && self.dock_raw != self.dock {
+        if self.dock_raw == self.dock_seen && self.dock_raw != self.dock {
             self.dock = self.dock_raw;
             let r = match (self.dock, state) {
                 (true, State::PowerUp) => Some(Request::Home),
@@ -1377,10 +1377,6 @@ impl<B: Bsp> Controller<B> {
     /// The oldest unread event.
     pub fn next_event(&mut self) -> Option<Timed> {
         self.events.pop_front()
-    }
-
-    fn dock_prev_raw(&self) -> bool {
-        self.dock_seen
     }
 
     /// The PLC's inputs as read now (the board reads its pins before each step): DOCK

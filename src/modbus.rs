@@ -311,6 +311,17 @@ impl ModbusSettings {
         Self::new(unit, u32::from_le_bytes([b0, b1, b2, b3]))
     }
 
+    /// The settings `ctrl`'s odometer log holds (record kind
+    /// [`crate::odometer::kind::MODBUS`]), else [`Self::DEFAULT`]: what the board opens
+    /// the line with at boot, and what the console's `modbus` shows.
+    pub fn stored<B: Bsp>(ctrl: &mut Controller<B>) -> Self {
+        let mut buf = [0u8; Self::LEN];
+        ctrl.load_record(crate::odometer::kind::MODBUS, &mut buf)
+            .and_then(|n| buf.get(..n))
+            .and_then(Self::from_bytes)
+            .unwrap_or(Self::DEFAULT)
+    }
+
     /// One character (11 bits) on the line, µs, rounded up.
     pub const fn char_us(&self) -> u32 {
         (BITS_PER_CHAR * 1_000_000).div_ceil(nonzero(self.baud))

@@ -490,25 +490,16 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
             };
             Ok(Command::History { n, json: a.json })
         }
-        "clear-fault" => {
+        // The actions without arguments.
+        "clear-fault" | "home" | "dock" | "undock" | "stop" => {
             a.action(0)?;
-            Ok(Command::ClearFault)
-        }
-        "home" => {
-            a.action(0)?;
-            Ok(Command::Home)
-        }
-        "dock" => {
-            a.action(0)?;
-            Ok(Command::Dock)
-        }
-        "undock" => {
-            a.action(0)?;
-            Ok(Command::Undock)
-        }
-        "stop" => {
-            a.action(0)?;
-            Ok(Command::Stop)
+            Ok(match word {
+                "clear-fault" => Command::ClearFault,
+                "home" => Command::Home,
+                "dock" => Command::Dock,
+                "undock" => Command::Undock,
+                _ => Command::Stop,
+            })
         }
         "rate" => {
             a.action(1)?;

@@ -255,6 +255,27 @@ impl Console {
         salt
     }
 
+    /// A command to the controller ([`Controller::command`]): on acceptance the audit
+    /// record `act` (if any) and `ok_msg`, else the refusal.
+    fn request<B: Bsp>(
+        &mut self,
+        ctrl: &mut Controller<B>,
+        r: Request,
+        act: Option<u8>,
+        now_ms: u64,
+        ok_msg: &str,
+    ) {
+        match ctrl.command(r) {
+            Ok(()) => {
+                if let Some(act) = act {
+                    self.audit(ctrl, act, now_ms, &[]);
+                }
+                self.ok(&ok_msg);
+            }
+            Err(e) => self.err(&e),
+        }
+    }
+
     fn audit<B: Bsp>(&mut self, ctrl: &mut Controller<B>, act: u8, now_ms: u64, detail: &[u8]) {
         // action u8 | lifetime cycle u32 | cone id u16 | cone cycle u32 | t_ms u64 | detail ≤ 29 B
         let odo = ctrl.odometer();
@@ -332,38 +353,44 @@ impl Console {
             Command::Wear { json } => self.wear(ctrl, json),
             Command::History { n, json } => self.history(ctrl, n as usize, json),
             Command::Faults { json } => self.faults(ctrl, json),
-            Command::ClearFault => match ctrl.command(Request::ClearFault) {
-                Ok(()) => {
-                    self.audit(ctrl, action::CLEAR_FAULT, now_ms, &[]);
-                    self.ok(&"fault cleared; recovering to home");
-                }
-                Err(e) => self.err(&e),
-            },
-            Command::Home => match ctrl.command(Request::Home) {
-                Ok(()) => {
-                    self.audit(ctrl, action::HOME, now_ms, &[]);
-                    self.ok(&"homing: the axis moves at no more than v0, then the lock");
-                }
-                Err(e) => self.err(&e),
-            },
-            Command::Dock => match ctrl.command(Request::Dock) {
-                Ok(()) => {
-                    self.audit(ctrl, action::DOCK, now_ms, &[]);
-                    self.ok(&"docking: mated until undock");
-                }
-                Err(e) => self.err(&e),
-            },
-            Command::Undock => match ctrl.command(Request::Undock) {
-                Ok(()) => {
-                    info!("console: undock");
-                    self.ok(&"undocking: extraction, re-lock, home");
-                }
-                Err(e) => self.err(&e),
-            },
-            Command::Stop => {
-                let _ = ctrl.command(Request::Stop);
-                self.ok(&"stopped: all motion off, latched (clear-fault to recover)");
-            }
+            Command::ClearFault => self.request(
+                ctrl,
+                Request::ClearFault,
+                Some(action::CLEAR_FAULT),
+                now_ms,
+                "fault cleared; recovering to home",
+            ),
+            Command::Home => self.request(
+                ctrl,
+                Request::Home,
+                Some(action::HOME),
+                now_ms,
+                "homing: the axis moves at no more than v0, then the lock",
+            ),
+            Command::Dock => self.request(
+                ctrl,
+                Request::Dock,
+                Some(action::DOCK),
+                now_ms,
+                "docking: mated until undock",
+            ),
+            // Runs while the machine moves, when no flash is written: not audited (the
+            // cycle's history entry records it).
+            Command::Undock => self.request(
+                ctrl,
+                Request::Undock,
+                None,
+                now_ms,
+                "undocking: extraction, re-lock, home",
+            ),
+            // Never refused.
+            Command::Stop => self.request(
+                ctrl,
+                Request::Stop,
+                None,
+                now_ms,
+                "stopped: all motion off, latched (clear-fault to recover)",
+            ),
             Command::Rate { sps } => match ctrl.store_rate(sps) {
                 Ok(()) => {
                     self.audit(ctrl, action::RATE, now_ms, &sps.to_le_bytes());
@@ -372,12 +399,7 @@ impl Console {
                 Err(e) => self.err(&e),
             },
             Command::ModbusShow => {
-                let mut buf = [0u8; crate::modbus::ModbusSettings::LEN];
-                let st = ctrl
-                    .load_record(kind::MODBUS, &mut buf)
-                    .and_then(|n| buf.get(..n))
-                    .and_then(crate::modbus::ModbusSettings::from_bytes)
-                    .unwrap_or(crate::modbus::ModbusSettings::DEFAULT);
+                let st = crate::modbus::ModbusSettings::stored(ctrl);
                 self.reply(|o| {
                     write!(
                         o,
