@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::run;
+use common::{run, usage_error};
 
 mod example {
     include!("../../docs/tuning-example-18kg.rs");
@@ -65,9 +65,6 @@ fn commission_refuses_what_it_cannot_tune() {
         ],
         &["commission", "--model", "plant", "--mu1", "x"],
     ] {
-        let (code, out, err) = run(bad);
-        assert_eq!(code, 2, "{bad:?}");
-        assert!(out.is_empty());
-        assert_eq!(err.lines().count(), 1, "{bad:?}: {err}");
+        usage_error(bad);
     }
 }

@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::run;
+use common::{run, usage_error};
 
 fn field(json: &str, key: &str) -> f64 {
     let at = json
@@ -73,10 +73,7 @@ fn bad_life_arguments_exit_2_with_one_line() {
         &["endurance", "--cycles", "0"],
         &["accuracy", "--extra"],
     ] {
-        let (code, out, err) = run(args);
-        assert_eq!(code, 2, "{args:?}");
-        assert!(out.is_empty(), "{args:?}");
-        assert_eq!(err.lines().count(), 1, "{args:?}: {err}");
+        usage_error(args);
     }
 }
 

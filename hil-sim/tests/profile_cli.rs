@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::run;
+use common::{run, usage_error};
 
 fn rows(csv: &str) -> Vec<Vec<f64>> {
     let mut lines = csv.lines();
@@ -66,9 +66,6 @@ fn bad_arguments_get_one_line_and_exit_2() {
         &["frobnicate"],
         &[],
     ] {
-        let (code, out, err) = run(args);
-        assert_eq!(code, 2, "{args:?}");
-        assert!(out.is_empty(), "{args:?}");
-        assert_eq!(err.lines().count(), 1, "{args:?}: {err}");
+        usage_error(args);
     }
 }

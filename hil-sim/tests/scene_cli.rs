@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::run;
+use common::{run, usage_error};
 
 #[test]
 fn json_has_the_documented_fields() {
@@ -38,10 +38,7 @@ fn bad_scene_arguments_exit_2_with_one_line() {
         &["scene", "nominal", "--json", "yes"],
         &["bench", "--rate", "0"],
     ] {
-        let (code, out, err) = run(args);
-        assert_eq!(code, 2, "{args:?}");
-        assert!(out.is_empty(), "{args:?}");
-        assert_eq!(err.lines().count(), 1, "{args:?}: {err}");
+        usage_error(args);
     }
 }
 
@@ -100,9 +97,6 @@ fn another_machine_runs_from_the_command_line_with_its_configuration() {
         &["scene", "nominal", "--mass-kg", "18"],
         &["scene", "nominal", "--model", "plant", "--mu2", "0.9"],
     ] {
-        let (code, out, err) = run(bad);
-        assert_eq!(code, 2, "{bad:?}");
-        assert!(out.is_empty());
-        assert_eq!(err.lines().count(), 1, "{bad:?}: {err}");
+        usage_error(bad);
     }
 }

@@ -28,6 +28,17 @@ mod shared {
         panic!("cycles did not complete");
     }
 
+    /// Tick `r` until `f` holds (`true`) or `max_ticks` pass (`false`).
+    pub fn run_until(r: &mut Rig, max_ticks: usize, mut f: impl FnMut(&Rig) -> bool) -> bool {
+        for _ in 0..max_ticks {
+            r.tick();
+            if f(r) {
+                return true;
+            }
+        }
+        false
+    }
+
     /// The files of the kept fuzz corpus `fuzz-corpus/NAME/`, sorted; panics with fewer
     /// than 20.
     pub fn corpus_files(name: &str) -> Vec<PathBuf> {
@@ -46,4 +57,4 @@ mod shared {
 }
 
 #[cfg(not(target_os = "none"))]
-pub use shared::{corpus_files, run_cycles};
+pub use shared::{corpus_files, run_cycles, run_until};

@@ -226,15 +226,7 @@ fn rig() -> Rig {
     rig_with(RigOptions::new(80))
 }
 
-fn run_until(r: &mut Rig, max_ticks: usize, mut f: impl FnMut(&Rig) -> bool) -> bool {
-    for _ in 0..max_ticks {
-        r.tick();
-        if f(r) {
-            return true;
-        }
-    }
-    false
-}
+use host_tests::run_until;
 
 use host_tests::run_cycles;
 

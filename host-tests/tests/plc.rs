@@ -12,15 +12,7 @@ fn rig() -> Rig {
     r
 }
 
-fn run_until(r: &mut Rig, max_ticks: usize, mut f: impl FnMut(&Rig) -> bool) -> bool {
-    for _ in 0..max_ticks {
-        r.tick();
-        if f(r) {
-            return true;
-        }
-    }
-    false
-}
+use host_tests::run_until;
 
 #[test]
 fn dock_asserted_across_a_reset_is_not_a_request() {

@@ -699,6 +699,17 @@ pub struct SceneOptions {
     pub flood: bool,
 }
 
+impl Default for SceneOptions {
+    /// One cycle on a default session ([`Options::new`]), no flood.
+    fn default() -> Self {
+        Self {
+            session: Options::new(),
+            cycles: 1,
+            flood: false,
+        }
+    }
+}
+
 /// What a scene produced: the fields of `hil-sim scene --json`, and what only a board
 /// shows.
 #[derive(Clone, Debug)]

@@ -3,14 +3,10 @@
 //! with `cargo build --release --target thumbv7em-none-eabihf` (CI does).
 
 use vboard::periph::flash::FlashTiming;
-use vboard::scene::{run, Options, SceneOptions};
+use vboard::scene::{run, SceneOptions};
 
 fn opts() -> SceneOptions {
-    SceneOptions {
-        session: Options::new(),
-        cycles: 1,
-        flood: false,
-    }
+    SceneOptions::default()
 }
 
 /// Defect 1: stm32f4xx-hal 0.23's timer `delay_ns` waits microseconds, so every PD_SCK

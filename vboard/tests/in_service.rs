@@ -6,11 +6,7 @@ use vboard::scene::{run, Options, SceneOptions, Session};
 use vboard::time::PS_PER_S;
 
 fn opts() -> SceneOptions {
-    SceneOptions {
-        session: Options::new(),
-        cycles: 1,
-        flood: false,
-    }
+    SceneOptions::default()
 }
 
 #[test]

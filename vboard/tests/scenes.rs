@@ -5,11 +5,7 @@ use vboard::scene::{json_field, run, Options, SceneOptions, Session, PS_PER_MS};
 use vboard::time::PS_PER_S;
 
 fn opts() -> SceneOptions {
-    SceneOptions {
-        session: Options::new(),
-        cycles: 1,
-        flood: false,
-    }
+    SceneOptions::default()
 }
 
 #[test]
