@@ -1077,17 +1077,16 @@ mod tests {
         assert_eq!(r.seq.cycles_completed(), 1);
     }
 
-    /// Boot to idle, request `r` (Dock or StartCycle) and drive the rig to the mated
-    /// position: the state once there.
-    fn mated_by(r: &mut Rig, req: Request) -> State {
-        let cfg = MachineConfig::DEFAULT;
+    /// Boot to idle, request `req` (Dock or StartCycle) and drive the rig through the
+    /// pre-alignment and the release into the compliant insertion.
+    fn inserting_by(r: &mut Rig, req: Request) {
         for _ in 0..3 {
             r.tick(10);
         }
         r.inp.request = Some(req);
         r.tick(10);
         r.inp.switches.home = false;
-        r.inp.pos_um = cfg.engage_um;
+        r.inp.pos_um = MachineConfig::DEFAULT.engage_um;
         r.tick(2_000);
         r.inp.switches = Switches {
             released: true,
@@ -1095,7 +1094,13 @@ mod tests {
         };
         r.tick(400);
         assert!(matches!(r.seq.state(), State::Inserting { .. }));
-        r.inp.pos_um = cfg.mated_um();
+    }
+
+    /// Boot to idle, request `r` (Dock or StartCycle) and drive the rig to the mated
+    /// position: the state once there.
+    fn mated_by(r: &mut Rig, req: Request) -> State {
+        inserting_by(r, req);
+        r.inp.pos_um = MachineConfig::DEFAULT.mated_um();
         r.tick(25_000);
         r.seq.state()
     }
@@ -1178,16 +1183,7 @@ mod tests {
     fn undock_during_insertion_extracts_from_where_it_is_and_counts() {
         let cfg = MachineConfig::DEFAULT;
         let mut r = Rig::new();
-        let _ = r.started();
-        r.inp.switches.home = false;
-        r.inp.pos_um = cfg.engage_um;
-        r.tick(2_000);
-        r.inp.switches = Switches {
-            released: true,
-            ..Switches::default()
-        };
-        r.tick(400);
-        assert!(matches!(r.seq.state(), State::Inserting { .. }));
+        inserting_by(&mut r, Request::StartCycle);
         r.inp.axis_idle = false;
         r.inp.pos_um = cfg.engage_um + 9_000; // mid-insertion
         r.tick(10);

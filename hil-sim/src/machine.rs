@@ -5,7 +5,7 @@
 //!
 //! The guard's envelope, the hold force and the odometer's nominal load–distance follow
 //! from the machine's parameters (mass, friction coefficients, chamfer, tilt). They are
-//! computed **on the host at commissioning** ([`matching_config`]) and given to the
+//! computed **on the host at commissioning** ([`Tuning::for_plant`]) and given to the
 //! controller as its configuration; the firmware never evaluates the plant (no floating
 //! point trigonometry, no root finder, no flash for them on the board — it carries
 //! tables). The paper's machine is the build's default (Eq. 7's table, computed at build
@@ -127,10 +127,53 @@ pub struct Tuning {
 }
 
 impl Tuning {
-    /// The machine of `params`.
+    /// The machine of `params`: the guard's nominal profile with the µ spread (and the
+    /// default guard's margins), its hard limit, the hold force and the nominal
+    /// load–distance.
     pub fn for_plant(params: PlantParams) -> Result<Self, ConfigError> {
-        let base = ControllerConfig::new(80, docking_controller::hx711::Calibration::SIM_DEFAULT);
-        matching_config(base, params).map(|c| Self::of(&c))
+        let nominal = ForceModel::plant(params).map_err(ConfigError::Plant)?;
+        let mut spread = Vec::new();
+        for d1 in [-MU_SPREAD, 0.0, MU_SPREAD] {
+            for d2 in [-MU_SPREAD, 0.0, MU_SPREAD] {
+                let p = PlantParams {
+                    mu1: (params.mu1 + d1).max(0.0),
+                    mu2: (params.mu2 + d2).max(0.0),
+                    ..params
+                };
+                spread.push(ForceModel::plant(p).map_err(ConfigError::Plant)?);
+            }
+        }
+        let jumps: Vec<i32> = spread.iter().flat_map(|m| m.jumps_um()).collect();
+        let profile = NominalProfile::from_fn(
+            |d| {
+                spread
+                    .iter()
+                    .map(|m| m.n3_at_depth_um(d as f64))
+                    .fold(0.0, f64::max)
+            },
+            &jumps,
+        );
+        let g = GuardConfig::DEFAULT;
+        let peak = profile.peak_mn() as i64;
+        // The envelope's own peak, capped at the cell's rating; a machine whose nominal
+        // peak (spread included) leaves less than the absolute margin below the rating
+        // cannot be protected by this cell.
+        if peak + g.abs_mn as i64 > CELL_RATED_MN as i64 {
+            return Err(ConfigError::BeyondCell((peak + g.abs_mn as i64) as i32));
+        }
+        let needed = (peak * (100 + g.rel_pct as i64) / 100 + g.abs_mn as i64) as i32;
+        let hard = needed.clamp(g.hard_limit_mn, CELL_RATED_MN);
+        Ok(Self {
+            guard: GuardConfig {
+                hard_limit_mn: hard,
+                // Commissioning runs once per machine: the table lives as long as the
+                // program.
+                nominal: Box::leak(Box::new(profile)),
+                ..g
+            },
+            nominal_w_q1: nominal_cycle_w_q1(&nominal),
+            hold_expected_mn: (nominal.n3_at_depth_um(STROKE_UM as f64) * 1000.0).round() as i32,
+        })
     }
 
     /// The machine-specific part of `cfg`.
@@ -183,57 +226,6 @@ impl Tuning {
     }
 }
 
-/// The controller configuration that matches the machine of `params`, from `base` (the
-/// rate, calibration and the rest are kept): the guard's nominal profile with the µ
-/// spread, its hard limit, the hold force and the nominal load–distance.
-pub fn matching_config(
-    base: ControllerConfig,
-    params: PlantParams,
-) -> Result<ControllerConfig, ConfigError> {
-    let nominal = ForceModel::plant(params).map_err(ConfigError::Plant)?;
-    let mut spread = Vec::new();
-    for d1 in [-MU_SPREAD, 0.0, MU_SPREAD] {
-        for d2 in [-MU_SPREAD, 0.0, MU_SPREAD] {
-            let p = PlantParams {
-                mu1: (params.mu1 + d1).max(0.0),
-                mu2: (params.mu2 + d2).max(0.0),
-                ..params
-            };
-            spread.push(ForceModel::plant(p).map_err(ConfigError::Plant)?);
-        }
-    }
-    let jumps: Vec<i32> = spread.iter().flat_map(|m| m.jumps_um()).collect();
-    let profile = NominalProfile::from_fn(
-        |d| {
-            spread
-                .iter()
-                .map(|m| m.n3_at_depth_um(d as f64))
-                .fold(0.0, f64::max)
-        },
-        &jumps,
-    );
-    let g = base.guard;
-    let peak = profile.peak_mn() as i64;
-    // The envelope's own peak, capped at the cell's rating; a machine whose nominal
-    // peak (spread included) leaves less than the absolute margin below the rating
-    // cannot be protected by this cell.
-    if peak + g.abs_mn as i64 > CELL_RATED_MN as i64 {
-        return Err(ConfigError::BeyondCell((peak + g.abs_mn as i64) as i32));
-    }
-    let needed = (peak * (100 + g.rel_pct as i64) / 100 + g.abs_mn as i64) as i32;
-    let hard = needed.clamp(GuardConfig::DEFAULT.hard_limit_mn, CELL_RATED_MN);
-    let mut cfg = base;
-    cfg.guard = GuardConfig {
-        hard_limit_mn: hard,
-        // Commissioning runs once per machine: the table lives as long as the program.
-        nominal: Box::leak(Box::new(profile)),
-        ..g
-    };
-    cfg.wear.nominal_w_q1 = nominal_cycle_w_q1(&nominal);
-    cfg.hold_expected_mn = (nominal.n3_at_depth_um(STROKE_UM as f64) * 1000.0).round() as i32;
-    Ok(cfg)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -250,8 +242,7 @@ mod tests {
 
     #[test]
     fn the_paper_machine_matches_todays_configuration_within_the_residuals() {
-        let base = ControllerConfig::new(80, docking_controller::hx711::Calibration::SIM_DEFAULT);
-        let cfg = matching_config(base, PlantParams::PAPER).unwrap();
+        let cfg = Tuning::for_plant(PlantParams::PAPER).unwrap();
         // Within the µ spread's reach of Eq. 7, and never below it by more than the
         // plant's residual (phase 3: 1.7 N).
         for (i, (&m, &e)) in cfg
@@ -267,7 +258,7 @@ mod tests {
         }
         // The µ spread lifts the phase-4 peak by ≈ 14 N: the hard limit follows a little.
         assert!((300_000..=310_000).contains(&cfg.guard.hard_limit_mn));
-        let w = cfg.wear.nominal_w_q1 as f64 / W_NOM_Q1 as f64;
+        let w = cfg.nominal_w_q1 as f64 / W_NOM_Q1 as f64;
         assert!((w - 1.0).abs() < 0.01, "{w}");
         assert!(
             (cfg.hold_expected_mn - 125_098).abs() < 1_000,
@@ -278,27 +269,26 @@ mod tests {
 
     #[test]
     fn a_heavier_machine_gets_a_higher_envelope_and_a_machine_beyond_the_cell_an_error() {
-        let base = ControllerConfig::new(80, docking_controller::hx711::Calibration::SIM_DEFAULT);
         let heavy = PlantParams {
             mass_kg: 18.0,
             mu2: 0.1,
             ..PlantParams::PAPER
         };
-        let cfg = matching_config(base, heavy).unwrap();
+        let cfg = Tuning::for_plant(heavy).unwrap();
         assert!(
             cfg.guard.nominal.peak_mn() > 300_000,
             "{}",
             cfg.guard.nominal.peak_mn()
         );
         assert!(cfg.guard.hard_limit_mn > 300_000);
-        assert!(cfg.wear.nominal_w_q1 > W_NOM_Q1);
+        assert!(cfg.nominal_w_q1 > W_NOM_Q1);
         let beyond = PlantParams {
             mass_kg: 40.0,
             mu2: 0.05,
             ..PlantParams::PAPER
         };
         assert!(matches!(
-            matching_config(base, beyond),
+            Tuning::for_plant(beyond),
             Err(ConfigError::BeyondCell(_))
         ));
     }
