@@ -40,7 +40,7 @@ use crate::odometer::{
 };
 use crate::profile::{ContactPhase, BOUNDARY_UM, STROKE_UM};
 use crate::propulsion::Propulsion;
-use crate::safety::{GuardMode, KernelConfig, KernelEvent};
+use crate::safety::{GuardMode, KernelConfig, KernelEvent, BACKOFF_RISE_MN};
 use crate::sequencer::{AxisCmd, FaultKind, Inputs, Request, SeqEvent, Sequencer, State, Switches};
 use crate::storage::{OpenReport, RecordLog};
 
@@ -342,6 +342,8 @@ pub struct Controller<B: Bsp> {
     mismatch_reported: bool,
     mismatch_run: u8,
     force_mn: i32,
+    /// The force at the overload trip that started the back-off, mN.
+    trip_force_mn: i32,
     limit_mn: i32,
     warning: bool,
     peak_force_mn: i32,
@@ -552,6 +554,20 @@ fn closed<P: InputPin>(p: &mut P) -> Result<bool, ()> {
     p.is_low().map_err(|_| ())
 }
 
+/// The interquartile mean of up to [`TARE_SAMPLES`] raw codes (`None` below
+/// [`TARE_MIN_SAMPLES`]): sorted, `n / 4` dropped at each end, the rest averaged.
+fn rest_zero_code(codes: impl Iterator<Item = i32>) -> Option<i32> {
+    let mut v: heapless::Vec<i32, TARE_SAMPLES> = codes.take(TARE_SAMPLES).collect();
+    if v.len() < TARE_MIN_SAMPLES {
+        return None;
+    }
+    v.sort_unstable();
+    let cut = v.len() / 4;
+    let mid = v.get(cut..v.len() - cut)?;
+    let n = i64::try_from(mid.len()).ok()?.max(1);
+    i32::try_from(mid.iter().map(|&c| i64::from(c)).sum::<i64>() / n).ok()
+}
+
 impl<B: Bsp> Controller<B> {
     /// Take the parts, put every motor output in its safe state, start at `now_us`.
     pub fn new(parts: Parts<B>, cfg: ControllerConfig) -> Result<Self, StartError> {
@@ -650,6 +666,7 @@ impl<B: Bsp> Controller<B> {
             mismatch_reported: false,
             mismatch_run: 0,
             force_mn: 0,
+            trip_force_mn: 0,
             limit_mn: cfg.guard.hard_limit_mn,
             warning: false,
             peak_force_mn: 0,
@@ -976,6 +993,10 @@ impl<B: Bsp> Controller<B> {
                     self.disabled_at_us = Some(smp.t_us);
                     result.tripped = true;
                     self.overload_trips = self.overload_trips.saturating_add(1);
+                    if !matches!(state, State::BackingOff { .. }) {
+                        // The back-off's ceiling: the load may not rise past it.
+                        self.trip_force_mn = self.force_mn;
+                    }
                     self.odo.record_overload(self.force_mn);
                     self.persist_pending = true;
                     fault = fault.or(Some(FaultKind::Overload));
@@ -1211,7 +1232,9 @@ impl<B: Bsp> Controller<B> {
     pub fn kernel_config(&self) -> KernelConfig {
         let state = self.seq.state();
         let mode = match state {
-            State::BackingOff { .. } => GuardMode::BackOff,
+            State::BackingOff { .. } => GuardMode::BackOff {
+                ceiling_mn: self.trip_force_mn.saturating_add(BACKOFF_RISE_MN),
+            },
             s if s.in_compliant_motion() => GuardMode::Cone {
                 depth_um: self.prop.position_um() - self.cfg.machine.engage_um,
             },
@@ -1230,13 +1253,13 @@ impl<B: Bsp> Controller<B> {
         self.calibrated
     }
 
-    /// Mean raw code of the samples at rest, once there are enough of them.
+    /// The zero of the samples at rest, once there are enough of them: their
+    /// **interquartile mean** (sorted, a quarter dropped at each end, the middle half
+    /// averaged). A load spike — or up to a quarter of the window's samples spiking —
+    /// moves it by nothing more than the noise, where a plain mean of 16 samples moves
+    /// 22 N for one 350 N spike and fails the tare (`spike_during_tare_neither_faults_nor_moves_the_zero`).
     fn rest_mean_code(&self) -> Option<i32> {
-        if self.recent_raw.len() < TARE_MIN_SAMPLES {
-            return None;
-        }
-        let n = self.recent_raw.len() as i64;
-        Some((self.recent_raw.iter().map(|&c| c as i64).sum::<i64>() / n) as i32)
+        rest_zero_code(self.recent_raw.iter().copied())
     }
 
     fn take_tare(&mut self) -> TareResult {
@@ -1898,5 +1921,23 @@ fn sensor_fault(f: SensorFault) -> FaultKind {
         SensorFault::Disconnected => FaultKind::SensorDisconnected,
         SensorFault::Saturated => FaultKind::SensorSaturated,
         SensorFault::Stuck => FaultKind::SensorStuck,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::rest_zero_code;
+
+    #[test]
+    fn tare_zero_ignores_a_spike_and_needs_eight_samples() {
+        // 16 samples of noise ±20 counts around 1000, one at +350 N (≈ 3 M counts).
+        let mut codes: [i32; 16] = core::array::from_fn(|i| 1000 + (i as i32 % 5) * 10 - 20);
+        let clean = rest_zero_code(codes.iter().copied()).unwrap();
+        codes[7] = 3_000_000;
+        let spiked = rest_zero_code(codes.iter().copied()).unwrap();
+        assert!((spiked - clean).abs() <= 20, "{clean} -> {spiked}");
+        assert!((clean - 1000).abs() <= 20);
+        assert_eq!(rest_zero_code(codes.iter().copied().take(7)), None);
+        assert!(rest_zero_code(codes.iter().copied().take(8)).is_some());
     }
 }

@@ -44,9 +44,21 @@ pub enum GuardMode {
         /// Insertion depth, µm.
         depth_um: i32,
     },
-    /// Retreating from an overload: the load is high and falling, only the hard limits.
-    BackOff,
+    /// Retreating from an overload: the load is high and should fall as the panel
+    /// moves away. A sample is judged against the hard limit or `ceiling_mn`, whichever
+    /// is higher: a load still over the hard limit but no higher than at the trip lets
+    /// the retreat finish; only a load that keeps rising while retreating (a jam on the
+    /// way out) trips it, and then the axis is left off.
+    BackOff {
+        /// The force at the trip plus [`BACKOFF_RISE_MN`], mN.
+        ceiling_mn: i32,
+    },
 }
+
+/// How far the load may rise above the force at the trip while the panel backs off
+/// before the retreat is cut as a jam on the way out, mN (30 sigma of the cell's
+/// 0.3 N noise; a retreat relieves the contact, so its load falls by far more).
+pub const BACKOFF_RISE_MN: i32 = 10_000;
 
 /// What the controller tells the kernel after each control step.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -174,7 +186,10 @@ impl<A: LoadCellAdc> SafetyKernel<A> {
     pub fn limit_mn(&self, mode: GuardMode) -> i32 {
         self.guard.limit_mn(match mode {
             GuardMode::Cone { depth_um } => Some(depth_um),
-            GuardMode::Free | GuardMode::BackOff => None,
+            GuardMode::Free => None,
+            GuardMode::BackOff { ceiling_mn } => {
+                return self.guard.limit_mn(None).max(ceiling_mn);
+            }
         })
     }
 

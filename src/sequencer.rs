@@ -47,7 +47,7 @@
 //!                                               0.5 mm, then creeping onto the home sw)
 //!
 //!  any state ──fault──▶ Faulted (motors off, latched)
-//!  moving, overload ──▶ BackingOff (retreat `back_off_um` at ≤ v0, guard still active) ─▶ Faulted
+//!  moving, overload ──▶ BackingOff (retreat `back_off_um` at ≤ v0; cut only by a load rising past the trip's) ─▶ Faulted
 //!  Faulted ──ClearFault──▶ Recovering (to engage at ≤ v0) ─▶ Locking ─▶ Returning ─▶ Idle
 //! ```
 //!
