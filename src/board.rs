@@ -79,7 +79,7 @@ use docking_controller::diag::{file_tail, Crash, CrashKind, ResetCause};
 use docking_controller::hal::StopLatch;
 use docking_controller::hal::Watchdog;
 use docking_controller::hx711::{Calibration, Gain, Hx711};
-use docking_controller::safety::{GatedEn, GatedHigh, KernelEvent, SafetyKernel};
+use docking_controller::safety::{EstopEdges, GatedEn, GatedHigh, KernelEvent, SafetyKernel};
 use stm32f4xx_hal::gpio::{
     Input, Output, PinState, PB0, PB1, PC0, PC1, PC2, PC3, PC4, PC5, PD0, PD1, PD12, PD13, PD2,
     PD3, PE10, PE11,
@@ -299,6 +299,12 @@ fn estop_lock_and_mated_off() {
     }
 }
 
+/// GPIOC's input data register (the E-STOP on PC5).
+const GPIOC_IDR: *const u32 = 0x4002_0810 as *const u32;
+
+/// The E-STOP interrupt's edge record, read by the control step.
+static ESTOP_EDGES: EstopEdges = EstopEdges::new();
+
 /// Set by the control task when it has events or persistence for the idle loop.
 static IDLE_WORK: AtomicBool = AtomicBool::new(false);
 
@@ -407,9 +413,10 @@ mod app {
         hx_dout.make_interrupt_source(&mut syscfg);
         hx_dout.trigger_on_edge(&mut exti, Edge::Falling);
         hx_dout.enable_interrupt(&mut exti);
-        // E-STOP: the input opening (rising edge) on EXTI5.
+        // E-STOP: every edge of the input on EXTI5 (opening and closing: a bouncing
+        // release is edges too, each one counted; see `estop`).
         estop.make_interrupt_source(&mut syscfg);
-        estop.trigger_on_edge(&mut exti, Edge::Rising);
+        estop.trigger_on_edge(&mut exti, Edge::RisingFalling);
         estop.enable_interrupt(&mut exti);
 
         // 7. Step pulses: SysTick at 20 kHz, its interrupt on only while moving.
@@ -589,15 +596,22 @@ mod app {
     /// now, latched; the control step latches the `emergency_stop` fault.
     #[task(binds = EXTI9_5, priority = 5, local = [estop_stop])]
     fn estop(cx: estop::Context) {
-        // The propulsion first, by the same stop and latch as the overload's.
-        let _ = cx.local.estop_stop.stop_now();
+        // The propulsion first, by the same stop and latch as the overload's — on every
+        // edge, the closing one too: nothing filters the stop.
+        let n = cx.local.estop_stop.stop_now();
         estop_lock_and_mated_off();
-        // SAFETY: EXTI PR is write-1-to-clear; line 5 is ours.
+        // SAFETY: EXTI PR is write-1-to-clear; line 5 is ours. Cleared before the level
+        // is read: an edge after this read pends the interrupt again.
         unsafe {
             (*pac::EXTI::ptr())
                 .pr()
                 .write(|w| w.pr5().clear_bit_by_one())
         };
+        // The edge, counted for the control step (atomics only: no critical section,
+        // no log at this priority). The level says which edge it was.
+        // SAFETY: read of GPIOC IDR, a fixed MMIO address.
+        let open = unsafe { core::ptr::read_volatile(GPIOC_IDR) } & (1 << 5) != 0;
+        ESTOP_EDGES.on_edge(n, open, u64::from(clock::now_us_low()));
     }
 
     /// Modbus characters in and out.
@@ -627,7 +641,11 @@ mod app {
         let events_rx = cx.local.events_rx;
         let plc = cx.local.plc;
         cx.shared.ctrl.lock(|ctrl| {
-            ctrl.set_plc(plc.dock.is_low(), plc.estop.is_high());
+            ctrl.set_plc(
+                plc.dock.is_low(),
+                plc.estop.is_high(),
+                ESTOP_EDGES.snapshot(),
+            );
             let mut stepped = false;
             while let Some(ev) = events_rx.dequeue() {
                 let _ = ctrl.step(now, Some(ev));

@@ -40,7 +40,7 @@ use crate::odometer::{
 };
 use crate::profile::{ContactPhase, BOUNDARY_UM, STROKE_UM};
 use crate::propulsion::Propulsion;
-use crate::safety::{GuardMode, KernelConfig, KernelEvent, BACKOFF_RISE_MN};
+use crate::safety::{EstopEvents, GuardMode, KernelConfig, KernelEvent, BACKOFF_RISE_MN};
 use crate::sequencer::{AxisCmd, FaultKind, Inputs, Request, SeqEvent, Sequencer, State, Switches};
 use crate::storage::{OpenReport, RecordLog};
 
@@ -207,6 +207,15 @@ pub enum Event {
     UncalibratedRefusal,
     /// A fault clear refused: the E-STOP input is open.
     EstopClearRefusal,
+    /// E-STOP edges the control step had not seen (each stopped the machine in its
+    /// interrupt): how many, and how long the input was open if it has closed again
+    /// (µs; `None` while it is still open).
+    EstopEdges {
+        /// New edges (opening and closing).
+        edges: u32,
+        /// The last opening's length, µs.
+        open_us: Option<u32>,
+    },
 }
 
 /// An event with its time.
@@ -387,6 +396,14 @@ pub struct Controller<B: Bsp> {
     dock: bool,
     /// E-STOP input open.
     estop_open: bool,
+    /// The E-STOP interrupt's record as last read, and how many of its edges the
+    /// control step has consumed.
+    estop_events: EstopEvents,
+    estop_edges_seen: u32,
+    /// Consecutive steps the stop latch refused to re-arm with motion commanded.
+    gate_refused: u8,
+    /// An unaccounted stop waits for the sequencer (raised at the next step).
+    unseen_stop_due: bool,
     /// Consecutive samples outside the hold envelope while mated.
     hold_out: u8,
     /// The PLC inputs were read once since the reset.
@@ -697,6 +714,10 @@ impl<B: Bsp> Controller<B> {
             dock_seen: false,
             dock: false,
             estop_open: false,
+            estop_events: EstopEvents::default(),
+            estop_edges_seen: 0,
+            gate_refused: 0,
+            unseen_stop_due: false,
             hold_out: 0,
             plc_read: false,
             level: WearLevel::Ok,
@@ -1060,12 +1081,31 @@ impl<B: Bsp> Controller<B> {
             }
         }
         self.dock_seen = self.dock_raw;
-        if self.estop_open {
-            // The board stopped the motors already (its fastest interrupt); latch it.
-            self.seen_stop = self.seen_stop.max(self.stop.stops());
-            if !matches!(state, State::Faulted { .. }) {
-                fault = fault.or(Some(FaultKind::EmergencyStop));
-            }
+        // E-STOP: every edge its interrupt counted (each one stopped the machine
+        // there) latches the fault, however short the pulse; so does the input open.
+        let es = self.estop_events;
+        let new_edges = es.edges.wrapping_sub(self.estop_edges_seen);
+        if new_edges != 0 {
+            self.estop_edges_seen = es.edges;
+            // Its stops are accounted for by the fault latched here.
+            self.seen_stop = self.seen_stop.max(es.stop);
+            let open_us = (!self.estop_open).then(|| es.closed_us.wrapping_sub(es.opened_us));
+            warn!("E-STOP: {} edge(s), open {:?} us", new_edges, open_us);
+            self.push_event(
+                now_ms,
+                Event::EstopEdges {
+                    edges: new_edges,
+                    open_us,
+                },
+            );
+        }
+        if (new_edges != 0 || self.estop_open)
+            && state
+                != (State::Faulted {
+                    fault: FaultKind::EmergencyStop,
+                })
+        {
+            fault = fault.or(Some(FaultKind::EmergencyStop));
         }
         // Mated: the force must stay in the hold envelope.
         if let (
@@ -1140,6 +1180,9 @@ impl<B: Bsp> Controller<B> {
             self.storage_fault_due = false;
             fault = fault.or(Some(FaultKind::Storage));
         }
+        if core::mem::take(&mut self.unseen_stop_due) {
+            fault = fault.or(Some(FaultKind::UnseenStop));
+        }
         let inputs = Inputs {
             now_ms,
             pos_um,
@@ -1161,6 +1204,20 @@ impl<B: Bsp> Controller<B> {
         // here; a stop still in flight keeps it off for this step.
         let gate_open = !matches!(out.axis, AxisCmd::Disabled)
             && (!self.stop.latched() || self.stop.rearm(self.seen_stop));
+        // A refusal for one step is a stop whose event is still on its way (it faults
+        // the next step); refused twice, the stop is one this controller never heard of
+        // (an event lost): a fault, not a silent stall.
+        if gate_open || matches!(out.axis, AxisCmd::Disabled) {
+            self.gate_refused = 0;
+        } else {
+            self.gate_refused = self.gate_refused.saturating_add(1);
+            if self.gate_refused >= 2 {
+                self.gate_refused = 0;
+                error!("the stop latch holds the driver off for a stop never reported");
+                self.seen_stop = self.seen_stop.max(self.stop.stops());
+                self.unseen_stop_due = true;
+            }
+        }
         let pin_ok = match out.axis {
             _ if !gate_open && !matches!(out.axis, AxisCmd::Disabled) => {
                 let _ = self.prop.disable();
@@ -1408,7 +1465,10 @@ impl<B: Bsp> Controller<B> {
     /// The first reading after a reset sets the DOCK filter without an edge: a DOCK
     /// still asserted from before the reset is not a request (nothing moves after a reset
     /// until one) — the PLC releases and asserts it again.
-    pub fn set_plc(&mut self, dock_asserted: bool, estop_open: bool) {
+    ///
+    /// `estop` is the E-STOP interrupt's record ([`crate::safety::EstopEdges`]): its
+    /// edges latch `emergency_stop` even when the level reads closed again.
+    pub fn set_plc(&mut self, dock_asserted: bool, estop_open: bool, estop: EstopEvents) {
         if !self.plc_read {
             self.plc_read = true;
             self.dock = dock_asserted;
@@ -1416,6 +1476,7 @@ impl<B: Bsp> Controller<B> {
         }
         self.dock_raw = dock_asserted;
         self.estop_open = estop_open;
+        self.estop_events = estop;
     }
 
     /// A command from a person or the PLC (console, Modbus), checked now: `Ok` when the

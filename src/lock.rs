@@ -40,11 +40,19 @@ impl<IN1: OutputPin, IN2: OutputPin> LockActuator<IN1, IN2> {
         Ok(l)
     }
 
-    /// Drive as `cmd` says (no-op if already so). Off is applied before any direction
-    /// so the bridge never sees both inputs high.
+    /// Drive as `cmd` says. Off is applied before any direction so the bridge never
+    /// sees both inputs high. A command already in force is **driven again** (its
+    /// active input set high, the other left alone: no glitch): the E-STOP interrupt
+    /// and the stop latch can pull the bridge low behind this driver's back, and once
+    /// the latch is re-armed the command must take hold again
+    /// (`lock_command_is_reasserted_after_the_stop_latch_releases`).
     pub fn apply(&mut self, cmd: LockCmd) -> Result<(), LockPinError> {
         if cmd == self.cmd {
-            return Ok(());
+            return match cmd {
+                LockCmd::Off => Ok(()),
+                LockCmd::ToLocked => self.in1.set_high().map_err(|_| LockPinError),
+                LockCmd::ToReleased => self.in2.set_high().map_err(|_| LockPinError),
+            };
         }
         self.in1.set_low().map_err(|_| LockPinError)?;
         self.in2.set_low().map_err(|_| LockPinError)?;
@@ -61,5 +69,40 @@ impl<IN1: OutputPin, IN2: OutputPin> LockActuator<IN1, IN2> {
     /// The command in force.
     pub fn cmd(&self) -> LockCmd {
         self.cmd
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use core::cell::Cell;
+
+    /// A pin some other agent (the E-STOP interrupt) may pull low.
+    struct Pin<'a>(&'a Cell<bool>);
+    impl embedded_hal::digital::ErrorType for Pin<'_> {
+        type Error = core::convert::Infallible;
+    }
+    impl OutputPin for Pin<'_> {
+        fn set_high(&mut self) -> Result<(), Self::Error> {
+            self.0.set(true);
+            Ok(())
+        }
+        fn set_low(&mut self) -> Result<(), Self::Error> {
+            self.0.set(false);
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn lock_command_is_reasserted_after_the_stop_latch_releases() {
+        let (a, b) = (Cell::new(false), Cell::new(false));
+        let mut l = LockActuator::new(Pin(&a), Pin(&b)).unwrap();
+        l.apply(LockCmd::ToLocked).unwrap();
+        assert!(a.get() && !b.get());
+        a.set(false); // the E-STOP's store to the bridge
+        l.apply(LockCmd::ToLocked).unwrap();
+        assert!(a.get(), "the command in force takes hold again");
+        l.apply(LockCmd::ToReleased).unwrap();
+        assert!(!a.get() && b.get());
     }
 }

@@ -27,6 +27,8 @@
 //! * No allocation, no panic, no float; bounded time (one HX711 readout plus integer
 //!   arithmetic).
 
+use core::sync::atomic::{AtomicU32, Ordering};
+
 use embedded_hal::digital::OutputPin;
 
 use crate::guard::{GuardConfig, OverloadGuard, SensorFault, SensorMonitor, Verdict};
@@ -237,9 +239,81 @@ impl<A: LoadCellAdc> SafetyKernel<A> {
     }
 }
 
+/// What the E-STOP's interrupt has recorded, as the control step reads it
+/// ([`EstopEdges::snapshot`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct EstopEvents {
+    /// Edges of the input since boot, opening and closing: each one stopped the machine
+    /// in the interrupt that counted it (wraps).
+    pub edges: u32,
+    /// The number of the stop ([`StopLatch::stop_now`]) the latest edge made.
+    pub stop: u32,
+    /// When the input last opened, and last closed: µs since boot, low 32 bits (a
+    /// pulse's length is their wrapping difference).
+    pub opened_us: u32,
+    /// See `opened_us`.
+    pub closed_us: u32,
+}
+
+/// The E-STOP input's edges, **events rather than a level**: a pulse or a bounce the
+/// control step never samples open is still counted, and every edge it has not
+/// consumed latches `emergency_stop`.
+///
+/// Written only by the E-STOP's interrupt ([`Self::on_edge`], after it has stopped
+/// the machine), read by the control step ([`Self::snapshot`]). Lock-free (atomics
+/// only, no critical section, no log), so nothing at the E-STOP's priority waits.
+#[derive(Debug, Default)]
+pub struct EstopEdges {
+    edges: AtomicU32,
+    stop: AtomicU32,
+    opened_us: AtomicU32,
+    closed_us: AtomicU32,
+}
+
+impl EstopEdges {
+    /// No edge yet.
+    pub const fn new() -> Self {
+        Self {
+            edges: AtomicU32::new(0),
+            stop: AtomicU32::new(0),
+            opened_us: AtomicU32::new(0),
+            closed_us: AtomicU32::new(0),
+        }
+    }
+
+    /// From the E-STOP's interrupt, after [`StopLatch::stop_now`] returned `stop`: the
+    /// input read `open` at `now_us`. The stop number is stored before the count.
+    pub fn on_edge(&self, stop: u32, open: bool, now_us: u64) {
+        let t = now_us as u32; // low 32 bits: durations by wrapping difference
+        if open {
+            self.opened_us.store(t, Ordering::Relaxed);
+        } else {
+            self.closed_us.store(t, Ordering::Relaxed);
+        }
+        self.stop.store(stop, Ordering::Release);
+        self.edges.fetch_add(1, Ordering::Release);
+    }
+
+    /// What has been recorded. The stop number is read before the count: an edge that
+    /// lands between the two reads is seen by its count (and latched) while its stop
+    /// stays unseen (and the driver off), never the other way round.
+    pub fn snapshot(&self) -> EstopEvents {
+        let stop = self.stop.load(Ordering::Acquire);
+        let opened_us = self.opened_us.load(Ordering::Relaxed);
+        let closed_us = self.closed_us.load(Ordering::Relaxed);
+        let edges = self.edges.load(Ordering::Acquire);
+        EstopEvents {
+            edges,
+            stop,
+            opened_us,
+            closed_us,
+        }
+    }
+}
+
 /// The propulsion driver's EN line behind the safety path's latch: it cannot be driven
-/// low (driver on) while a stop is latched. The check and the write are one critical
-/// section, so a stop from an interrupt cannot fall between them.
+/// low (driver on) while a stop is latched (see [`GatedEn::set_low`] for how a stop
+/// racing the write is handled without a critical section).
 pub struct GatedEn<P, L> {
     pin: P,
     latch: L,
@@ -276,21 +350,27 @@ impl<P: OutputPin, L: StopLatch> OutputPin for GatedEn<P, L> {
         self.pin.set_high().map_err(GateError::Pin)
     }
 
+    /// Lock-free, so a stop at any priority (the E-STOP above every masked section
+    /// included) is never delayed by it: checked, written, checked again. A stop that
+    /// lands between the first check and the write finds EN set high by its own store,
+    /// the write sets it low, and the second check sets it high again within a few
+    /// instructions — with the step pulses already halted by the stop, so nothing moves.
     fn set_low(&mut self) -> Result<(), Self::Error> {
-        let (pin, latch) = (&mut self.pin, &self.latch);
-        critical_section::with(|_| {
-            if latch.latched() {
-                Err(GateError::Latched)
-            } else {
-                pin.set_low().map_err(GateError::Pin)
-            }
-        })
+        if self.latch.latched() {
+            return Err(GateError::Latched);
+        }
+        self.pin.set_low().map_err(GateError::Pin)?;
+        if self.latch.latched() {
+            self.pin.set_high().map_err(GateError::Pin)?;
+            return Err(GateError::Latched);
+        }
+        Ok(())
     }
 }
 
 /// An active-high motor output (the lock's bridge inputs) behind the safety path's
 /// latch: while a stop is latched it is held low, whatever it is told (an emergency stop
-/// overrides the lock's command). The check and the write are one critical section.
+/// overrides the lock's command).
 pub struct GatedHigh<P, L> {
     pin: P,
     latch: L,
@@ -308,15 +388,16 @@ impl<P: OutputPin, L> embedded_hal::digital::ErrorType for GatedHigh<P, L> {
 }
 
 impl<P: OutputPin, L: StopLatch> OutputPin for GatedHigh<P, L> {
+    /// Lock-free, as [`GatedEn`]'s: checked, written, checked again.
     fn set_high(&mut self) -> Result<(), Self::Error> {
-        let (pin, latch) = (&mut self.pin, &self.latch);
-        critical_section::with(|_| {
-            if latch.latched() {
-                pin.set_low()
-            } else {
-                pin.set_high()
-            }
-        })
+        if self.latch.latched() {
+            return self.pin.set_low();
+        }
+        self.pin.set_high()?;
+        if self.latch.latched() {
+            self.pin.set_low()?;
+        }
+        Ok(())
     }
 
     fn set_low(&mut self) -> Result<(), Self::Error> {

@@ -102,6 +102,10 @@ pub enum FaultKind {
     /// While mated, the contact force left the hold envelope (the vehicle pulling or
     /// drifting): MATED drops, the axis holds where it is (see the theory of operation).
     HoldForce,
+    /// The propulsion's stop latch held the driver off for a stop the controller could
+    /// not account for (a safety event it never received): latched as a fault rather
+    /// than a silent stall.
+    UnseenStop,
 }
 
 impl FaultKind {
@@ -124,6 +128,7 @@ impl FaultKind {
             Self::EmergencyStop => "emergency_stop",
             Self::Stopped => "stopped",
             Self::HoldForce => "hold_force",
+            Self::UnseenStop => "unseen_stop",
         }
     }
 
@@ -151,6 +156,7 @@ impl FaultKind {
             13 => Self::EmergencyStop,
             14 => Self::Stopped,
             15 => Self::HoldForce,
+            16 => Self::UnseenStop,
             _ => return None,
         })
     }
@@ -531,6 +537,16 @@ impl Sequencer {
         let stop = (inp.request == Some(Request::Stop)).then_some(FaultKind::Stopped);
         let detected = inp.fault.or(switch_fault).or(stop);
         let next = match (self.state, detected) {
+            // Pulled while mated holds the axis driven: any further fault (an E-STOP, an
+            // overload, a stop) takes its place and turns the axis off.
+            (
+                State::Faulted {
+                    fault: FaultKind::HoldForce,
+                },
+                Some(f),
+            ) if f != FaultKind::HoldForce => {
+                Some((State::Faulted { fault: f }, Some(SeqEvent::Fault(f))))
+            }
             (State::Faulted { .. }, _) => None, // latched: only a clear gets out
             // Any fault (a stop included) ends the controlled retreat of an overload.
             (State::BackingOff { .. }, Some(f)) => {
@@ -1384,6 +1400,7 @@ mod tests {
         assert_eq!(FaultKind::from_code(11), Some(FaultKind::Tension));
         assert_eq!(FaultKind::from_code(12), Some(FaultKind::Storage));
         assert_eq!(FaultKind::from_code(15), Some(FaultKind::HoldForce));
-        assert_eq!(FaultKind::from_code(16), None);
+        assert_eq!(FaultKind::from_code(16), Some(FaultKind::UnseenStop));
+        assert_eq!(FaultKind::from_code(17), None);
     }
 }

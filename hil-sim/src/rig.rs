@@ -508,6 +508,8 @@ pub struct Rig {
     /// The E-STOP line (high = open: a stop).
     pub estop_line: SimLine,
     estop_was_open: bool,
+    /// The board's E-STOP interrupt's record of edges (the firmware's own type).
+    pub estop_edges: docking_controller::safety::EstopEdges,
     /// What the last console poll did.
     pub last_console: ConsolePoll,
 }
@@ -611,6 +613,7 @@ impl Rig {
             dock_line: dock_request,
             estop_line: estop,
             estop_was_open: false,
+            estop_edges: docking_controller::safety::EstopEdges::new(),
             last_console: ConsolePoll::default(),
         }
     }
@@ -629,11 +632,15 @@ impl Rig {
         // The board's E-STOP interrupt, at its edge (here at the tick: the rig is not
         // interrupt-accurate; the virtual board measures the real latency).
         let estop_open = self.estop_line.is_high();
-        if estop_open && !self.estop_was_open {
-            self.stop.stop_now();
+        if estop_open != self.estop_was_open {
+            self.estop_edge(estop_open);
         }
         self.estop_was_open = estop_open;
-        self.ctrl.set_plc(!self.dock_line.is_high(), estop_open);
+        self.ctrl.set_plc(
+            !self.dock_line.is_high(),
+            estop_open,
+            self.estop_edges.snapshot(),
+        );
         let ev = self
             .kernel
             .on_ready(now_us, &mut self.stop)
@@ -661,6 +668,24 @@ impl Rig {
             self.last_console = c;
         }
         r
+    }
+
+    /// What the board's E-STOP interrupt does at an edge of the input (`open`: it
+    /// opened): stop (EN high, pulses halted, latched; the lock's bridge held low by the
+    /// latch) and count the edge.
+    fn estop_edge(&mut self, open: bool) {
+        let n = self.stop.stop_now();
+        self.estop_edges
+            .on_edge(n, open, self.clock.now_ns() / 1_000);
+    }
+
+    /// An open pulse of `open_us` on a closed E-STOP input, shorter than a tick: the
+    /// board's interrupt sees both its edges; the control step never samples it open.
+    pub fn estop_pulse(&mut self, open_us: u64) {
+        self.estop_edge(true);
+        let closed_at_us = self.clock.now_ns() / 1_000 + open_us;
+        let n = self.stop.stop_now();
+        self.estop_edges.on_edge(n, false, closed_at_us);
     }
 
     /// The devices a scene disturbs.

@@ -99,3 +99,124 @@ fn a_pending_stop_is_not_replaced_by_a_later_request() {
     );
     assert!(!r.axis.enabled());
 }
+
+/// Defect (issue 17, item 3): a 300 µs E-STOP pulse between two control steps stopped
+/// the propulsion and latched the stop, but no step ever read the input open: READY
+/// stayed high, no fault, every later dock ended in `axis_stall`, and `clear-fault`
+/// had nothing to clear.
+#[test]
+fn short_estop_pulse_latches_a_fault_and_the_machine_recovers() {
+    use docking_controller::sequencer::{FaultKind, Request};
+    let mut r = rig();
+    assert!(r.ctrl.handshake().ready);
+    r.estop_pulse(300);
+    r.tick();
+    r.tick();
+    assert_eq!(
+        r.ctrl.state(),
+        State::Faulted {
+            fault: FaultKind::EmergencyStop
+        }
+    );
+    let h = r.ctrl.handshake();
+    assert!(h.fault && !h.ready && !h.estop, "{h:?}");
+    // The input is closed: the clear works, and the next dock completes.
+    r.ctrl.command(Request::ClearFault).unwrap();
+    assert!(run_until(&mut r, 6_000, |r| r.ctrl.state() == State::Idle));
+    assert!(r.ctrl.handshake().ready);
+    r.dock_line.set(false);
+    assert!(
+        run_until(&mut r, 6_000, |r| r.ctrl.handshake().mated),
+        "docked after the E-STOP: {:?}",
+        r.ctrl.status().fault
+    );
+}
+
+/// A bouncing release (open, closed, open, closed within a step) during the insertion:
+/// every edge stops, the fault latches, the clear works once the input stays closed.
+#[test]
+fn estop_release_bounce_is_latched_and_recoverable() {
+    use docking_controller::sequencer::{FaultKind, Request};
+    let mut r = rig();
+    r.dock_line.set(false);
+    assert!(run_until(&mut r, 6_000, |r| matches!(
+        r.ctrl.state(),
+        State::Inserting { .. }
+    )));
+    r.estop_line.set(true);
+    r.tick();
+    assert!(!r.axis.enabled() && !r.lock.driven());
+    r.estop_line.set(false);
+    r.estop_pulse(80);
+    r.estop_pulse(40);
+    for _ in 0..3 {
+        r.tick();
+        assert!(!r.axis.enabled(), "nothing moves after the E-STOP");
+    }
+    assert_eq!(
+        r.ctrl.state(),
+        State::Faulted {
+            fault: FaultKind::EmergencyStop
+        }
+    );
+    r.dock_line.set(true);
+    r.ctrl.command(Request::ClearFault).unwrap();
+    assert!(run_until(&mut r, 8_000, |r| r.ctrl.state() == State::Idle));
+    r.dock_line.set(false);
+    assert!(run_until(&mut r, 6_000, |r| r.ctrl.handshake().mated));
+}
+
+/// A stop the controller never heard of (its event lost) held the driver off and the
+/// docking stalled (`axis_stall` seconds later, or nothing at all at rest): now the
+/// refused re-enable is a named fault within two steps, and a clear recovers.
+#[test]
+fn a_stop_never_reported_is_a_fault_not_a_stall() {
+    use docking_controller::hal::StopLatch;
+    use docking_controller::sequencer::{FaultKind, Request};
+    let mut r = rig();
+    r.stop.stop_now(); // latched, no event, no E-STOP edge
+    r.dock_line.set(false);
+    assert!(run_until(&mut r, 400, |r| matches!(
+        r.ctrl.state(),
+        State::Faulted { .. }
+    )));
+    assert_eq!(
+        r.ctrl.state(),
+        State::Faulted {
+            fault: FaultKind::UnseenStop
+        }
+    );
+    r.dock_line.set(true);
+    r.ctrl.command(Request::ClearFault).unwrap();
+    assert!(run_until(&mut r, 8_000, |r| r.ctrl.state() == State::Idle));
+    r.dock_line.set(false);
+    assert!(run_until(&mut r, 6_000, |r| r.ctrl.handshake().mated));
+}
+
+/// Pulled while mated holds the axis driven; an E-STOP then must turn it off and keep
+/// it off (the fault takes the E-STOP's place), not be re-armed by the next step.
+#[test]
+fn estop_during_a_hold_force_fault_turns_the_axis_off() {
+    use docking_controller::sequencer::FaultKind;
+    let mut r = rig();
+    r.dock_line.set(false);
+    assert!(run_until(&mut r, 6_000, |r| r.ctrl.handshake().mated));
+    r.script.borrow_mut().pull_n_per_s = 200.0;
+    let hold = State::Faulted {
+        fault: FaultKind::HoldForce,
+    };
+    assert!(run_until(&mut r, 400, |r| r.ctrl.state() == hold));
+    r.script.borrow_mut().pull_n_per_s = 0.0;
+    assert!(r.axis.enabled(), "held, driven");
+    r.estop_line.set(true);
+    for _ in 0..5 {
+        r.tick();
+        assert!(!r.axis.enabled());
+    }
+    assert_eq!(
+        r.ctrl.state(),
+        State::Faulted {
+            fault: FaultKind::EmergencyStop
+        }
+    );
+}

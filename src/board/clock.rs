@@ -31,6 +31,13 @@ pub fn start(tim5: pac::TIM5, rcc: &mut Rcc, tim_hz: u32) {
     tim5.cr1().write(|w| w.cen().set_bit());
 }
 
+/// The low 32 bits of [`now_us`] (TIM5's count itself): one register read, no critical
+/// section, for the E-STOP's interrupt.
+pub fn now_us_low() -> u32 {
+    // SAFETY: read of TIM5_CNT, a fixed MMIO address of this chip.
+    unsafe { core::ptr::read_volatile(TIM5_CNT) }
+}
+
 /// Microseconds since boot.
 pub fn now_us() -> u64 {
     critical_section::with(|_| {

@@ -143,12 +143,19 @@ impl StopLatch for BoardStop {
         LATCHED.load(Ordering::Relaxed)
     }
 
+    /// Lock-free (no critical section: a stop from any priority, the E-STOP above
+    /// every masked section included, lands at once): clear the latch if no stop came
+    /// after `seen`, then look again — a stop that landed between the look and the
+    /// clear (it set the latch and bumped the count) is latched again here.
     fn rearm(&mut self, seen: u32) -> bool {
-        critical_section::with(|_| {
-            if STOPS.load(Ordering::Relaxed) <= seen {
-                LATCHED.store(false, Ordering::Relaxed);
-            }
-            !LATCHED.load(Ordering::Relaxed)
-        })
+        if STOPS.load(Ordering::Acquire) > seen {
+            return false;
+        }
+        LATCHED.store(false, Ordering::Release);
+        if STOPS.load(Ordering::Acquire) > seen {
+            LATCHED.store(true, Ordering::Release);
+            return false;
+        }
+        true
     }
 }
