@@ -726,6 +726,8 @@ mod app {
                 if let Some(reply) = server.poll(clock::now_us(), ctrl, serial) {
                     line.send(reply);
                 }
+                // No flash write (an erase stalls the CPU) while a reply is on the line.
+                ctrl.set_bus_busy(line.sending());
                 // Bounded work (see console::service), then the flash, then the log.
                 let _ = console.poll(ctrl, term, now_us / 1_000);
                 ctrl.background();

@@ -278,6 +278,18 @@ const TARE_SAMPLES: usize = 16;
 const TARE_MIN_SAMPLES: usize = 8;
 /// Force halfway across the 3→4 jump (107.09 N → 206.34 N), mN.
 const JUMP_MID_MN: i32 = 156_700;
+/// Records that can wait for a rest ([`Controller::queue_record`]).
+const RECORD_QUEUE: usize = 4;
+/// Largest queued record payload, bytes (an audit record is at most 48).
+pub const QUEUED_RECORD_MAX: usize = 48;
+
+/// A record waiting for the flash's turn.
+#[derive(Clone, Debug)]
+struct QueuedRecord {
+    kind: u8,
+    data: heapless::Vec<u8, QUEUED_RECORD_MAX>,
+}
+
 /// Events kept for readers.
 const EVENT_QUEUE: usize = 32;
 /// Fault records kept.
@@ -372,6 +384,14 @@ pub struct Controller<B: Bsp> {
     /// The pending snapshot ends a cycle (a history entry).
     persist_cycle_end: bool,
     storage_errors: u32,
+    /// Records made when the flash may not be written (an audit record while the axis
+    /// is held, or a Modbus reply is on the line), waiting for the next rest.
+    record_queue: Deque<QueuedRecord, RECORD_QUEUE>,
+    /// Records the full queue could not take.
+    records_dropped: u32,
+    /// A Modbus reply is on the line (the board's RS-485 driver is enabled): an erase
+    /// now would stall the CPU with DE high and cut the reply.
+    bus_busy: bool,
     /// Failed record writes (or erases) in a row, up to [`STORAGE_ATTEMPTS`].
     storage_failures: u8,
     /// The flash refused [`STORAGE_ATTEMPTS`] times: no more tries until a fault clear.
@@ -466,6 +486,10 @@ impl core::fmt::Display for Refusal {
 pub enum MaintError {
     /// A docking is moving (only `idle` and `faulted` accept maintenance).
     Moving,
+    /// A motor output is still on (the axis held after a pull while mated included),
+    /// or a Modbus reply is on the line: the flash is not written until the machine is
+    /// at rest.
+    NotAtRest,
     /// The serial number is empty, too long, or not `[A-Za-z0-9_-]`.
     BadSerial,
     /// The record could not be written to flash (nothing was changed).
@@ -482,6 +506,10 @@ impl core::fmt::Display for MaintError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str(match self {
             Self::Moving => "refused while a docking is moving",
+            Self::NotAtRest => {
+                "the flash is written only at rest (a motor on, the axis held, or a Modbus \
+                 reply on the line); try again at rest"
+            }
             Self::BadSerial => "serial must be 1-20 characters of A-Z a-z 0-9 _ -",
             Self::Storage => "could not write to the odometer flash; nothing changed",
             Self::BadRate => "the HX711 samples at 10 or 80 per second (its RATE pin)",
@@ -701,6 +729,9 @@ impl<B: Bsp> Controller<B> {
             persist_pending: false,
             persist_cycle_end: false,
             storage_errors: 0,
+            record_queue: Deque::new(),
+            records_dropped: 0,
+            bus_busy: false,
             storage_failures: 0,
             storage_blocked: false,
             storage_fault_due: false,
@@ -762,12 +793,18 @@ impl<B: Bsp> Controller<B> {
     /// erase stalls the CPU for up to 2 s. The board runs it at its lowest priority; the
     /// rig after each step.
     pub fn background(&mut self) {
-        if matches!(
-            self.seq.state(),
-            State::PowerUp | State::Idle | State::Faulted { .. }
-        ) && !self.prop.is_enabled()
-            && self.lock.cmd() == LockCmd::Off
-        {
+        if self.at_rest() {
+            while let Some(r) = self.record_queue.front() {
+                let ok = self
+                    .log
+                    .as_mut()
+                    .is_some_and(|l| l.append(r.kind, &r.data).is_ok());
+                if !ok {
+                    self.storage_errors = self.storage_errors.saturating_add(1);
+                    error!("odometer: a queued record was not written");
+                }
+                self.record_queue.pop_front();
+            }
             // A cycle that ended in a fault (or a recovery that touched the cone) left
             // load–distance no completed cycle will count: it is the cone's now.
             let w = self.odo.fold_pending();
@@ -1593,8 +1630,78 @@ impl<B: Bsp> Controller<B> {
     pub fn is_quiet(&self) -> bool {
         matches!(
             self.seq.state(),
-            State::Idle | State::Faulted { .. } | State::PowerUp
+            State::Idle | State::PowerUp | State::Faulted { .. }
         )
+    }
+
+    /// A latched state that keeps the axis driven (pulled while mated: the axis holds
+    /// the vehicle).
+    fn axis_held(&self) -> bool {
+        self.seq.state()
+            == (State::Faulted {
+                fault: FaultKind::HoldForce,
+            })
+    }
+
+    /// **The one rule for writing the flash** (a record programmed, a sector erased,
+    /// by [`Self::background`], [`Self::store_record`] and every maintenance action):
+    /// at rest — idle, powering up or faulted with nothing driven — the propulsion
+    /// driver off, the lock bridge off, and no Modbus reply on the line. An erase stalls
+    /// the CPU with every interrupt masked for up to 2 s: nothing may be moving, held
+    /// or talking then.
+    pub fn at_rest(&self) -> bool {
+        self.is_quiet()
+            && !self.axis_held()
+            && !self.prop.is_enabled()
+            && self.lock.cmd() == LockCmd::Off
+            && !self.bus_busy
+    }
+
+    /// Whether a maintenance action may write the flash now ([`Self::at_rest`]), and
+    /// why not.
+    fn flash_turn(&self) -> Result<(), MaintError> {
+        if !self.is_quiet() {
+            Err(MaintError::Moving)
+        } else if !self.at_rest() {
+            Err(MaintError::NotAtRest)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// The board's word that a Modbus reply is on the line (its RS-485 driver enabled).
+    pub fn set_bus_busy(&mut self, busy: bool) {
+        self.bus_busy = busy;
+    }
+
+    /// Queue a record for the next rest ([`Self::at_rest`]; written there by
+    /// [`Self::background`], in order). `false`: the queue was full or the record too
+    /// long — dropped, and counted ([`Self::records_dropped`]).
+    pub fn queue_record(&mut self, kind: u8, data: &[u8]) -> bool {
+        let Ok(data) = heapless::Vec::from_slice(data) else {
+            self.records_dropped = self.records_dropped.saturating_add(1);
+            return false;
+        };
+        if self
+            .record_queue
+            .push_back(QueuedRecord { kind, data })
+            .is_err()
+        {
+            self.records_dropped = self.records_dropped.saturating_add(1);
+            error!("odometer: record queue full; a record was dropped");
+            return false;
+        }
+        true
+    }
+
+    /// Records waiting for a rest.
+    pub fn records_queued(&self) -> usize {
+        self.record_queue.len()
+    }
+
+    /// Records dropped because the queue was full.
+    pub fn records_dropped(&self) -> u32 {
+        self.records_dropped
     }
 
     /// Install a new cone (technician action): new per-cone counters, lifetime totals and
@@ -1614,9 +1721,7 @@ impl<B: Bsp> Controller<B> {
         serial: &str,
         baseline_um: Option<u32>,
     ) -> Result<(), MaintError> {
-        if !self.is_quiet() {
-            return Err(MaintError::Moving);
-        }
+        self.flash_turn()?;
         let ok = !serial.is_empty()
             && serial.len() <= odometer::SERIAL_MAX
             && serial
@@ -1755,9 +1860,7 @@ impl<B: Bsp> Controller<B> {
         bore_um: u32,
         baseline: bool,
     ) -> Result<Measurement, MaintError> {
-        if !self.is_quiet() {
-            return Err(MaintError::Moving);
-        }
+        self.flash_turn()?;
         let cone = *self.odo.cone();
         if baseline && cone.baseline().is_some() {
             return Err(MaintError::BaselineExists);
@@ -1806,9 +1909,7 @@ impl<B: Bsp> Controller<B> {
     /// Append a record of `kind` to the odometer log (maintenance records: PIN, audit,
     /// measurements). Refused while anything moves (an erase may stall the CPU).
     pub fn store_record(&mut self, kind: u8, data: &[u8]) -> Result<(), MaintError> {
-        if !self.is_quiet() {
-            return Err(MaintError::Moving);
-        }
+        self.flash_turn()?;
         match self.log.as_mut().map(|l| l.append(kind, data)) {
             Some(Ok(_)) => Ok(()),
             _ => {
@@ -1852,7 +1953,10 @@ impl<B: Bsp> Controller<B> {
 
     fn store_calibration(&mut self, cal: Calibration) -> Result<Calibration, CalibrateError> {
         self.store_record(odometer::kind::CALIBRATION, &calibration_to_bytes(&cal))
-            .map_err(|_| CalibrateError::Storage)?;
+            .map_err(|e| match e {
+                MaintError::Moving | MaintError::NotAtRest => CalibrateError::Moving,
+                _ => CalibrateError::Storage,
+            })?;
         self.base_cal = cal;
         self.cal = cal;
         self.calibrated = true;

@@ -376,3 +376,48 @@ fn modbus_settings_are_stored_checked_and_shown() {
         .command("modbus", 100)
         .starts_with("modbus unit=7 baud=38400"));
 }
+
+/// Defect (issue 17, item 5): `store_record` asked only `is_quiet()`, which included
+/// the pulled-while-mated fault where the axis is driven, holding the vehicle; the
+/// clear-fault audit record was programmed (and a sector move erased, every interrupt
+/// masked for up to 2 s) with the driver energised. Now it waits for the rest.
+#[test]
+fn audit_record_waits_for_rest_while_the_axis_is_held() {
+    use docking_controller::odometer::kind::AUDIT;
+    use docking_controller::sequencer::{FaultKind, State};
+    let mut r = rig();
+    assert!(r.command("pin set 1357", 10).starts_with("ok"));
+    assert!(r.command("maint 1357", 10).starts_with("ok"));
+    r.ctrl
+        .command(docking_controller::sequencer::Request::Dock)
+        .unwrap();
+    assert!(host_tests::run_until(&mut r, 6_000, |r| r
+        .ctrl
+        .handshake()
+        .mated));
+    r.script.borrow_mut().pull_n_per_s = 200.0;
+    let held = State::Faulted {
+        fault: FaultKind::HoldForce,
+    };
+    assert!(host_tests::run_until(&mut r, 400, |r| r.ctrl.state() == held));
+    r.script.borrow_mut().pull_n_per_s = 0.0;
+    assert!(r.axis.enabled(), "the axis holds the vehicle, driven");
+    assert!(!r.ctrl.at_rest());
+    let audits = |r: &mut Rig| r.ctrl.records(AUDIT, 10, |_| {});
+    let before = audits(&mut r);
+    assert!(
+        r.ctrl.store_record(AUDIT, &[1; 8]).is_err(),
+        "no record while held"
+    );
+    assert!(r.command("clear-fault", 1).starts_with("ok: fault cleared"));
+    assert_eq!(
+        audits(&mut r),
+        before,
+        "not written while the axis is driven"
+    );
+    assert_eq!(r.ctrl.records_queued(), 1);
+    assert!(host_tests::run_until(&mut r, 8_000, |r| r.ctrl.state() == State::Idle));
+    r.tick();
+    assert_eq!(r.ctrl.records_queued(), 0);
+    assert_eq!(audits(&mut r), before + 1, "written at the rest");
+}

@@ -46,6 +46,7 @@ const FIRST_SECTOR: u32 = 10;
 const SECTOR_LEN: u32 = 128 * 1024;
 
 // Registers (RM0090 §3.9).
+const FLASH_ACR: *mut u32 = 0x4002_3C00 as *mut u32;
 const FLASH_KEYR: *mut u32 = 0x4002_3C04 as *mut u32;
 const FLASH_SR: *mut u32 = 0x4002_3C0C as *mut u32;
 const FLASH_CR: *mut u32 = 0x4002_3C10 as *mut u32;
@@ -63,6 +64,29 @@ const CR_SER: u32 = 1 << 1;
 const CR_PSIZE_X32: u32 = 0b10 << 8;
 const CR_STRT: u32 = 1 << 16;
 const CR_LOCK: u32 = 1 << 31;
+const ACR_ICEN: u32 = 1 << 9;
+const ACR_DCEN: u32 = 1 << 10;
+const ACR_ICRST: u32 = 1 << 11;
+const ACR_DCRST: u32 = 1 << 12;
+
+/// Reset the ART accelerator's instruction and data caches (RM0090 §3.5.2: a line
+/// cached from a sector before its erase stays stale after it; ST's HAL does the same
+/// after every erase, `FLASH_FlushCaches`). A cache is reset only while disabled, then
+/// enabled again as it was.
+fn flush_caches() {
+    // SAFETY: FLASH_ACR, a fixed MMIO address; only the cache enable/reset bits change.
+    unsafe {
+        let acr = core::ptr::read_volatile(FLASH_ACR);
+        let on = acr & (ACR_ICEN | ACR_DCEN);
+        core::ptr::write_volatile(FLASH_ACR, acr & !(ACR_ICEN | ACR_DCEN));
+        core::ptr::write_volatile(
+            FLASH_ACR,
+            (acr & !(ACR_ICEN | ACR_DCEN)) | ACR_ICRST | ACR_DCRST,
+        );
+        core::ptr::write_volatile(FLASH_ACR, acr & !(ACR_ICEN | ACR_DCEN));
+        core::ptr::write_volatile(FLASH_ACR, (acr & !(ACR_ICEN | ACR_DCEN)) | on);
+    }
+}
 
 /// Longest wait for a sector erase: the datasheet's 2 s maximum at ×32, plus half.
 pub const ERASE_TIMEOUT_CYCLES: u32 = 3 * SYSCLK_HZ;
@@ -185,7 +209,12 @@ impl OdometerFlash {
     fn erase_sector(sector: u32) -> Result<(), OdoFlashError> {
         Self::begin()?;
         let cr = CR_PSIZE_X32 | CR_SER | (sector << 3);
-        let sr = cortex_m::interrupt::free(|_| erase_from_ram(cr, ERASE_TIMEOUT_CYCLES));
+        let sr = cortex_m::interrupt::free(|_| {
+            let sr = erase_from_ram(cr, ERASE_TIMEOUT_CYCLES);
+            // Before anything reads flash through a line the erase left stale.
+            flush_caches();
+            sr
+        });
         if sr & SR_BSY != 0 {
             // Still erasing: CR cannot be written while busy; the next operation waits.
             return Err(OdoFlashError::Timeout);

@@ -44,6 +44,8 @@ const TCIE_BB: *mut u32 = cr1_bb(6);
 /// GPIOB BSRR: PB14 (DE) set / reset.
 const GPIOB_BSRR: *mut u32 = 0x4002_0418 as *mut u32;
 const DE_HIGH: u32 = 1 << 14;
+/// GPIOB ODR (PB14 = DE).
+const GPIOB_ODR: *const u32 = 0x4002_0414 as *const u32;
 const DE_LOW: u32 = 1 << (14 + 16);
 
 /// The interrupt's side.
@@ -117,6 +119,13 @@ impl ModbusLine {
         self.rx_out
             .dequeue()
             .map(|(c, t)| (u8::try_from(c).map_err(|_| ()), t))
+    }
+
+    /// Whether a reply is on the line: the RS-485 driver is enabled (DE high from
+    /// [`Self::send`] until the last stop bit is out). The flash waits meanwhile.
+    pub fn sending(&self) -> bool {
+        // SAFETY: read of GPIOB's ODR, a fixed MMIO address.
+        unsafe { core::ptr::read_volatile(GPIOB_ODR) & DE_HIGH != 0 }
     }
 
     /// Send `reply`: DE high, the bytes queued, TXE interrupts on. A reply that does not

@@ -301,10 +301,15 @@ impl Console {
             act,
             odo.lifetime().cycles
         );
-        if ctrl
-            .store_record(kind::AUDIT, rec.get(..at).unwrap_or(&rec))
-            .is_err()
-        {
+        // Written now at rest, else queued for the next rest (a clear-fault while the
+        // axis is held, a reply on the Modbus line): never an erase out of turn.
+        let rec = rec.get(..at).unwrap_or(&rec);
+        let written = if ctrl.at_rest() {
+            ctrl.store_record(kind::AUDIT, rec).is_ok()
+        } else {
+            ctrl.queue_record(kind::AUDIT, rec)
+        };
+        if !written {
             error!("maintenance: audit record not written");
         }
     }
