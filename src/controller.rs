@@ -207,6 +207,8 @@ pub enum Event {
     UncalibratedRefusal,
     /// A fault clear refused: the E-STOP input is open.
     EstopClearRefusal,
+    /// A DOCK pin request ignored (maintenance mode).
+    RemoteRefused(Refusal),
     /// E-STOP edges the control step had not seen (each stopped the machine in its
     /// interrupt): how many, and how long the input was open if it has closed again
     /// (µs; `None` while it is still open).
@@ -315,7 +317,8 @@ pub struct Handshake {
     pub dock: bool,
     /// E-STOP input open (stopping).
     pub estop: bool,
-    /// READY: idle, homed, locked, calibrated, cone not worn out, E-STOP closed.
+    /// READY: idle, homed, locked, calibrated, cone not worn out, E-STOP closed, no
+    /// technician in maintenance mode.
     pub ready: bool,
     /// MATED: connectors engaged — at the mated position, the force in the hold
     /// envelope, no undock under way; low before any extraction starts.
@@ -416,6 +419,8 @@ pub struct Controller<B: Bsp> {
     dock: bool,
     /// E-STOP input open.
     estop_open: bool,
+    /// A technician's maintenance mode at the console: remote motion locked out.
+    maintenance_mode: bool,
     /// The E-STOP interrupt's record as last read, and how many of its edges the
     /// control step has consumed.
     estop_events: EstopEvents,
@@ -453,6 +458,19 @@ pub enum Refusal {
     NoFault,
     /// Homing is for after a reset.
     AlreadyHomed,
+    /// A technician has the machine in maintenance mode at the console: motion
+    /// requested from the PLC (Modbus, the DOCK pin) is refused until it ends.
+    MaintenanceMode,
+}
+
+/// Who asks for something ([`Controller::command_from`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Source {
+    /// The technician's console (beside the machine).
+    Console,
+    /// The vehicle's PLC: Modbus or the DOCK pin (remote: locked out in maintenance).
+    Plc,
 }
 
 impl Refusal {
@@ -475,6 +493,9 @@ impl core::fmt::Display for Refusal {
             Self::NotDocked => "refused: nothing to undock",
             Self::NoFault => "no fault to clear",
             Self::AlreadyHomed => "already homed (home is for after a reset)",
+            Self::MaintenanceMode => {
+                "refused: a technician has the machine in maintenance mode (console)"
+            }
         })
     }
 }
@@ -745,6 +766,7 @@ impl<B: Bsp> Controller<B> {
             dock_seen: false,
             dock: false,
             estop_open: false,
+            maintenance_mode: false,
             estop_events: EstopEvents::default(),
             estop_edges_seen: 0,
             gate_refused: 0,
@@ -1114,7 +1136,13 @@ impl<B: Bsp> Controller<B> {
                 (false, _) => None,
             };
             if let Some(r) = r {
-                self.queue(r);
+                if self.maintenance_mode {
+                    // Consumed, not deferred: after maintenance the PLC asks again.
+                    warn!("DOCK {:?} ignored: maintenance mode", r);
+                    self.push_event(now_ms, Event::RemoteRefused(Refusal::MaintenanceMode));
+                } else {
+                    self.queue(r);
+                }
             }
         }
         self.dock_seen = self.dock_raw;
@@ -1527,6 +1555,16 @@ impl<B: Bsp> Controller<B> {
     /// * `ClearFault`: a latched fault, E-STOP closed.
     /// * `Home`: after a reset only (power-up), E-STOP closed.
     pub fn command(&mut self, r: Request) -> Result<(), Refusal> {
+        self.command_from(Source::Console, r)
+    }
+
+    /// [`Self::command`] from `source`: while a technician has the machine in
+    /// maintenance mode, everything but `Stop` from the PLC is refused
+    /// ([`Refusal::MaintenanceMode`]).
+    pub fn command_from(&mut self, source: Source, r: Request) -> Result<(), Refusal> {
+        if source == Source::Plc && self.maintenance_mode && r != Request::Stop {
+            return Err(Refusal::MaintenanceMode);
+        }
         let state = self.seq.state();
         let estop = |me: &Self| {
             if me.estop_open {
@@ -1589,7 +1627,8 @@ impl<B: Bsp> Controller<B> {
                 && sw.locked
                 && self.calibrated
                 && level != WearLevel::Limit
-                && !self.estop_open,
+                && !self.estop_open
+                && !self.maintenance_mode,
             mated: matches!(
                 state,
                 State::Holding {
@@ -1667,6 +1706,20 @@ impl<B: Bsp> Controller<B> {
         } else {
             Ok(())
         }
+    }
+
+    /// The console's maintenance mode (a technician logged in): READY drops and the
+    /// PLC's motion requests (Modbus, the DOCK pin) are refused while it lasts.
+    pub fn set_maintenance_mode(&mut self, on: bool) {
+        if on != self.maintenance_mode {
+            info!("maintenance mode {}", if on { "entered" } else { "ended" });
+        }
+        self.maintenance_mode = on;
+    }
+
+    /// Whether a technician has the machine in maintenance mode.
+    pub fn maintenance_mode(&self) -> bool {
+        self.maintenance_mode
     }
 
     /// The board's word that a Modbus reply is on the line (its RS-485 driver enabled).

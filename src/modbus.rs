@@ -113,7 +113,8 @@
 //! | 7 | peak force since boot | 0.1 N | i16 |
 //! | 8 | last command written here | command code (below), 0 none | u16 |
 //! | 9 | its result | 0 accepted, else the refusal code (below) | u16 |
-//! | 10–15 | reserved | | |
+//! | 10 | maintenance mode at the console (map version 2) | 1 on: PLC motion refused, READY low; 0 off | u16 |
+//! | 11–15 | reserved | | |
 //! | 16–17 | lifetime cycles | cycles | u32 |
 //! | 18–19 | cone cycles | cycles | u32 |
 //! | 20–21 | cone wear (odometer model) | nm | u32 |
@@ -141,10 +142,11 @@
 //! | 66 | firmware patch | | u16 |
 //! | 67 | register map version | [`MAP_VERSION`] | u16 |
 //!
-//! Status word (and **discrete inputs** 0–10, 0x02, the same bits): 0 READY, 1 MATED,
+//! Status word (and **discrete inputs** 0–11, 0x02, the same bits): 0 READY, 1 MATED,
 //! 2 moving, 3 FAULT, 4 force warning, 5 MAINTENANCE (cone past its warning level),
 //! 6 load cell calibrated, 7 E-STOP open, 8 DOCK input asserted (as filtered), 9 cone
-//! worn out (wear level limit: docking refused), 10 docking (under way or mated).
+//! worn out (wear level limit: docking refused), 10 docking (under way or mated),
+//! 11 maintenance mode at the console (map version 2).
 //!
 //! Sequencer state codes: 0 power-up, 1 homing, 2 locking, 3 idle, 4 pre-align,
 //! 5 releasing, 6 inserting, 7 holding, 8 extracting, 9 returning, 10 backing off,
@@ -153,7 +155,8 @@
 //! Fault codes ([`crate::sequencer::FaultKind::code`]): 0 overload, 1 sensor
 //! disconnected, 2 sensor saturated, 3 sensor stuck, 4 implausible tare, 5 axis stall,
 //! 6 overtravel, 7 lock not released, 8 lock not locked, 9 switch conflict, 10 I/O,
-//! 11 tension, 12 storage, 13 emergency stop, 14 stopped, 15 hold force.
+//! 11 tension, 12 storage, 13 emergency stop, 14 stopped, 15 hold force, 16 unseen stop
+//! (the stop latch held the driver off for a stop never reported).
 //!
 //! **Coils** (0x01 / 0x05 / 0x0F), momentary commands, read back 0:
 //!
@@ -173,7 +176,8 @@
 //! Input registers 8–9 hold the last command written to this server and its result: 0
 //! accepted, or the refusal's code ([`crate::controller::Refusal::code`]: 1 E-STOP open,
 //! 2 not idle, 3 not calibrated, 4 cone worn out, 5 not homed and locked, 6 nothing to
-//! undock, 7 no fault to clear, 8 already homed).
+//! undock, 7 no fault to clear, 8 already homed, 9 maintenance mode: a technician is at
+//! the console, and every command but stop is refused to the PLC).
 //!
 //! Writing 0 (a coil off, register value 0) is a no-op answered normally. One command a
 //! request: a multiple write with more than one command is exception 03 and runs none
@@ -212,7 +216,7 @@ use heapless::Vec;
 use rmodbus::server::{ModbusFrame, Read, Write};
 use rmodbus::{ErrorKind, ModbusProto};
 
-use crate::controller::{Bsp, Controller};
+use crate::controller::{Bsp, Controller, Source};
 use crate::odometer::WearLevel;
 use crate::sequencer::{Request, State};
 
@@ -523,7 +527,7 @@ impl RtuFramer {
 
 /// The register map's version: bumped when registers are added (never moved or
 /// reused).
-pub const MAP_VERSION: u16 = 1;
+pub const MAP_VERSION: u16 = 2;
 
 /// Input register addresses (function 0x04); see the module doc for units.
 pub mod ir {
@@ -549,6 +553,8 @@ pub mod ir {
     /// Its result: 0 accepted, else why it was refused
     /// ([`crate::controller::Refusal::code`]).
     pub const LAST_COMMAND_RESULT: u16 = 9;
+    /// Maintenance mode at the console: 1 on (PLC motion refused), 0 off.
+    pub const MAINTENANCE_MODE: u16 = 10;
     /// Lifetime cycles, u32 (high word first).
     pub const LIFETIME_CYCLES: u16 = 16;
     /// Cone cycles, u32.
@@ -625,8 +631,11 @@ pub mod status {
     pub const WORN_OUT: u16 = 1 << 9;
     /// A docking is under way or mated.
     pub const DOCKING: u16 = 1 << 10;
+    /// A technician has the machine in maintenance mode at the console: motion
+    /// commands from the PLC are refused (refusal 9) and READY is low.
+    pub const MAINTENANCE_MODE: u16 = 1 << 11;
     /// Discrete inputs in the map (the bits above).
-    pub const COUNT: u16 = 11;
+    pub const COUNT: u16 = 12;
 }
 
 /// Commands (coil address = code − 1; holding register 0 value = code).
@@ -764,7 +773,7 @@ fn sat_u16(v: u64) -> u16 {
     u16::try_from(v).unwrap_or(u16::MAX)
 }
 
-/// The status word (input register 0; discrete inputs 0–10).
+/// The status word (input register 0; discrete inputs 0–11).
 pub fn status_word<B: Bsp>(ctrl: &Controller<B>) -> u16 {
     let s = ctrl.status();
     let h = s.handshake;
@@ -780,6 +789,7 @@ pub fn status_word<B: Bsp>(ctrl: &Controller<B>) -> u16 {
         (h.dock, status::DOCK_INPUT),
         (s.wear_level == WearLevel::Limit, status::WORN_OUT),
         (s.state.is_docking(), status::DOCKING),
+        (ctrl.maintenance_mode(), status::MAINTENANCE_MODE),
     ];
     bits.iter()
         .filter(|(on, _)| *on)
@@ -869,6 +879,7 @@ pub fn input_registers<B: Bsp>(ctrl: &Controller<B>) -> [u16; ir::COUNT as usize
     set(ir::FW_MINOR, minor);
     set(ir::FW_PATCH, patch);
     set(ir::MAP_VERSION, MAP_VERSION);
+    set(ir::MAINTENANCE_MODE, u16::from(ctrl.maintenance_mode()));
     r
 }
 
@@ -1088,7 +1099,7 @@ fn run_commands<B: Bsp>(
     if broadcast && cmd.moves() {
         return Ok(()); // motion is unicast only (and a broadcast gets no reply)
     }
-    let result = ctrl.command(cmd.request());
+    let result = ctrl.command_from(Source::Plc, cmd.request());
     session.last_command = cmd.code();
     session.last_result = match result {
         Ok(()) => {

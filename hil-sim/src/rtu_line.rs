@@ -171,7 +171,7 @@ mod tests {
         assert_eq!(line.waiting(), req.len());
         assert_eq!(line.room(), RX_WINDOW - req.len());
         let (reply, at) = run(&mut rig, &mut line, 100);
-        assert_eq!(reply, frame(&[1, 0x04, 2, 0, 1]), "map version 1");
+        assert_eq!(reply, frame(&[1, 0x04, 2, 0, 2]), "map version 2");
         let silent_from = t0 + req.len() as u64 * 573;
         assert!(at >= silent_from + 2_006, "{at} {silent_from}");
         assert!(at <= silent_from + 2_006 + 12_500, "{at} {silent_from}");
@@ -192,7 +192,7 @@ mod tests {
         let now = rig.clock.now_ns() / 1_000;
         line.receive(&req, now);
         let (reply, _) = run(&mut rig, &mut line, 20);
-        assert_eq!(reply, frame(&[1, 0x04, 2, 0, 1]));
+        assert_eq!(reply, frame(&[1, 0x04, 2, 0, 2]));
     }
 
     #[test]
@@ -207,7 +207,7 @@ mod tests {
         // One long tick covering both.
         let r = line.service(50_000, &mut rig.ctrl, UNIT_SERIAL);
         replies.extend(r);
-        let one = frame(&[1, 0x04, 2, 0, 1]);
+        let one = frame(&[1, 0x04, 2, 0, 2]);
         assert_eq!(replies, [one.clone(), one].concat());
         assert_eq!(line.stats().overruns, 0);
     }

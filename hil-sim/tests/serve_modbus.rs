@@ -346,7 +346,10 @@ fn a_plc_identifies_the_unit_and_gets_its_errors_over_modbus_rtu() {
     assert_eq!(plc.transact(&req, |_| false), with_crc(&[UNIT, 0x84, 0x02]));
 
     // The line still works after all that.
-    assert_eq!(plc.inputs(ir::MAP_VERSION, 1), [1]);
+    assert_eq!(
+        plc.inputs(ir::MAP_VERSION, 1),
+        [docking_controller::modbus::MAP_VERSION]
+    );
 }
 
 #[test]

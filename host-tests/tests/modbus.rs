@@ -488,9 +488,12 @@ fn input_registers_match_status_and_odometer() {
         .map(|p| p.parse().unwrap())
         .collect();
     assert_eq!(regs[64..67], v[..]);
-    assert_eq!(regs[67], 1, "map version");
+    assert_eq!(
+        regs[67], 2,
+        "map version (2: maintenance mode, register 10 and bit 11)"
+    );
     // Reserved addresses read 0; handle_frame keeps no last command.
-    for a in [8, 9, 10, 15, 36, 39, 45, 47, 60, 63] {
+    for a in [8, 9, 11, 15, 36, 39, 45, 47, 60, 63] {
         assert_eq!(regs[a], 0, "address {a}");
     }
     // Any window reads the same values.
@@ -498,7 +501,7 @@ fn input_registers_match_status_and_odometer() {
         read_inputs(&mut r, ir::CONE_SERIAL, 10).unwrap(),
         regs[50..60]
     );
-    assert_eq!(read_inputs(&mut r, 67, 1).unwrap(), [1]);
+    assert_eq!(read_inputs(&mut r, 67, 1).unwrap(), [2]);
 }
 
 #[test]
@@ -1354,4 +1357,54 @@ fn corpus_frames_keep_invariants() {
         total.replies >= 60 && total.silent >= 30 && total.exceptions[1..].iter().all(|&n| n >= 6),
         "{total:?}"
     );
+}
+
+/// Defect (issue 17, item 7): a Modbus dock or the DOCK pin moved the machine while a
+/// technician was in maintenance mode at the console, and no register showed the mode.
+#[test]
+fn maintenance_mode_locks_out_plc_motion() {
+    use docking_controller::controller::Refusal;
+    let mut r = rig();
+    assert!(r.command("pin set 1357", 10).starts_with("ok"));
+    assert!(r.command("maint 1357", 10).starts_with("ok"));
+    assert!(r.ctrl.maintenance_mode());
+    assert!(!r.ctrl.handshake().ready, "READY drops in maintenance");
+    let regs = read_inputs(&mut r, 0, 11).unwrap();
+    assert_ne!(regs[0] & status::MAINTENANCE_MODE, 0, "status bit 11");
+    assert_eq!(regs[0] & status::MAINTENANCE, 0, "bit 5 keeps its meaning");
+    assert_eq!(regs[usize::from(ir::MAINTENANCE_MODE)], 1);
+    // Modbus dock: refused, with the reason in input register 9.
+    assert_eq!(coil(&mut r, Command::Dock, true), Err(0x04));
+    assert_eq!(
+        r.ctrl
+            .command_from(docking_controller::controller::Source::Plc, Request::Dock),
+        Err(Refusal::MaintenanceMode)
+    );
+    assert_eq!(Refusal::MaintenanceMode.code(), 9);
+    // The DOCK pin: ignored.
+    r.dock_line.set(false);
+    for _ in 0..200 {
+        r.tick();
+        assert!(
+            !r.axis.enabled() && !r.lock.driven(),
+            "moved in maintenance"
+        );
+    }
+    assert_eq!(r.ctrl.state(), State::Idle);
+    // A stop is never refused, whoever sends it.
+    assert!(r
+        .ctrl
+        .command_from(docking_controller::controller::Source::Plc, Request::Stop)
+        .is_ok());
+    // Maintenance ends: READY again after the stop is cleared, and the PLC docks.
+    r.dock_line.set(true);
+    assert!(r.command("clear-fault", 10).starts_with("ok"));
+    assert!(run_until(&mut r, 8_000, |r| r.ctrl.state() == State::Idle));
+    assert!(r.command("maint exit", 10).starts_with("ok"));
+    r.tick();
+    assert!(!r.ctrl.maintenance_mode());
+    assert!(r.ctrl.handshake().ready);
+    assert_eq!(read_inputs(&mut r, ir::MAINTENANCE_MODE, 1).unwrap(), [0]);
+    assert_eq!(coil(&mut r, Command::Dock, true), Ok(()));
+    assert!(run_until(&mut r, 50, |r| r.ctrl.state().is_docking()));
 }

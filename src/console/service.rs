@@ -199,6 +199,9 @@ impl Console {
                 st.pin_hashes = self.execute(ctrl, &line, now_ms);
             }
         }
+        // The controller locks out the PLC's motion while a technician is in
+        // maintenance mode (it ends on `maint exit` or after its idle timeout).
+        ctrl.set_maintenance_mode(self.auth.is_active(now_ms));
         self.flush(io);
         st
     }
