@@ -258,6 +258,7 @@ impl Bsp for Board {
     type Stop = BoardStop;
     type Wdg = BoardWatchdog;
     type Flash = OdometerFlash;
+    type Options = options::BoardOptions;
 }
 
 /// The PLC handshake's pins.
@@ -380,8 +381,9 @@ mod app {
         let tim_hz = rcc.clocks.timclk1().raw();
         clock::start(dp.TIM5, &mut rcc, tim_hz);
 
-        // 4. Brown-out reset at 2.70 V, before the watchdog runs (it takes a while).
-        let bor = options::ensure_bor_level_3();
+        // 4. The brown-out reset level, read and reported (programming it is a
+        // maintenance step at rest, `bor set`: see options.rs).
+        let bor = options::bor_level();
 
         // 5. Pins, motor outputs created at their safe level (no glitch).
         let gpioa = dp.GPIOA.split(&mut rcc);
@@ -453,6 +455,7 @@ mod app {
             released,
             stop: BoardStop,
             wdg: BoardWatchdog(iwdg),
+            options: options::BoardOptions,
         };
         let mut cfg = ControllerConfig::new(DEFAULT_SAMPLE_RATE_SPS, DEFAULT_CALIBRATION);
         // Another machine's guard envelope, hold force and nominal load-distance, if the
@@ -473,11 +476,17 @@ mod app {
         ));
         kernel.configure(ctrl.kernel_config(), now);
         defmt::info!(
-            "docking-controller {} booted; motors safe; HX711 at {} SPS; BOR {}",
+            "docking-controller {} booted; motors safe; HX711 at {} SPS; BOR level {}",
             env!("CARGO_PKG_VERSION"),
             rate_sps,
             bor
         );
+        if bor != 3 {
+            defmt::warn!(
+                "BOR level {} (3 = 2.70 V wanted): program it at rest with `bor set`",
+                bor
+            );
+        }
         let journals = crash::journal_take();
         let journals: heapless::Vec<_, 2> = journals.into_iter().flatten().collect();
         ctrl.boot(cause, crashed, &journals);

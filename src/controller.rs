@@ -30,7 +30,7 @@ use crate::config::MachineConfig;
 use crate::diag::{Crash, ResetCause, ResetCounts};
 use crate::estimate::{Estimate, Fit, Reading};
 use crate::guard::{GuardConfig, SensorFault, Verdict};
-use crate::hal::{StepPulses, StopLatch, Watchdog};
+use crate::hal::{OptionBytes, StepPulses, StopLatch, Watchdog};
 use crate::hx711::Calibration;
 use crate::lock::{LockActuator, LockCmd};
 use crate::material::Material;
@@ -70,6 +70,8 @@ pub trait Bsp {
     type Wdg: Watchdog;
     /// The flash sectors reserved for the wear odometer.
     type Flash: NorFlash;
+    /// The option bytes (brown-out reset level).
+    type Options: OptionBytes;
 }
 
 /// The hardware parts, handed over at start.
@@ -98,6 +100,8 @@ pub struct Parts<B: Bsp> {
     pub wdg: B::Wdg,
     /// Odometer flash.
     pub flash: B::Flash,
+    /// Option bytes.
+    pub options: B::Options,
 }
 
 /// Controller configuration.
@@ -346,6 +350,7 @@ pub struct Controller<B: Bsp> {
     /// The highest stop number the controller has seen (re-arm only up to it).
     seen_stop: u32,
     wdg: B::Wdg,
+    options: B::Options,
     seq: Sequencer,
     /// Sample period, µs.
     period_us: u64,
@@ -521,6 +526,9 @@ pub enum MaintError {
     BaselineExists,
     /// The cone has docked: its bore is no longer its bore when new.
     BaselineAfterUse,
+    /// The option bytes could not be programmed (locked, write-protected, or the
+    /// flash interface reported an error).
+    OptionBytes,
 }
 
 impl core::fmt::Display for MaintError {
@@ -536,6 +544,9 @@ impl core::fmt::Display for MaintError {
             Self::BadRate => "the HX711 samples at 10 or 80 per second (its RATE pin)",
             Self::BaselineExists => {
                 "the cone has its baseline already (a new cone: cone replace ... --bore)"
+            }
+            Self::OptionBytes => {
+                "the option bytes could not be programmed (flash interface error; see the log)"
             }
             Self::BaselineAfterUse => {
                 "the cone has docked since it was installed: its bore is no longer its new \
@@ -719,6 +730,7 @@ impl<B: Bsp> Controller<B> {
             stop: parts.stop,
             seen_stop: 0,
             wdg: parts.wdg,
+            options: parts.options,
             seq: Sequencer::new(cfg.machine),
             period_us: 1_000_000 / cfg.sample_rate_sps.max(1) as u64,
             clear_epoch: 0,
@@ -1705,6 +1717,31 @@ impl<B: Bsp> Controller<B> {
             Err(MaintError::NotAtRest)
         } else {
             Ok(())
+        }
+    }
+
+    /// The brown-out reset level in the option bytes: 3 (2.70 V) .. 0 (off).
+    pub fn bor_level(&self) -> u8 {
+        self.options.bor_level()
+    }
+
+    /// Program brown-out reset level 3 (technician action, at rest: the flash interface
+    /// is busy meanwhile). The level found is returned when it was 3 already.
+    pub fn program_bor(&mut self) -> Result<u8, MaintError> {
+        let from = self.options.bor_level();
+        if from == 3 {
+            return Ok(3);
+        }
+        self.flash_turn()?;
+        match self.options.program_bor_level_3() {
+            Ok(()) => {
+                info!("BOR level 3 programmed (was {})", from);
+                Ok(from)
+            }
+            Err(sr) => {
+                error!("BOR programming failed: FLASH_SR {:#x}", sr);
+                Err(MaintError::OptionBytes)
+            }
         }
     }
 

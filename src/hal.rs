@@ -44,6 +44,19 @@ pub trait LoadCellAdc {
     fn read_code(&mut self) -> nb::Result<i32, ()>;
 }
 
+/// The MCU's option bytes: the brown-out reset level (the board's; the simulator's).
+///
+/// Programming them is an explicit maintenance step at rest (console `bor set`), never
+/// something the firmware does on its own at boot: a power cut while option bytes are
+/// programmed can leave read protection or write protection set.
+pub trait OptionBytes {
+    /// The brown-out reset level now: 3 (2.70 V), 2 (2.40 V), 1 (2.10 V) or 0 (off).
+    fn bor_level(&self) -> u8;
+    /// Program BOR level 3. `Err(sr)`: the flash interface's status register (its
+    /// error bits), or the level read back was not 3.
+    fn program_bor_level_3(&mut self) -> Result<(), u32>;
+}
+
 /// The safety path's hold on the propulsion: an immediate stop that latches, so the
 /// driver stays off until the controller has seen every stop.
 ///

@@ -162,6 +162,30 @@ impl Bsp for SimBsp {
     type Stop = SimStop;
     type Wdg = SimWatchdog;
     type Flash = BoardFlash;
+    type Options = SimOptions;
+}
+
+/// The simulated option bytes: the BOR level (factory default off), programmed only
+/// when asked.
+#[derive(Clone, Debug, Default)]
+pub struct SimOptions {
+    /// The brown-out reset level (shared between clones).
+    pub bor: Rc<Cell<u8>>,
+    /// The programming fails (option bytes write-protected): FLASH_SR's WRPERR.
+    pub locked: Rc<Cell<bool>>,
+}
+
+impl docking_controller::hal::OptionBytes for SimOptions {
+    fn bor_level(&self) -> u8 {
+        self.bor.get()
+    }
+    fn program_bor_level_3(&mut self) -> Result<(), u32> {
+        if self.locked.get() {
+            return Err(0x10); // WRPERR
+        }
+        self.bor.set(3);
+        Ok(())
+    }
 }
 
 /// Flash operation times (DS8626 Table 41, PSIZE ×32 as the board's driver uses).
@@ -510,6 +534,8 @@ pub struct Rig {
     estop_was_open: bool,
     /// The board's E-STOP interrupt's record of edges (the firmware's own type).
     pub estop_edges: docking_controller::safety::EstopEdges,
+    /// The MCU's option bytes (the BOR level).
+    pub options: SimOptions,
     /// What the last console poll did.
     pub last_console: ConsolePoll,
 }
@@ -564,6 +590,7 @@ impl Rig {
                 Err(e) => unreachable!("simulated pins are infallible: {e:?}"),
             },
         };
+        let options = SimOptions::default();
         let parts = Parts::<SimBsp> {
             en_n: GatedEn::new(axis.enable_n(), stop.clone()),
             dir: axis.dir(),
@@ -582,6 +609,7 @@ impl Rig {
                 wdg: wdg.clone(),
                 times: FlashTimes::MAX,
             },
+            options: options.clone(),
         };
         let mut cfg = ControllerConfig::new(opts.rate_sps, sim_calibration(&hx_cfg));
         cfg.default_material = opts.material;
@@ -614,6 +642,7 @@ impl Rig {
             estop_line: estop,
             estop_was_open: false,
             estop_edges: docking_controller::safety::EstopEdges::new(),
+            options,
             last_console: ConsolePoll::default(),
         }
     }

@@ -421,3 +421,40 @@ fn audit_record_waits_for_rest_while_the_axis_is_held() {
     assert_eq!(r.ctrl.records_queued(), 0);
     assert_eq!(audits(&mut r), before + 1, "written at the rest");
 }
+
+/// Defect (issue 17, item 8): the firmware programmed the BOR option bytes by itself at
+/// its first boot (BOR still off, the supply possibly ramping) and judged success by
+/// re-reading OPTCR only. Now boot only reads the level; `bor set` programs it, in
+/// maintenance mode at rest, audited, and a failure says so.
+#[test]
+fn bor_is_programmed_only_by_an_explicit_maintenance_step() {
+    let mut r = rig();
+    assert_eq!(r.options.bor.get(), 0, "boot left the option bytes alone");
+    assert!(r.command("bor", 10).contains("level=0"));
+    assert!(r
+        .command("bor set", 10)
+        .contains("maintenance mode required"));
+    assert!(r.command("pin set 1357", 10).starts_with("ok"));
+    assert!(r.command("maint 1357", 10).starts_with("ok"));
+    r.options.locked.set(true);
+    assert!(r
+        .command("bor set", 10)
+        .starts_with("error: the option bytes"));
+    assert_eq!(r.options.bor.get(), 0);
+    r.options.locked.set(false);
+    let mut audits = 0;
+    r.ctrl
+        .records(docking_controller::odometer::kind::AUDIT, 10, |_| {
+            audits += 1
+        });
+    assert!(r.command("bor set", 10).starts_with("ok: BOR level 3"));
+    assert_eq!(r.options.bor.get(), 3);
+    let mut after = 0;
+    r.ctrl
+        .records(docking_controller::odometer::kind::AUDIT, 10, |_| {
+            after += 1
+        });
+    assert_eq!(after, audits + 1, "audited");
+    assert!(r.command("bor", 10).contains("level=3 (2.70 V)"));
+    assert!(r.command("bor set", 10).contains("set already"));
+}

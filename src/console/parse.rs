@@ -131,6 +131,10 @@ pub enum Command<'a> {
     },
     /// `modbus`: show the Modbus line's settings.
     ModbusShow,
+    /// `bor`: show the brown-out reset level in the option bytes.
+    BorShow,
+    /// `bor set`: program brown-out reset level 3 (2.70 V), at rest.
+    BorSet,
     /// `modbus <unit> <baud>`: store them (from the next boot).
     ModbusSet {
         /// Unit address, 1..=247.
@@ -193,6 +197,8 @@ impl Command<'_> {
             Self::Stop => "stop",
             Self::Rate { .. } => "rate",
             Self::ModbusShow | Self::ModbusSet { .. } => "modbus",
+            Self::BorShow => "bor",
+            Self::BorSet => "bor set",
             Self::ConeReplace { .. } => "cone replace",
             Self::Measure { .. } => "measure",
             Self::CalibrateTare => "calibrate tare",
@@ -214,6 +220,7 @@ impl Command<'_> {
                 | Self::Undock
                 | Self::Rate { .. }
                 | Self::ModbusSet { .. }
+                | Self::BorSet
                 | Self::ConeReplace { .. }
                 | Self::CalibrateTare
                 | Self::CalibrateSpan { .. }
@@ -266,6 +273,8 @@ impl fmt::Debug for Command<'_> {
             Self::Stop => f.write_str("Stop"),
             Self::Rate { sps } => f.debug_struct("Rate").field("sps", sps).finish(),
             Self::ModbusShow => f.write_str("ModbusShow"),
+            Self::BorShow => f.write_str("BorShow"),
+            Self::BorSet => f.write_str("BorSet"),
             Self::ModbusSet { unit, baud } => f
                 .debug_struct("ModbusSet")
                 .field("unit", unit)
@@ -359,6 +368,7 @@ fn hint(arg: &str) -> &'static str {
         "cone subcommand" => "replace",
         "calibrate subcommand" => "tare | span",
         "pin subcommand" => "set",
+        "bor subcommand" => "set",
         _ => "see 'help'",
     }
 }
@@ -462,6 +472,7 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
             | "stop"
             | "rate"
             | "modbus"
+            | "bor"
             | "cone"
             | "measure"
             | "calibrate"
@@ -588,6 +599,14 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
                 "exit" => Ok(Command::MaintExit),
                 pin if is_pin(pin) => Ok(Command::Maint { pin }),
                 _ => Err(ParseError::BadArgument("pin")),
+            }
+        }
+        "bor" => {
+            a.action(1)?;
+            match a.pos.as_slice() {
+                [] => Ok(Command::BorShow),
+                ["set"] => Ok(Command::BorSet),
+                _ => Err(ParseError::BadArgument("bor subcommand")),
             }
         }
         "pin" => {

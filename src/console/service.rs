@@ -64,6 +64,8 @@ pub mod action {
     pub const DOCK: u8 = 9;
     /// The Modbus line's settings were stored.
     pub const MODBUS: u8 = 10;
+    /// The brown-out reset level was programmed (detail: the level found, u8).
+    pub const BOR: u8 = 11;
 }
 
 /// What one poll did.
@@ -406,6 +408,20 @@ impl Console {
                 }
                 Err(e) => self.err(&e),
             },
+            Command::BorShow => {
+                let l = ctrl.bor_level();
+                self.reply(|o| write!(o, "bor level={} ({})\r\n", l, bor_text(l)));
+            }
+            Command::BorSet => match ctrl.program_bor() {
+                Ok(3) => self.ok(&"BOR level 3 (2.70 V) was set already"),
+                Ok(from) => {
+                    self.audit(ctrl, action::BOR, now_ms, &[from]);
+                    self.ok(
+                        &"BOR level 3 (2.70 V) programmed: a sagging supply now resets cleanly",
+                    );
+                }
+                Err(e) => self.err(&e),
+            },
             Command::ModbusShow => {
                 let st = crate::modbus::ModbusSettings::stored(ctrl);
                 self.reply(|o| {
@@ -532,7 +548,7 @@ impl Console {
     }
 
     fn help(&mut self, json: bool) {
-        const CMDS: [&str; 21] = [
+        const CMDS: [&str; 22] = [
             "help [--json]",
             "version [--json]",
             "status [--json]",
@@ -547,6 +563,7 @@ impl Console {
             "stop",
             "rate <10|80>",
             "modbus [<unit> <baud>]",
+            "bor [set]",
             "cone replace <material> <serial> [--bore <d0_mm>]",
             "measure [--baseline] <bore_diameter_mm>",
             "calibrate tare",
@@ -983,5 +1000,15 @@ impl Console {
                 Ok(())
             });
         }
+    }
+}
+
+/// What a brown-out reset level means.
+fn bor_text(level: u8) -> &'static str {
+    match level {
+        3 => "2.70 V",
+        2 => "2.40 V",
+        1 => "2.10 V",
+        _ => "off: program it at rest with `bor set` (maintenance)",
     }
 }
