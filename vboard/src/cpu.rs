@@ -558,6 +558,8 @@ fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
     if let Some(c) = s.exc_entries.get_mut(e as usize) {
         *c += 1;
     }
+    let now = s.now();
+    s.entry_log.note(e, now);
     Ok(())
 }
 
@@ -594,6 +596,8 @@ fn exception_return(uc: &mut Unicorn<'_, Soc>) {
             if let Some(c) = s.exc_entries.get_mut(n as usize) {
                 *c += 1;
             }
+            let now = s.now();
+            s.entry_log.note(n, now);
             return;
         }
     }

@@ -9,7 +9,9 @@
 //! * [`periph`]: one model per peripheral;
 //! * [`world`]: the board's wiring to hil-sim's devices;
 //! * [`rtt`]: the defmt log, read over RTT as a probe would;
-//! * [`scene`]: the scenes of `vboard scene`.
+//! * [`scene`]: the scenes of `vboard scene`;
+//! * [`realtime`]: the control step's period, the watchdog's feeding and the E-STOP's
+//!   reaction, measured on the peripheral models.
 //!
 //! GPL-2.0 (it links unicorn); nothing of the firmware depends on it.
 
@@ -17,6 +19,7 @@ pub mod cli;
 pub mod cpu;
 pub mod image;
 pub mod periph;
+pub mod realtime;
 pub mod rtt;
 pub mod scene;
 pub mod serve;

@@ -31,6 +31,7 @@ use crate::cpu::{Board, BoardConfig, Halt};
 use crate::image::Image;
 use crate::periph::flash::FlashTiming;
 use crate::periph::rcc::ResetCause;
+use crate::realtime::{estop_reactions, moving_windows, ControlTiming};
 use crate::rtt::LogLine;
 use crate::time::PS_PER_S;
 use crate::world::World;
@@ -112,7 +113,14 @@ pub struct Session {
     pub hold_ps: u64,
     /// A test cycle is under way: release DOCK after the hold (or on a fault).
     test_cycle: bool,
+    /// The E-STOP input's level as the board last saw it (`true`: open).
+    estop_open: bool,
+    /// Every edge of the E-STOP input: (time ps, opened).
+    pub estop_edges: Vec<(u64, bool)>,
 }
+
+/// The control task's exception: TIM2 (IRQ 28).
+pub const CONTROL_EXCEPTION: u32 = crate::periph::nvic::exc::IRQ0 + 28;
 
 /// Load `path` (once per process: the table of a loaded image is kept).
 fn image(path: &str) -> Result<Image, String> {
@@ -138,6 +146,7 @@ impl Session {
         let world = World::new(machine, flash);
         let mut board = Board::new(img, world, opts.board)?;
         board.watch_masking();
+        board.soc_mut().entry_log.watch(CONTROL_EXCEPTION);
         board.power_on();
         Ok(Self {
             board,
@@ -150,6 +159,8 @@ impl Session {
             hold_ps: u64::from(docking_controller::config::MachineConfig::DEFAULT.hold_ms)
                 * PS_PER_MS,
             test_cycle: false,
+            estop_open: false,
+            estop_edges: Vec::new(),
         })
     }
 
@@ -231,6 +242,11 @@ impl Session {
 
     /// A scene changed an input line: let the EXTI see it now.
     pub fn inputs_changed(&mut self) {
+        let open = self.machine().estop.is_high();
+        if open != self.estop_open {
+            self.estop_open = open;
+            self.estop_edges.push((self.now(), open));
+        }
         let soc = self.board.soc_mut();
         soc.sample_exti();
         soc.update_lines();
@@ -401,6 +417,34 @@ impl Session {
     /// The reset causes so far (the power-on included), by name.
     pub fn reset_causes(&self) -> Vec<&'static str> {
         self.board.resets.iter().map(|(_, c)| c.name()).collect()
+    }
+
+    /// The sample period, ps.
+    pub fn period_ps(&self) -> u64 {
+        PS_PER_S / u64::from(self.opts.rate_sps.max(1))
+    }
+
+    /// The control step's period (the control task's entries on the NVIC model) and the
+    /// watchdog's feeding (reloads on the IWDG model) so far, over the time anything
+    /// moved ([`crate::realtime`]).
+    pub fn control_timing(&self) -> ControlTiming {
+        let soc = self.board.soc();
+        let end = self.now();
+        let resets: Vec<u64> = self.board.resets.iter().map(|&(t, _)| t).collect();
+        ControlTiming::measure(
+            &soc.entry_log.times(CONTROL_EXCEPTION),
+            &soc.iwdg.reload_times,
+            &resets,
+            end,
+            &moving_windows(&soc.edges, end),
+            self.period_ps(),
+        )
+    }
+
+    /// For every E-STOP edge so far at which anything moved: edge → EN high and the lock
+    /// bridge off, on the pins, µs (`None`: they never went off).
+    pub fn estop_reactions_us(&self) -> Vec<Option<f64>> {
+        estop_reactions(&self.estop_edges, &self.board.soc().edges)
     }
 
     /// Watchdog resets so far.
@@ -783,6 +827,13 @@ pub struct Report {
     /// Per exception (task): name, entries, instructions executed in it (thread mode —
     /// RTIC's idle — as `thread`).
     pub tasks: Vec<(String, u64, u64)>,
+    /// Over the time anything moved ([`crate::realtime`]): the control step's period
+    /// (entries of TIM2 on the NVIC model) and the watchdog's feeding (reloads on the
+    /// IWDG model).
+    pub timing: ControlTiming,
+    /// For every E-STOP edge while anything moved: edge → EN high and the lock bridge
+    /// off, on the pins, µs (`None`: they never went off).
+    pub estop_reactions_us: Vec<Option<f64>>,
 }
 
 /// A name for exception `e` (STM32F407 interrupt names for those the board models).
@@ -834,7 +885,7 @@ impl Report {
             })
             .collect();
         format!(
-            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{}}}",
+            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{},\"moving_s\":{},\"control_period_max_ms\":{},\"control_late\":{},\"watchdog_feed_gap_max_ms\":{},\"watchdog_feeds_missed\":{},\"estop_edges_moving\":{},\"estop_off_max_us\":{},\"estop_edges_not_stopped\":{}}}",
             self.reset_count,
             strs(&causes),
             num(self.instructions_per_control_step),
@@ -878,6 +929,19 @@ impl Report {
             self.step.width_violations,
             us_or_null(self.step.min_setup_ns),
             us_or_null(self.step.min_high_ns),
+            num(self.timing.moving_s),
+            self.timing.period_max_ms.map_or("null".into(), num),
+            self.timing.late,
+            self.timing.feed_gap_max_ms.map_or("null".into(), num),
+            self.timing.feeds_missed,
+            self.estop_reactions_us.len(),
+            self.estop_reactions_us
+                .iter()
+                .flatten()
+                .copied()
+                .reduce(f64::max)
+                .map_or("null".into(), num),
+            self.estop_reactions_us.iter().filter(|r| r.is_none()).count(),
         )
     }
 
@@ -904,6 +968,29 @@ impl Report {
                 self.sample_latency_max_us,
                 self.masked_max_us,
                 self.masked_max_at
+            );
+        }
+        let t = &self.timing;
+        if t.moving_s > 0.0 {
+            let ms = |x: Option<f64>| x.map_or("-".to_string(), |v| format!("{v:.2} ms"));
+            s += &format!(
+                "\n  over the {:.1} s anything moved: longest control period {} ({} late, > {:.1} ms); longest watchdog feed gap {} ({} missed, > {:.1} ms)",
+                t.moving_s,
+                ms(t.period_max_ms),
+                t.late,
+                self.period_ms() + 1.0,
+                ms(t.feed_gap_max_ms),
+                t.feeds_missed,
+                3.0 * self.period_ms()
+            );
+        }
+        if !self.estop_reactions_us.is_empty() {
+            s += &format!(
+                "\n  E-STOP: {} edge(s) while moving, edge → EN high and lock off: longest {}",
+                self.estop_reactions_us.len(),
+                self.estop_off_max_us()
+                    .filter(|v| v.is_finite())
+                    .map_or("never (pins left on)".to_string(), |v| format!("{v:.2} µs"))
             );
         }
         if self.console_flood_bytes > 0 || self.console_overruns > 0 {
@@ -949,6 +1036,20 @@ impl Report {
             s += &format!("\n  check {n}: {} ({d})", if *ok { "ok" } else { "FAILED" });
         }
         s
+    }
+
+    /// The longest E-STOP edge → EN high (and lock off) while anything moved, µs
+    /// (`None`: no such edge; infinite if the pins never went off).
+    pub fn estop_off_max_us(&self) -> Option<f64> {
+        self.estop_reactions_us
+            .iter()
+            .map(|r| r.unwrap_or(f64::INFINITY))
+            .reduce(f64::max)
+    }
+
+    /// The sample period, ms.
+    pub fn period_ms(&self) -> f64 {
+        1_000.0 / f64::from(self.scene.rate_sps.max(1))
     }
 
     /// Whether every scene-specific check passed.
@@ -1280,6 +1381,8 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             .filter(|&e| e == 0 || soc.exc_entries[e] > 0)
             .map(|e| (exception_name(e), soc.exc_entries[e], soc.exc_insns[e]))
             .collect(),
+        timing: s.control_timing(),
+        estop_reactions_us: s.estop_reactions_us(),
     })
 }
 

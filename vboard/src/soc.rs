@@ -238,6 +238,8 @@ pub struct Soc {
     pub meter: Option<FnMeter>,
     /// Entries of each exception.
     pub exc_entries: Vec<u64>,
+    /// Entry times of the watched exceptions (the control task's, for its period).
+    pub entry_log: crate::periph::nvic::EntryLog,
     /// The exception running now (0: thread mode).
     pub current_exc: usize,
     /// When EXTI line 0's pending edge (the HX711's DOUT falling) was latched, while its
@@ -322,6 +324,7 @@ impl Soc {
             exc_insns: vec![0; crate::periph::nvic::SLOTS as usize],
             meter: None,
             exc_entries: vec![0; crate::periph::nvic::SLOTS as usize],
+            entry_log: Default::default(),
             current_exc: 0,
             exti0_edge_ps: None,
             sample_latency: LatencyStats::default(),

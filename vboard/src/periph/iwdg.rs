@@ -40,6 +40,9 @@ pub struct Iwdg {
     t_ref: u64,
     /// Reloads so far.
     pub reloads: u64,
+    /// When each reload (`KR` = 0xAAAA) was written, ps; kept across resets (the gaps
+    /// between them are the firmware's feeding, measured where the counter sees it).
+    pub reload_times: Vec<u64>,
 }
 
 impl Iwdg {
@@ -58,13 +61,16 @@ impl Iwdg {
             count_ref: 0xFFF,
             t_ref: 0,
             reloads: 0,
+            reload_times: Vec::new(),
         }
     }
 
     /// A system reset stops it (the option bytes select the software watchdog).
     pub fn reset(&mut self) {
         let lsi = self.lsi_hz;
+        let times = std::mem::take(&mut self.reload_times);
         *self = Self::new(lsi);
+        self.reload_times = times;
     }
 
     /// Whether it runs.
@@ -153,6 +159,7 @@ impl Iwdg {
                     self.count_ref = self.rlr_active as u64;
                     self.t_ref = now;
                     self.reloads += 1;
+                    self.reload_times.push(now);
                     self.unlocked = false;
                 }
                 0x5555 => self.unlocked = true,

@@ -80,6 +80,43 @@ pub struct Masks {
     pub basepri: u8,
 }
 
+/// When chosen exceptions were entered (taken, or tail-chained into), ps: what a logic
+/// analyser would show of a GPIO toggled at each handler's first instruction, without
+/// the GPIO. The board notes every entry ([`EntryLog::note`]); only the watched ones are
+/// kept. It lives in the SoC, not in [`Nvic`], so a reset does not clear it.
+#[derive(Clone, Debug, Default)]
+pub struct EntryLog {
+    watched: u128,
+    /// (exception number, entry time ps), in time order.
+    pub entries: Vec<(u32, u64)>,
+}
+
+impl EntryLog {
+    /// Keep the entries of exception `e` from now on.
+    pub fn watch(&mut self, e: u32) {
+        if e < SLOTS {
+            self.watched |= bit(e);
+        }
+    }
+
+    /// Exception `e` was entered at `t_ps`.
+    #[inline]
+    pub fn note(&mut self, e: u32, t_ps: u64) {
+        if e < SLOTS && self.watched & bit(e) != 0 {
+            self.entries.push((e, t_ps));
+        }
+    }
+
+    /// The entry times of exception `e`, ps.
+    pub fn times(&self, e: u32) -> Vec<u64> {
+        self.entries
+            .iter()
+            .filter(|&&(x, _)| x == e)
+            .map(|&(_, t)| t)
+            .collect()
+    }
+}
+
 /// NVIC + SCB.
 #[derive(Clone, Debug)]
 pub struct Nvic {

@@ -1,0 +1,272 @@
+//! The control step's timing, the watchdog's feeding and the E-STOP's reaction,
+//! measured in the emulator rather than reported by the firmware.
+//!
+//! * **Control period**: the NVIC model notes every entry of the control task's
+//!   interrupt (TIM2, IRQ 28: [`crate::periph::nvic::EntryLog`]); the intervals between
+//!   consecutive entries are the periods the control step actually got.
+//! * **Watchdog feeds**: the IWDG model notes every reload (`KR` = 0xAAAA,
+//!   [`crate::periph::iwdg::Iwdg::reload_times`]); a gap longer than three sample periods
+//!   is a missed feed.
+//! * Both are judged **over the time anything moves**: an interval counts when it
+//!   overlaps a window in which the propulsion driver is enabled (EN low) or a lock
+//!   bridge input is high, as the pins show it. Boot, the BOR programming of a first
+//!   boot, a sector erase at rest and the idle machine are not judged: nothing can hurt
+//!   anyone then, and the firmware is allowed to be slow.
+//! * A reset ends a segment: the interval from the last event before it to the reset
+//!   counts (a watchdog reset after a starved step is a missed feed), the one from the
+//!   reset to the first event after it does not (that is the boot). The scene's end
+//!   closes the last segment the same way.
+//! * **E-STOP**: for every edge of the E-STOP input while anything moved, the time from
+//!   the edge to EN high (if the driver was on) and to both lock bridge inputs low (if
+//!   the lock was driven), on the pins; the longer of the two.
+
+use crate::soc::Edge;
+use crate::world::Signal;
+
+/// Picoseconds per millisecond.
+const PS_PER_MS: u64 = 1_000_000_000;
+
+/// When something moved: `[start, end)` windows in ps, in time order, from the recorded
+/// pin edges (EN low, or a lock bridge input high); a window still open at `end_ps`
+/// ends there.
+pub fn moving_windows(edges: &[Edge], end_ps: u64) -> Vec<(u64, u64)> {
+    let mut en_on = false;
+    let (mut in1, mut in2) = (false, false);
+    let mut since: Option<u64> = None;
+    let mut out = Vec::new();
+    for e in edges {
+        match e.signal {
+            Signal::EnN => en_on = !e.high,
+            Signal::LockIn1 => in1 = e.high,
+            Signal::LockIn2 => in2 = e.high,
+            _ => continue,
+        }
+        let moving = en_on || in1 || in2;
+        match (moving, since) {
+            (true, None) => since = Some(e.t_ps),
+            (false, Some(t0)) => {
+                if e.t_ps > t0 {
+                    out.push((t0, e.t_ps));
+                }
+                since = None;
+            }
+            _ => {}
+        }
+    }
+    if let Some(t0) = since {
+        if end_ps > t0 {
+            out.push((t0, end_ps));
+        }
+    }
+    out
+}
+
+/// Whether `[a, b]` overlaps any of `windows`.
+fn overlaps(windows: &[(u64, u64)], a: u64, b: u64) -> bool {
+    windows.iter().any(|&(s, e)| a < e && b > s)
+}
+
+/// The intervals between consecutive `events` (ps, in time order) that overlap
+/// `windows`, segment by segment: `boundaries` (resets, in time order) end a segment
+/// — the interval from its last event to the boundary counts, the one from the boundary
+/// to the next event does not — and `end_ps` ends the last one.
+pub fn judged_intervals(
+    events: &[u64],
+    boundaries: &[u64],
+    end_ps: u64,
+    windows: &[(u64, u64)],
+) -> Vec<u64> {
+    let mut out = Vec::new();
+    let mut seg_ends: Vec<u64> = boundaries.to_vec();
+    seg_ends.push(end_ps);
+    let mut i = 0;
+    let mut seg_start = 0u64;
+    for &seg_end in &seg_ends {
+        let mut last: Option<u64> = None;
+        while i < events.len() && events[i] <= seg_end {
+            let t = events[i];
+            if t >= seg_start {
+                if let Some(p) = last {
+                    if overlaps(windows, p, t) {
+                        out.push(t - p);
+                    }
+                }
+                last = Some(t);
+            }
+            i += 1;
+        }
+        if let Some(p) = last {
+            if seg_end > p && overlaps(windows, p, seg_end) {
+                out.push(seg_end - p);
+            }
+        }
+        seg_start = seg_end;
+    }
+    out
+}
+
+/// The control step's timing and the watchdog's feeding over the time anything moved.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ControlTiming {
+    /// Time anything moved, s (what the figures below are judged over).
+    pub moving_s: f64,
+    /// Longest interval between entries of the control task's interrupt, ms (`None`:
+    /// nothing moved, or no entry).
+    pub period_max_ms: Option<f64>,
+    /// Intervals longer than the sample period + 1 ms.
+    pub late: u64,
+    /// Longest gap between watchdog reloads, ms.
+    pub feed_gap_max_ms: Option<f64>,
+    /// Gaps between watchdog reloads longer than three sample periods.
+    pub feeds_missed: u64,
+}
+
+impl ControlTiming {
+    /// Judge the control task's `entries` and the watchdog's `reloads` (ps) over
+    /// `windows`, with resets at `resets` and the scene ending at `end_ps`, for a sample
+    /// period of `period_ps`.
+    pub fn measure(
+        entries: &[u64],
+        reloads: &[u64],
+        resets: &[u64],
+        end_ps: u64,
+        windows: &[(u64, u64)],
+        period_ps: u64,
+    ) -> Self {
+        let steps = judged_intervals(entries, resets, end_ps, windows);
+        let feeds = judged_intervals(reloads, resets, end_ps, windows);
+        let ms = |ps: u64| ps as f64 / PS_PER_MS as f64;
+        Self {
+            moving_s: windows.iter().map(|(a, b)| b - a).sum::<u64>() as f64 * 1e-12,
+            period_max_ms: steps.iter().max().map(|&p| ms(p)),
+            late: steps.iter().filter(|&&p| p > period_ps + PS_PER_MS).count() as u64,
+            feed_gap_max_ms: feeds.iter().max().map(|&p| ms(p)),
+            feeds_missed: feeds.iter().filter(|&&g| g > 3 * period_ps).count() as u64,
+        }
+    }
+}
+
+/// For every E-STOP input edge `(time ps, opened)` at which anything moved: the time to
+/// EN high (if the driver was on) and to both lock bridge inputs low (if the lock was
+/// driven), the longer of the two, µs (`None`: the pins never went off).
+pub fn estop_reactions(estop: &[(u64, bool)], edges: &[Edge]) -> Vec<Option<f64>> {
+    let mut out = Vec::new();
+    for &(t0, _) in estop {
+        // The pins' levels just before the edge.
+        let (mut en_on, mut in1, mut in2) = (false, false, false);
+        for e in edges.iter().take_while(|e| e.t_ps < t0) {
+            match e.signal {
+                Signal::EnN => en_on = !e.high,
+                Signal::LockIn1 => in1 = e.high,
+                Signal::LockIn2 => in2 = e.high,
+                _ => {}
+            }
+        }
+        if !(en_on || in1 || in2) {
+            continue;
+        }
+        let mut off_at: Option<u64> = None;
+        let mut en_off = !en_on;
+        let (mut l1, mut l2) = (in1, in2);
+        for e in edges.iter().skip_while(|e| e.t_ps < t0) {
+            match e.signal {
+                Signal::EnN => en_off = e.high,
+                Signal::LockIn1 => l1 = e.high,
+                Signal::LockIn2 => l2 = e.high,
+                _ => continue,
+            }
+            if en_off && !l1 && !l2 {
+                off_at = Some(e.t_ps);
+                break;
+            }
+        }
+        out.push(off_at.map(|t| (t - t0) as f64 * 1e-6));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MS: u64 = PS_PER_MS;
+
+    fn edge(t_ms: u64, signal: Signal, high: bool) -> Edge {
+        Edge {
+            t_ps: t_ms * MS,
+            signal,
+            high,
+        }
+    }
+
+    #[test]
+    fn windows_follow_en_and_the_lock_bridge() {
+        let edges = [
+            edge(1, Signal::EnN, true), // reset level: off
+            edge(10, Signal::LockIn2, true),
+            edge(20, Signal::EnN, false),
+            edge(25, Signal::LockIn2, false),
+            edge(40, Signal::EnN, true),
+            edge(50, Signal::EnN, false),
+        ];
+        assert_eq!(
+            moving_windows(&edges, 60 * MS),
+            vec![(10 * MS, 40 * MS), (50 * MS, 60 * MS)]
+        );
+    }
+
+    #[test]
+    fn a_late_step_and_a_missed_feed_are_counted_only_while_moving() {
+        let period = 12_500_000_000; // 12.5 ms
+                                     // Steps every 12.5 ms, one 30 ms gap at rest and one 15 ms gap while moving.
+        let mut entries: Vec<u64> = (0..10).map(|k| k * period).collect();
+        let t = entries[9] + 30 * MS; // at rest
+        entries.push(t);
+        entries.push(t + period);
+        entries.push(t + period + 15 * MS); // moving from t + period on
+        let windows = [(t + period, t + period + 100 * MS)];
+        let end = t + period + 100 * MS;
+        // Feeds with the steps, but one of 40 ms while moving.
+        let reloads = [t + period, t + period + 40 * MS, t + period + 50 * MS];
+        let m = ControlTiming::measure(&entries, &reloads, &[], end, &windows, period);
+        // The 30 ms gap was at rest; the tail (85 ms to the end) counts: the step stopped.
+        assert_eq!(m.period_max_ms, Some(85.0));
+        assert_eq!(m.late, 2, "15 ms and the 85 ms tail: {m:?}");
+        assert_eq!(m.feeds_missed, 2, "40 ms and the 50 ms tail: {m:?}");
+        assert_eq!(m.feed_gap_max_ms, Some(50.0));
+        assert!((m.moving_s - 0.1).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_reset_ends_a_segment_and_the_boot_after_it_is_not_judged() {
+        let windows = [(0, 1_000 * MS)];
+        // Entries every 10 ms until 100 ms, a reset at 105 ms, the boot until 600 ms.
+        let mut entries: Vec<u64> = (0..=10).map(|k| k * 10 * MS).collect();
+        entries.extend((60..=70).map(|k| k * 10 * MS));
+        let got = judged_intervals(&entries, &[105 * MS], 700 * MS, &windows);
+        assert!(got.iter().all(|&g| g <= 10 * MS), "{got:?}");
+        assert!(got.contains(&(5 * MS)), "to the reset: {got:?}");
+    }
+
+    #[test]
+    fn estop_reaction_is_measured_only_when_something_moved() {
+        let edges = [
+            edge(0, Signal::EnN, true),
+            edge(10, Signal::EnN, false), // driver on
+            edge(10, Signal::LockIn1, true),
+            Edge {
+                t_ps: 20 * MS + 3_000_000, // 3 µs after the edge
+                signal: Signal::EnN,
+                high: true,
+            },
+            Edge {
+                t_ps: 20 * MS + 5_000_000, // 5 µs
+                signal: Signal::LockIn1,
+                high: false,
+            },
+        ];
+        let r = estop_reactions(&[(20 * MS, true), (30 * MS, false)], &edges);
+        assert_eq!(r.len(), 1, "the closing edge at rest is not judged");
+        assert!((r[0].unwrap() - 5.0).abs() < 1e-9, "{r:?}");
+    }
+}
