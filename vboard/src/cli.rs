@@ -5,12 +5,12 @@ use std::io::Write;
 
 use hil_sim::cli::{Opts, UsageError};
 
-use crate::cpu::BoardConfig;
+use crate::cpu::{BoardConfig, Timing};
 use crate::periph::flash::FlashTiming;
 use crate::scene::{Options, SceneOptions, SCENES};
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--firmware ELF] [--rate 10|80] [--cpi X] [--speed X] [--for SECONDS] | estimate-cost [--readings N] [--firmware ELF]";
+pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] | estimate-cost [--readings N] [--firmware ELF]";
 
 /// How the command failed.
 #[derive(Debug)]
@@ -56,8 +56,14 @@ fn session(o: &Opts) -> Result<Options, Failure> {
             ))
         }
     };
+    let timing_model = match o.get("timing") {
+        None | Some("cpi") => Timing::Cpi,
+        Some("art") => Timing::Art,
+        Some(x) => return usage(format!("--timing must be 'cpi' or 'art', got '{x}'")),
+    };
     s.board = BoardConfig {
         cpi_milli: (cpi * 1000.0).round() as u64,
+        timing: timing_model,
         lsi_hz: lsi,
         flash_timing: timing,
     };
@@ -81,6 +87,7 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
             "cycles",
             "rate",
             "cpi",
+            "timing",
             "lsi-hz",
             "flash-timing",
             "seed",
@@ -115,6 +122,7 @@ fn serve(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
             "firmware",
             "rate",
             "cpi",
+            "timing",
             "speed",
             "for",
             "lsi-hz",

@@ -39,11 +39,38 @@ use crate::rtt::{LogLine, Rtt, POLL_PS};
 use crate::soc::{Soc, ICACHE_FLASH};
 use crate::world::World;
 
+/// How executing costs time.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Timing {
+    /// Every instruction costs `cpi_milli`, wherever it runs from.
+    #[default]
+    Cpi,
+    /// Every instruction costs `cpi_milli`, plus the flash wait states (`FLASH_ACR`
+    /// `LATENCY`) of each instruction fetch and data read of flash that the ART
+    /// accelerator's caches and prefetch buffer do not serve ([`crate::periph::art`]);
+    /// a cache line left stale by an erase returns its old bytes until the caches are
+    /// reset.
+    Art,
+}
+
+impl Timing {
+    /// The name the command line uses.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Cpi => "cpi",
+            Self::Art => "art",
+        }
+    }
+}
+
 /// Board configuration.
 #[derive(Clone, Copy, Debug)]
 pub struct BoardConfig {
-    /// Core cycles per instruction, thousandths (1000 = 1.0).
+    /// Core cycles per instruction, thousandths (1000 = 1.0); under [`Timing::Art`] the
+    /// cost of an instruction before flash wait states.
     pub cpi_milli: u64,
+    /// Timing model.
+    pub timing: Timing,
     /// LSI frequency (clocks the IWDG), Hz: 17 000–47 000 on real parts.
     pub lsi_hz: u64,
     /// Flash program/erase timing.
@@ -54,6 +81,7 @@ impl Default for BoardConfig {
     fn default() -> Self {
         Self {
             cpi_milli: 1_000,
+            timing: Timing::Cpi,
             lsi_hz: 32_000,
             flash_timing: FlashTiming::Max,
         }
@@ -235,7 +263,9 @@ impl Board {
                 std::env::set_var("UC_IGNORE_REG_BREAK", "1");
             }
         });
-        let soc = Soc::new(world, cfg.cpi_milli, cfg.lsi_hz, cfg.flash_timing);
+        let mut soc = Soc::new(world, cfg.cpi_milli, cfg.lsi_hz, cfg.flash_timing);
+        let art = cfg.timing == Timing::Art;
+        soc.art_timing = art;
         let e = |w: &str, err: unicorn_engine::uc_error| format!("unicorn {w}: {err:?}");
         let mut uc =
             Unicorn::new_with_data(Arch::ARM, Mode::THUMB, soc).map_err(|x| e("open", x))?;
@@ -400,10 +430,18 @@ impl Board {
                 meter_block(uc, addr as u32);
             }
             let s = uc.get_data_mut();
+            if in_flash && s.art_timing {
+                let (acr, mc, cpi) = (s.flash.acr(), s.clock.mc(), s.clock.cpi_milli());
+                let w = s.flash.art.fetch_block(acr, a, size, n, mc, cpi);
+                s.wait_states(w);
+            }
             s.block_at = (addr as u32, s.clock.mc());
             s.clock.execute(n);
             if let Some(c) = s.exc_insns.get_mut(s.current_exc) {
                 *c += n;
+            }
+            if let Some(c) = s.exc_mc.get_mut(s.current_exc) {
+                *c += n * s.clock.cpi_milli();
             }
         })
         .map_err(|x| e("block hook", x))?;
@@ -428,6 +466,24 @@ impl Board {
             },
         )
         .map_err(|x| e("memory hook", x))?;
+
+        if art {
+            // Data reads of the code sectors (literal pools, constants, `.data`'s load
+            // image) through the data cache. (Any memory hook sends every load and store
+            // of the engine through its slow path: installed only for this model.)
+            for base in [0u64, FLASH_BASE as u64] {
+                uc.add_mem_hook(
+                    HookType::MEM_READ,
+                    base,
+                    base + CODE_LEN as u64 - 1,
+                    |uc: &mut Unicorn<'_, Soc>, _t: MemType, addr: u64, size: usize, _v: i64| {
+                        uc.get_data_mut().art_code_read(addr as u32, size);
+                        true
+                    },
+                )
+                .map_err(|x| e("flash read hook", x))?;
+            }
+        }
 
         let rtt = match image.rtt {
             Some(cb) => Rtt::new(&image.elf, cb)?,

@@ -4,6 +4,7 @@
 //! Everything here is plain Rust with no emulator in it; `cpu.rs` runs the core and
 //! calls in here for every peripheral access and at every event.
 
+use crate::periph::art::LINE_BYTES;
 use crate::periph::dwt::Dwt;
 use crate::periph::exti::Exti;
 use crate::periph::flash::{self, Done, FlashCtl, FlashTiming, Op, ODOMETER_BASE};
@@ -259,6 +260,11 @@ pub struct Soc {
     pub block_at: (u32, u64),
     /// Peripheral accesses (reads, writes), for the figures.
     pub accesses: (u64, u64),
+    /// Flash reads pay the ART's wait states ([`crate::cpu::Timing::Art`]).
+    pub art_timing: bool,
+    /// Core cycles (thousandths) spent in each exception (0: thread mode): execution
+    /// and wait states, not sleep or flash-operation stalls.
+    pub exc_mc: Vec<u64>,
 }
 
 /// Size of the instruction-count cache's code-flash part (sectors 0–9), halfwords.
@@ -331,7 +337,42 @@ impl Soc {
             mask_start: None,
             mask_max: (0, 0),
             block_at: (0, 0),
+            art_timing: false,
+            exc_mc: vec![0; crate::periph::nvic::SLOTS as usize],
         }
+    }
+
+    /// Core cycles per instruction in exception `exc` so far (execution and flash wait
+    /// states): the CPI a timing model gave that task.
+    pub fn cycles_per_insn(&self, exc: usize) -> Option<f64> {
+        let n = *self.exc_insns.get(exc)?;
+        (n > 0).then(|| self.exc_mc[exc] as f64 / 1000.0 / n as f64)
+    }
+
+    /// The core waits `mc` milli-cycles for the flash (wait states; clock running).
+    #[inline]
+    pub fn wait_states(&mut self, mc: u64) {
+        if mc > 0 {
+            self.clock.add_mc(mc);
+            if let Some(c) = self.exc_mc.get_mut(self.current_exc) {
+                *c += mc;
+            }
+        }
+    }
+
+    /// A data read (D-Code) of `size` bytes at code-flash address `addr`, under the ART
+    /// model: the wait states of the lines the cache does not hold.
+    pub fn art_code_read(&mut self, addr: u32, size: usize) {
+        let acr = self.flash.acr();
+        let Some(first) = crate::periph::art::line_of(addr) else {
+            return;
+        };
+        let last = crate::periph::art::line_of(addr + size.max(1) as u32 - 1).unwrap_or(first);
+        let mut mc = 0;
+        for line in first..=last {
+            mc += self.flash.art.read_line(acr, line, || None).1;
+        }
+        self.wait_states(mc);
     }
 
     /// Now, ps.
@@ -887,6 +928,18 @@ impl Soc {
     /// Apply a finished (or cut) operation to the odometer sectors; code-sector effects
     /// are returned for the board to apply to emulator memory (address, length, erased).
     pub fn apply_flash(&mut self, d: Done) -> Option<(u32, u32)> {
+        // Lines the ART cached from an erased sector keep their pre-erase bytes until the
+        // caches are reset.
+        // (An erase cut short by a reset: the reset emptied the caches.)
+        match d.op {
+            Op::Erase { sector } if d.permille >= 1000 => {
+                let from = flash::sector_base(sector) - flash::FLASH_BASE;
+                let len = flash::sector_kib(sector) * 1024;
+                self.flash.art.erased(from, from + len);
+            }
+            Op::MassErase if d.permille >= 1000 => self.flash.art.erased(0, flash::FLASH_SIZE),
+            _ => {}
+        }
         match d.op {
             Op::Program { addr, size, value } => {
                 if addr >= ODOMETER_BASE {
@@ -897,10 +950,14 @@ impl Soc {
                         size * d.permille as usize / 1000
                     };
                     if let Some(b) = bytes.get(..n) {
-                        let _ = self
-                            .world
-                            .flash
-                            .with(|f| f.program(addr - ODOMETER_BASE, b));
+                        let off = addr - ODOMETER_BASE;
+                        let _ = self.world.flash.with(|f| f.program(off, b));
+                        // Written through to a cached line: it takes what the array holds.
+                        let mut now = vec![0xFFu8; b.len()];
+                        let _ = self.world.flash.with(|f| {
+                            embedded_storage::nor_flash::ReadNorFlash::read(f, off, &mut now)
+                        });
+                        self.flash.art.programmed(addr - flash::FLASH_BASE, &now);
                     }
                     None
                 } else {
@@ -947,6 +1004,43 @@ impl Soc {
         };
         let mut b = [0u8; 4];
         let n = size.min(4);
+        if self.art_timing {
+            // Through the data cache: a hit returns the line as it was cached (stale if
+            // its sector was erased since), a miss reads the array's line.
+            let acr = self.flash.acr();
+            let base = ODOMETER_BASE - flash::FLASH_BASE;
+            let mut mc = 0;
+            let mut i = 0;
+            while i < n {
+                let at = off + i as u32;
+                let line_off = at & !(LINE_BYTES - 1);
+                let world = &self.world;
+                let (d, w) = self
+                    .flash
+                    .art
+                    .read_line(acr, (base + line_off) / LINE_BYTES, || {
+                        let mut l = [0xFFu8; 16];
+                        world
+                            .flash
+                            .with(|f| {
+                                embedded_storage::nor_flash::ReadNorFlash::read(f, line_off, &mut l)
+                            })
+                            .ok()
+                            .map(|_| l)
+                    });
+                mc += w;
+                let Some(d) = d else {
+                    self.diag(format!("odometer flash read at {off:#x} failed"));
+                    break;
+                };
+                while i < n && (off + i as u32) & !(LINE_BYTES - 1) == line_off {
+                    b[i] = d[((off + i as u32) % LINE_BYTES) as usize];
+                    i += 1;
+                }
+            }
+            self.wait_states(mc);
+            return (u32::from_le_bytes(b), done);
+        }
         let ok = self
             .world
             .flash
@@ -970,5 +1064,74 @@ impl Soc {
             .store(ODOMETER_BASE + off, size, value as u64, now);
         self.after_access(pending_before);
         done
+    }
+}
+
+#[cfg(test)]
+mod art_tests {
+    use super::*;
+    use crate::periph::art::acr;
+    use hil_sim::flash::{SharedFlash, SimFlash};
+    use hil_sim::rig::{Machine, RigOptions};
+
+    const ACR: u32 = 0x4002_3C00;
+    const ON: u32 = 5 | acr::PRFTEN | acr::ICEN | acr::DCEN;
+
+    fn soc_with_record() -> Soc {
+        let flash = SharedFlash::new(SimFlash::stm32f407_odometer());
+        flash.with(|f| f.program(0, &[0x42; 16])).unwrap();
+        let world = World::new(Machine::new(&RigOptions::new(80)), flash);
+        let mut soc = Soc::new(world, 1_000, 32_000, FlashTiming::Typical);
+        soc.art_timing = true;
+        soc.bus_write(ACR, 4, ON);
+        soc
+    }
+
+    /// The board's wiring of the model: FLASH_ACR writes, the erase, odometer reads.
+    #[test]
+    fn an_odometer_line_read_before_its_erase_reads_stale_until_the_firmware_flushes() {
+        let mut soc = soc_with_record();
+        let c0 = soc.clock.cycles();
+        assert_eq!(soc.odometer_read(0, 4).0, 0x4242_4242);
+        assert_eq!(soc.clock.cycles() - c0, 5, "a miss: 5 wait states");
+        assert_eq!(soc.odometer_read(4, 4).0, 0x4242_4242);
+        assert_eq!(soc.clock.cycles() - c0, 5, "the same line: a hit");
+        soc.apply_flash(Done {
+            op: Op::Erase { sector: 10 },
+            permille: 1000,
+        });
+        let mut array = [0u8; 4];
+        soc.world
+            .flash
+            .with(|f| embedded_storage::nor_flash::ReadNorFlash::read(f, 0, &mut array))
+            .unwrap();
+        assert_eq!(array, [0xFF; 4], "the array is erased");
+        assert_eq!(soc.odometer_read(0, 4).0, 0x4242_4242, "the cache is not");
+        // A reset written with the caches on is ignored (RM0090: only while disabled).
+        soc.bus_write(ACR, 4, ON | acr::ICRST | acr::DCRST);
+        assert_eq!(soc.odometer_read(0, 4).0, 0x4242_4242);
+        assert_eq!(soc.flash.art.erases_unflushed(), 1);
+        // The firmware's flush: disable, reset, release, enable again.
+        let off = ON & !(acr::ICEN | acr::DCEN);
+        for v in [off, off | acr::ICRST | acr::DCRST, off, ON] {
+            soc.bus_write(ACR, 4, v);
+        }
+        assert_eq!(soc.odometer_read(0, 4).0, 0xFFFF_FFFF);
+        assert_eq!(soc.flash.art.erases_unflushed(), 0);
+        assert_eq!(soc.flash.art.stats.stale_hits, 2);
+    }
+
+    #[test]
+    fn under_fixed_cpi_timing_the_odometer_reads_the_array() {
+        let mut soc = soc_with_record();
+        soc.art_timing = false;
+        let c0 = soc.clock.cycles();
+        assert_eq!(soc.odometer_read(0, 4).0, 0x4242_4242);
+        soc.apply_flash(Done {
+            op: Op::Erase { sector: 10 },
+            permille: 1000,
+        });
+        assert_eq!(soc.odometer_read(0, 4).0, 0xFFFF_FFFF);
+        assert_eq!(soc.clock.cycles(), c0, "no wait states");
     }
 }

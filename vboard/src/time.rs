@@ -2,7 +2,8 @@
 //!
 //! Time advances three ways, never from the host's clock:
 //! * **execution**: every instruction costs `cpi` core cycles (configurable, stated in
-//!   every report) at the current HCLK;
+//!   every report) at the current HCLK; under the ART model (`cpu::Timing::Art`) plus
+//!   the flash wait states of the fetches and reads its caches do not serve;
 //! * **stalls**: a fetch from flash during a program or erase waits for its end; the core
 //!   clock keeps running (DWT CYCCNT counts the stall);
 //! * **sleep**: `wfi` (or a lockup) jumps to the next event; the core clock is gated, so
@@ -89,6 +90,12 @@ impl Clock {
     pub fn execute(&mut self, n: u64) {
         self.insns += n;
         self.mc += n * self.cpi_milli;
+    }
+
+    /// The core waits `mc` milli-cycles (wait states: stalled, clock running).
+    #[inline]
+    pub fn add_mc(&mut self, mc: u64) {
+        self.mc += mc;
     }
 
     /// The core waits (stalled, clock running) until `t_ps`.

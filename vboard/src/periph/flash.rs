@@ -24,6 +24,9 @@
 //!   operation ends (the board does this: see `soc.rs`); code in SRAM keeps running.
 //! * A reset during an erase leaves the sector partly erased (in proportion to the time
 //!   that had passed); during a program, the word is left as far as it got.
+//! * `ACR`: wait states, prefetch, the caches' enables and resets: the ART accelerator
+//!   ([`super::art`]), which the board times fetches and reads through under
+//!   [`crate::cpu::Timing::Art`].
 //! * `OPTCR` holds the option bytes (BOR level, RDP, WDG_SW, nWRP): `OPTKEYR` 0x0819_2A3B,
 //!   0x4C5D_6E7F clears `OPTLOCK`; `OPTSTRT` programs them (as long as a 16 KiB erase);
 //!   they survive resets, like the flash.
@@ -37,6 +40,7 @@
 //! | 0x10 | CR | 0x8000_0000 (LOCK) |
 //! | 0x14 | OPTCR | option bytes, OPTLOCK set (factory: 0x0FFF_AAED) |
 
+use super::art::Art;
 use super::{lane, merge, no_read, no_write, Access};
 
 /// Flash base address.
@@ -178,6 +182,9 @@ pub struct FlashCtl {
     pub timing: FlashTiming,
     /// Operations started.
     pub ops_started: u64,
+    /// The ART accelerator's caches and buffers (`ACR`'s enables, resets and wait
+    /// states); the board times reads through it under [`crate::cpu::Timing::Art`].
+    pub art: Art,
 }
 
 impl FlashCtl {
@@ -196,6 +203,7 @@ impl FlashCtl {
             done: None,
             timing,
             ops_started: 0,
+            art: Art::new(),
         };
         f.reset_regs();
         f
@@ -203,6 +211,7 @@ impl FlashCtl {
 
     fn reset_regs(&mut self) {
         self.acr = 0;
+        self.art.reset();
         self.sr = 0;
         self.cr = 1 << 31;
         self.optcr = self.optcr_nv | 1;
@@ -243,6 +252,12 @@ impl FlashCtl {
     /// Flash wait states (ACR.LATENCY).
     pub fn latency(&self) -> u32 {
         self.acr & 7
+    }
+
+    /// The access control register (wait states, prefetch, cache enables).
+    #[inline]
+    pub fn acr(&self) -> u32 {
+        self.acr
     }
 
     /// When the operation in progress ends, ps.
@@ -339,7 +354,10 @@ impl FlashCtl {
     pub fn write(&mut self, off: u32, size: usize, value: u32, now: u64) -> Access<()> {
         let o = off & !3;
         match o {
-            0x00 => self.acr = merge(self.acr, off, size, value) & 0x1F07,
+            0x00 => {
+                let new = merge(self.acr, off, size, value) & 0x1F07;
+                self.acr = self.art.write_acr(self.acr, new);
+            }
             0x04 => {
                 if self.key_lockout || self.cr & (1 << 31) == 0 {
                     if self.cr & (1 << 31) != 0 {

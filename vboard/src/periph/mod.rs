@@ -6,6 +6,7 @@
 //! access to a register that is not modelled returns [`Unmodelled`]: the board reports
 //! it and stops, it is never silently read as zero.
 
+pub mod art;
 pub mod dwt;
 pub mod exti;
 pub mod flash;
