@@ -719,31 +719,63 @@ mod app {
                 stack_checked_us = now_us;
                 crash::stack_usage()
             });
+            // The controller is taken for short, bounded pieces of work only, each in a
+            // lock of its own, so the control step (which shares it) waits at most one
+            // of them: a Modbus request, a console command, the flash's turn, the
+            // events taken for the log. Reading input, framing, a PIN's hash, sending
+            // and logging happen with the controller free.
             let (term, console) = (&mut *cx.local.term, &mut *cx.local.console);
             let (line, server) = (&mut *cx.local.modbus_line, &mut *cx.local.server);
+            // Modbus: the characters into the framer; a request whose t3.5 has passed
+            // is answered under the lock (one PDU: bounded).
+            while let Some((c, t)) = line.next() {
+                match c {
+                    Ok(b) => server.on_byte(b, t),
+                    Err(()) => server.on_line_error(t),
+                }
+            }
+            let t = clock::now_us();
+            if server.request_due(t) {
+                cx.shared.ctrl.lock(|ctrl| {
+                    if let Some(reply) = server.poll(t, ctrl, serial) {
+                        line.send(reply);
+                    }
+                });
+            }
+            // The console: a line in without the controller; the command with it; a
+            // login's PIN hash and the reply's sending without it.
+            let now_ms = now_us / 1_000;
+            let (cmd_line, _) = console.read_line(term);
+            if let Some(cmd_line) = cmd_line {
+                cx.shared
+                    .ctrl
+                    .lock(|ctrl| console.run_line(ctrl, &cmd_line, now_ms));
+                console.finish(now_ms);
+            }
+            console.flush_output(term);
+            let maint = console.maintenance_active(now_ms);
+            // The flash's turn (at rest only: `Controller::at_rest`), the events for the
+            // log taken out, the board's reports in.
+            let mut events: heapless::Vec<_, 8> = heapless::Vec::new();
+            let sending = line.sending();
             cx.shared.ctrl.lock(|ctrl| {
                 if let Some((used, size)) = stack {
                     ctrl.set_stack_usage(used, size);
                 }
-                // Modbus: the characters in, a reply if a request ended (t3.5 of silence).
-                while let Some((c, t)) = line.next() {
-                    match c {
-                        Ok(b) => server.on_byte(b, t),
-                        Err(()) => server.on_line_error(t),
-                    }
-                }
-                if let Some(reply) = server.poll(clock::now_us(), ctrl, serial) {
-                    line.send(reply);
-                }
-                // No flash write (an erase stalls the CPU) while a reply is on the line.
-                ctrl.set_bus_busy(line.sending());
-                // Bounded work (see console::service), then the flash, then the log.
-                let _ = console.poll(ctrl, term, now_us / 1_000);
+                ctrl.set_maintenance_mode(maint);
+                ctrl.set_bus_busy(sending);
                 ctrl.background();
-                while let Some(ev) = ctrl.next_event() {
-                    defmt::info!("t={=u64} ms {}", ev.t_ms, ev.event);
+                while !events.is_full() {
+                    let Some(ev) = ctrl.next_event() else { break };
+                    let _ = events.push(ev);
                 }
             });
+            for ev in &events {
+                defmt::info!("t={=u64} ms {}", ev.t_ms, ev.event);
+            }
+            if events.is_full() {
+                IDLE_WORK.store(true, Ordering::Relaxed); // more events wait
+            }
         }
     }
 }

@@ -414,6 +414,8 @@ pub struct Controller<B: Bsp> {
     last_crash: Option<Crash>,
     /// Deepest stack use seen (bytes) and the stack's size, as the board measures it.
     stack: Option<(u32, u32)>,
+    /// The newest completed cycles as recorded in flash, oldest first.
+    recent_cycles: Deque<HistoryEntry, HISTORY_KEPT>,
     /// The current cone's micrometer readings (not its baseline), oldest first.
     readings: heapless::Vec<Measurement, { odometer::READINGS_KEPT }>,
     /// The wear estimate's fit to them.
@@ -604,6 +606,10 @@ pub fn calibration_from_bytes(b: &[u8]) -> Option<Calibration> {
         .then_some(c)
 }
 
+/// Completed cycles [`Controller::history`] keeps in RAM (the console's `history` asks
+/// for at most this many).
+pub const HISTORY_KEPT: usize = 100;
+
 /// One completed cycle as recorded in flash (newest first from [`Controller::history`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct HistoryEntry {
@@ -643,6 +649,19 @@ fn rest_zero_code(codes: impl Iterator<Item = i32>) -> Option<i32> {
     let mid = v.get(cut..v.len() - cut)?;
     let n = i64::try_from(mid.len()).ok()?.max(1);
     i32::try_from(mid.iter().map(|&c| i64::from(c)).sum::<i64>() / n).ok()
+}
+
+impl HistoryEntry {
+    /// The history entry of a cycle-end counter snapshot.
+    fn of(s: &StateRecord) -> Self {
+        Self {
+            lifetime_cycle: s.life.cycles,
+            cone_cycle: s.cone_cycles,
+            cone_id: s.cone_id,
+            w_q1: s.last_cycle_q1,
+            wear_nm: odometer::depth_nm(odometer::equivalent_cycles_q32(s.cone_w_q1, s.material)),
+        }
+    }
 }
 
 impl<B: Bsp> Controller<B> {
@@ -773,6 +792,7 @@ impl<B: Bsp> Controller<B> {
             last_crash,
             stack: None,
             readings: heapless::Vec::new(),
+            recent_cycles: Deque::new(),
             fit: Fit::prior(),
             dock_raw: false,
             dock_seen: false,
@@ -789,6 +809,7 @@ impl<B: Bsp> Controller<B> {
             level_key: None,
         };
         me.load_readings();
+        me.load_history();
         // The switches as they are now: the filter starts from them.
         if let (Ok(home), Ok(end), Ok(locked), Ok(released)) = (
             closed(&mut me.home),
@@ -861,9 +882,16 @@ impl<B: Bsp> Controller<B> {
         let Some(l) = self.log.as_mut() else { return };
         let mut failed = false;
         if self.persist_pending {
-            let rec = StateRecord::of(&self.odo, self.persist_cycle_end).to_bytes();
+            let st = StateRecord::of(&self.odo, self.persist_cycle_end);
+            let rec = st.to_bytes();
             match l.append(odometer::kind::STATE, &rec) {
                 Ok(_) => {
+                    if st.cycle_end {
+                        if self.recent_cycles.is_full() {
+                            self.recent_cycles.pop_front();
+                        }
+                        let _ = self.recent_cycles.push_back(HistoryEntry::of(&st));
+                    }
                     self.persist_pending = false;
                     self.persist_cycle_end = false;
                 }
@@ -1896,6 +1924,20 @@ impl<B: Bsp> Controller<B> {
         self.refit();
     }
 
+    /// The newest completed cycles from flash (once, at start).
+    fn load_history(&mut self) {
+        let recent = &mut self.recent_cycles;
+        recent.clear();
+        if let Some(l) = self.log.as_mut() {
+            let _ = l.for_each_newest_first_while(odometer::kind::STATE, |r| {
+                if let Some(st) = StateRecord::from_bytes(r.data()).filter(|s| s.cycle_end) {
+                    let _ = recent.push_front(HistoryEntry::of(&st));
+                }
+                !recent.is_full()
+            });
+        }
+    }
+
     fn refit(&mut self) {
         let base = self.baseline_or_nominal();
         let rs: heapless::Vec<Reading, { odometer::READINGS_KEPT }> =
@@ -2076,26 +2118,14 @@ impl<B: Bsp> Controller<B> {
 
     /// Up to `max` completed cycles from the flash log, newest first, into `out`.
     pub fn history(&mut self, max: usize, mut out: impl FnMut(HistoryEntry)) -> usize {
-        let Some(l) = self.log.as_mut() else { return 0 };
+        // From RAM: the newest [`HISTORY_KEPT`] entries, loaded at boot and kept as
+        // each cycle's record is written. A walk of the log here read every slot of
+        // both sectors (milliseconds) with the controller held.
         let mut n = 0;
-        let _ = l.for_each_newest_first(odometer::kind::STATE, usize::MAX, |r| {
-            if n >= max {
-                return;
-            }
-            if let Some(s) = StateRecord::from_bytes(r.data()).filter(|s| s.cycle_end) {
-                n += 1;
-                out(HistoryEntry {
-                    lifetime_cycle: s.life.cycles,
-                    cone_cycle: s.cone_cycles,
-                    cone_id: s.cone_id,
-                    w_q1: s.last_cycle_q1,
-                    wear_nm: odometer::depth_nm(odometer::equivalent_cycles_q32(
-                        s.cone_w_q1,
-                        s.material,
-                    )),
-                });
-            }
-        });
+        for e in self.recent_cycles.iter().rev().take(max) {
+            out(*e);
+            n += 1;
+        }
         n
     }
 

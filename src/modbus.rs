@@ -492,6 +492,15 @@ impl RtuFramer {
         self.rx != Rx::Idle
     }
 
+    /// Whether [`Self::poll`] has something to end at `now_us` (a frame, or a fragment
+    /// to count as a framing error): the line has been silent for t3.5 after it.
+    pub fn due(&self, now_us: u64) -> bool {
+        self.rx != Rx::Idle
+            && self
+                .last_us
+                .is_some_and(|last| now_us.saturating_sub(last) >= self.t3_5_us)
+    }
+
     /// The frame, once the line has been silent for t3.5 after it (returned once).
     pub fn poll(&mut self, now_us: u64) -> Option<&[u8]> {
         let last = self.last_us?;
@@ -1480,6 +1489,12 @@ impl Server {
     /// A character received with a line error (parity, framing, noise, overrun), µs.
     pub fn on_line_error(&mut self, t_us: u64) {
         self.framer.line_error(t_us);
+    }
+
+    /// Whether a request has ended at `now_us` (t3.5 of silence after it): the board
+    /// takes the controller for [`Self::poll`] only then, one request at a time.
+    pub fn request_due(&self, now_us: u64) -> bool {
+        self.framer.due(now_us)
     }
 
     /// At `now_us`: if a request has ended (t3.5 of silence), handle it and return the

@@ -691,7 +691,10 @@ impl<F: NorFlash> RecordLog<F> {
             offset
         );
         let mut found = None;
-        self.walk_newest_first(kind, 1, |off, rec| found = Some((off, *rec)))?;
+        self.walk_newest_first(kind, 1, |off, rec| {
+            found = Some((off, *rec));
+            true
+        })?;
         if let Some(n) = self.newest.get_mut(k) {
             *n = found.map(|(off, _)| off);
         }
@@ -708,7 +711,23 @@ impl<F: NorFlash> RecordLog<F> {
         mut f: impl FnMut(&Record),
     ) -> Result<usize, StorageError<F::Error>> {
         kind_index(kind)?;
-        self.walk_newest_first(kind, max, |_, rec| f(rec))
+        self.walk_newest_first(kind, max, |_, rec| {
+            f(rec);
+            true
+        })
+    }
+
+    /// The newest valid records of `kind`, newest first, while `f` returns `true`:
+    /// the walk stops at the first `false` and reads no further slot (a history of the
+    /// last N cycles reads N-odd slots, not the whole log). Returns how many `f` saw.
+    pub fn for_each_newest_first_while(
+        &mut self,
+        kind: u8,
+        f: impl FnMut(&Record) -> bool,
+    ) -> Result<usize, StorageError<F::Error>> {
+        kind_index(kind)?;
+        let mut f = f;
+        self.walk_newest_first(kind, usize::MAX, |_, rec| f(rec))
     }
 
     /// True when the next sector is not known to be erased and the current one is at
@@ -823,6 +842,7 @@ impl<F: NorFlash> RecordLog<F> {
                 let mut full = false;
                 self.walk_newest_first(kind, self.keep.of(kind), |off, _| {
                     full |= found.push((0, off)).is_err();
+                    true
                 })?;
                 if full {
                     return Err(StorageError::LogicBug);
@@ -902,15 +922,16 @@ impl<F: NorFlash> RecordLog<F> {
         &mut self,
         kind: u8,
         max: usize,
-        mut f: impl FnMut(u32, &Record),
+        mut f: impl FnMut(u32, &Record) -> bool,
     ) -> Result<usize, StorageError<F::Error>> {
         let mut count = 0;
+        let mut more = true;
         let mut floor: Option<u32> = None;
         // Payload digests of the carried copies of `kind` in the sector walked last,
         // newest first: the originals expected in the sector walked next.
         let mut copies: heapless::Vec<u32, MAX_BATCH> = heapless::Vec::new();
         for back in 0..self.sectors {
-            if count >= max {
+            if count >= max || !more {
                 break;
             }
             let sector = (self.cur + self.sectors - back) % self.sectors;
@@ -947,9 +968,9 @@ impl<F: NorFlash> RecordLog<F> {
                     matched += p + 1;
                     continue;
                 }
-                f(offset, &rec);
+                more = f(offset, &rec);
                 count += 1;
-                if count >= max {
+                if count >= max || !more {
                     break;
                 }
             }

@@ -115,7 +115,26 @@ pub struct Console {
     salts_made: u32,
     dropped_replies: u32,
     rx_errors: u32,
+    /// Work left for [`Console::finish`]: all-zero when empty, so the console (8 KiB of
+    /// output ring) stays in `.bss` rather than being copied from flash as `.data`.
+    deferred: Deferred,
 }
+
+/// What a command leaves for after the controller is released.
+struct Deferred {
+    /// A maintenance login waits for its PIN check.
+    login: bool,
+    login_pin: String<LINE_MAX>,
+    login_rec: [u8; PinRecord::LEN],
+    login_has_rec: bool,
+    /// A `history` reply waits to be written (`history_json`: as JSON).
+    history: bool,
+    history_json: bool,
+    history_entries: HistoryEntries,
+}
+
+/// The entries of one `history` reply.
+type HistoryEntries = heapless::Vec<HistoryEntry, { super::parse::HISTORY_MAX as usize }>;
 
 impl Console {
     /// A console; `entropy` seeds the PIN salts (device ID, boot time… anything unique).
@@ -130,6 +149,15 @@ impl Console {
             salts_made: 0,
             dropped_replies: 0,
             rx_errors: 0,
+            deferred: Deferred {
+                login: false,
+                login_pin: String::new(),
+                login_rec: [0; PinRecord::LEN],
+                login_has_rec: false,
+                history: false,
+                history_json: false,
+                history_entries: heapless::Vec::new(),
+            },
         }
     }
 
@@ -163,16 +191,34 @@ impl Console {
         }
     }
 
-    /// Read and act on console input; bounded work (see the module doc).
+    /// Read and act on console input; bounded work (see the module doc). The three
+    /// phases in one call: [`Self::read_line`], [`Self::run_line`] (the only one that
+    /// needs the controller), [`Self::finish`]; the board calls them apart so that it
+    /// holds the controller for the run only.
     pub fn poll<B: Bsp>(
         &mut self,
         ctrl: &mut Controller<B>,
         io: &mut impl ConsoleIo,
         now_ms: u64,
     ) -> ConsolePoll {
+        let (line, mut st) = self.read_line(io);
+        if let Some(line) = line {
+            st.pin_hashes = self.run_line(ctrl, &line, now_ms) + self.finish(now_ms);
+        }
+        ctrl.set_maintenance_mode(self.auth.is_active(now_ms));
+        self.flush(io);
+        st
+    }
+
+    /// Phase 1, without the controller: take input bytes (at most
+    /// `MAX_BYTES_PER_POLL`) until a whole line is in; bad input is answered here.
+    pub fn read_line(
+        &mut self,
+        io: &mut impl ConsoleIo,
+    ) -> (Option<String<LINE_MAX>>, ConsolePoll) {
         self.flush(io);
         let mut st = ConsolePoll::default();
-        while st.bytes_in < MAX_BYTES_PER_POLL && st.commands == 0 {
+        while st.bytes_in < MAX_BYTES_PER_POLL {
             let byte = match io.read_byte() {
                 Ok(b) => b,
                 Err(nb::Error::WouldBlock) => break,
@@ -186,26 +232,65 @@ impl Console {
                 }
             };
             st.bytes_in += 1;
-            let mut line: String<LINE_MAX> = String::new();
             match self.reader.push(byte) {
                 None => {}
                 Some(LineEvent::Error(e)) => {
                     self.reply(|o| write!(o, "error: {}\r\n", e.message()))
                 }
                 Some(LineEvent::Line(l)) => {
+                    let mut line: String<LINE_MAX> = String::new();
                     let _ = line.push_str(l);
                     st.commands = 1;
+                    return (Some(line), st);
                 }
             }
-            if st.commands == 1 {
-                st.pin_hashes = self.execute(ctrl, &line, now_ms);
+        }
+        (None, st)
+    }
+
+    /// Phase 2, with the controller: run one line (its reply formatted into the output
+    /// ring). A maintenance login only fetches the stored PIN record here: its hash
+    /// (257 SHA-256 compressions, milliseconds) waits for [`Self::finish`].
+    /// Returns the PIN hashes computed here (`pin set`).
+    pub fn run_line<B: Bsp>(&mut self, ctrl: &mut Controller<B>, line: &str, now_ms: u64) -> u32 {
+        let hashes = self.execute(ctrl, line, now_ms);
+        ctrl.set_maintenance_mode(self.auth.is_active(now_ms));
+        hashes
+    }
+
+    /// Phase 3, without the controller: the work a command left for after the
+    /// controller is released (a maintenance login's PIN check). Returns the PIN hashes
+    /// computed. The controller learns the new maintenance mode at the next
+    /// [`Self::run_line`], or from [`Self::maintenance_active`].
+    pub fn finish(&mut self, now_ms: u64) -> u32 {
+        if core::mem::take(&mut self.deferred.history) {
+            let entries = core::mem::take(&mut self.deferred.history_entries);
+            self.render_history(&entries, self.deferred.history_json);
+        }
+        if !core::mem::take(&mut self.deferred.login) {
+            return 0;
+        }
+        let pin = core::mem::take(&mut self.deferred.login_pin);
+        let rec = core::mem::take(&mut self.deferred.login_has_rec)
+            .then(|| PinRecord::from_bytes(&self.deferred.login_rec))
+            .flatten();
+        let hashed = rec.is_some() && self.auth.lockout_remaining_s(now_ms).is_none();
+        match self.auth.try_enter(now_ms, &pin, rec.as_ref()) {
+            Ok(()) => {
+                info!("maintenance mode entered");
+                self.ok(&"maintenance mode (ends after 10 min idle or `maint exit`)");
+            }
+            Err(e) => {
+                warn!("maintenance login refused");
+                self.err(&e);
             }
         }
-        // The controller locks out the PLC's motion while a technician is in
-        // maintenance mode (it ends on `maint exit` or after its idle timeout).
-        ctrl.set_maintenance_mode(self.auth.is_active(now_ms));
+        hashed as u32
+    }
+
+    /// Send what is in the output ring (as much as the link takes).
+    pub fn flush_output(&mut self, io: &mut impl ConsoleIo) {
         self.flush(io);
-        st
     }
 
     /// Write one whole reply or none (replaced by a short notice when it does not fit).
@@ -511,19 +596,17 @@ impl Console {
                 }
             }
             Command::Maint { pin } => {
+                // The record now; the hash in `finish`, without the controller.
+                let d = &mut self.deferred;
+                d.login = true;
+                d.login_pin.clear();
+                let _ = d.login_pin.push_str(pin);
                 let rec = Self::pin_record(ctrl);
-                let hashed = rec.is_some() && self.auth.lockout_remaining_s(now_ms).is_none();
-                match self.auth.try_enter(now_ms, pin, rec.as_ref()) {
-                    Ok(()) => {
-                        info!("maintenance mode entered");
-                        self.ok(&"maintenance mode (ends after 10 min idle or `maint exit`)");
-                    }
-                    Err(e) => {
-                        warn!("maintenance login refused");
-                        self.err(&e);
-                    }
+                d.login_has_rec = rec.is_some();
+                if let Some(r) = rec {
+                    d.login_rec = r.to_bytes();
                 }
-                return hashed as u32;
+                return 0;
             }
             Command::MaintExit => {
                 self.auth.exit();
@@ -766,18 +849,25 @@ impl Console {
         }
     }
 
+    /// `history`, with the controller: the entries only (the walk stops at the N-th);
+    /// the reply is written by [`Self::finish`], without it.
     fn history<B: Bsp>(&mut self, ctrl: &mut Controller<B>, n: usize, json: bool) {
-        let mut entries: heapless::Vec<HistoryEntry, { super::parse::HISTORY_MAX as usize }> =
-            heapless::Vec::new();
+        let mut entries = HistoryEntries::new();
         ctrl.history(n, |e| {
             let _ = entries.push(e);
         });
+        self.deferred.history = true;
+        self.deferred.history_json = json;
+        self.deferred.history_entries = entries;
+    }
+
+    fn render_history(&mut self, entries: &HistoryEntries, json: bool) {
         // W in Q63.1 mN·µm → N·mm with 3 decimals: q1 / 2 / 1000 (mN·µm → 1e-3 N·mm units).
         let nmm_milli = |e: &HistoryEntry| (e.w_q1 / 2_000) as i64;
         if json {
             self.reply_json(|j| {
                 j.array("history", |a| {
-                    for e in &entries {
+                    for e in entries.iter() {
                         a.object(|x| {
                             x.u64("cycle", e.lifetime_cycle as u64)?
                                 .u64("cone", e.cone_id as u64)?
@@ -795,7 +885,7 @@ impl Console {
             self.reply(|o| o.write_str("no completed cycles recorded\r\n"));
         } else {
             self.reply(|o| {
-                for e in &entries {
+                for e in entries.iter() {
                     write!(
                         o,
                         "cycle={} cone={} cone_cycle={}",
