@@ -151,13 +151,17 @@ impl LineCache {
         self.stale.iter_mut().for_each(|s| *s = false);
     }
 
-    /// Mark the cached lines in `first..=last` stale (their sector was erased).
-    pub fn erased(&mut self, first: u32, last: u32) {
+    /// Mark the cached lines in `first..=last` stale (their sector was erased); returns
+    /// how many.
+    pub fn erased(&mut self, first: u32, last: u32) -> u64 {
+        let mut n = 0;
         for (i, &t) in self.tags.iter().enumerate() {
             if t != NONE && (first..=last).contains(&t) {
                 self.stale[i] = true;
+                n += 1;
             }
         }
+        n
     }
 
     /// Lines cached.
@@ -203,7 +207,9 @@ pub struct ArtStats {
     pub resets_refused: u64,
     /// Sector (or mass) erases completed.
     pub erases: u64,
-    /// Of those, erases after which the core ran on to the next erase or to a system
+    /// Cached lines an erase left stale (held when their sector was erased).
+    pub lines_made_stale: u64,
+    /// Of the erases, those after which the core ran on to the next erase or to a system
     /// reset without resetting both caches (see [`Art::erases_unflushed`]).
     pub erases_unflushed: u64,
 }
@@ -322,8 +328,7 @@ impl Art {
         }
         self.unflushed = (true, true);
         let (a, b) = (from / LINE_BYTES, (to - 1) / LINE_BYTES);
-        self.icache.erased(a, b);
-        self.dcache.erased(a, b);
+        self.stats.lines_made_stale += self.icache.erased(a, b) + self.dcache.erased(a, b);
         if (a..=b).contains(&self.cur_line) {
             self.cur_line = NONE;
         }
@@ -528,6 +533,7 @@ mod tests {
         // The sector is erased: the array reads 0xFF, the cache still the record.
         a.erased(0xC_0000, 0xE_0000);
         assert_eq!(a.dcache.stale_lines(), 1);
+        assert_eq!(a.stats.lines_made_stale, 1);
         assert_eq!(a.read_line(ON, ODO, || line(0xFF)).0, line(0x42), "stale");
         assert_eq!(a.stats.stale_hits, 1);
         // DCRST while the cache is enabled: ignored, as on the part.
