@@ -15,9 +15,13 @@
 //! | `dock-hold` | in service, by the PLC's DOCK line: dock, hold a simulated hour, undock | no fault, one cycle counted, wear unchanged during the hold, MATED low before the extraction |
 //! | `vehicle-pull` | docked by DOCK; while mated the vehicle pulls: the force grows 20 N/s | `hold_force`: MATED drops, the axis holds where it is (driven) |
 //! | `estop` | docked by DOCK; E-STOP opens at 10 mm insertion depth | `emergency_stop`, motors and lock off; a clear is refused while E-STOP is open, accepted once closed (recovery home) |
+//! | `estop-bounce` | E-STOP open pulses of 50 µs to 5 ms and releases with contact bounce ([`ESTOP_BOUNCE`]), at idle, in pre-alignment, in the insertion and mated | every episode latches `emergency_stop` with every edge accounted for, motors and lock off; the clear (the PLC's, over Modbus) is refused while the input is open and accepted once it is closed; after the last one the next dock completes |
+//! | `heavy-default` | the 18 kg machine (µ2 0.1) on the default configuration, one test cycle | one `overload`, the back-off done (2 mm), and out of the cone (home) after a clear-fault |
+//! | `maintenance-lockout` | a technician enters maintenance mode at the console (`pin set`, `maint <pin>`); the PLC asks to dock over Modbus (coil 0) and with the DOCK pin; then `maint exit` | READY low, status bit 11 and input register 10 show the mode, the Modbus dock is exception 04, the pin is ignored and nothing moves; after `maint exit` the PLC docks |
 //!
-//! The last three are driven by the PLC's lines (DOCK asserted when READY, released to
-//! undock); the others by test-cycle requests.
+//! `dock-hold`, `vehicle-pull`, `estop`, `estop-bounce` and `maintenance-lockout` are
+//! driven by the PLC's lines (DOCK asserted when READY, released to undock) and its
+//! Modbus commands; the others by test-cycle requests.
 
 use std::time::Instant;
 
@@ -35,7 +39,7 @@ use crate::rig::{AdcMode, ForceScript, ProfileForce, Rig, RigOptions};
 use crate::rng::Rng;
 
 /// Scene names.
-pub const SCENES: [&str; 12] = [
+pub const SCENES: [&str; 15] = [
     "nominal",
     "overload",
     "spike",
@@ -48,6 +52,9 @@ pub const SCENES: [&str; 12] = [
     "dock-hold",
     "vehicle-pull",
     "estop",
+    "estop-bounce",
+    "heavy-default",
+    "maintenance-lockout",
 ];
 
 /// The in-service scenes: the PLC docks with the DOCK line and undocks by releasing it.
@@ -61,6 +68,63 @@ pub const PULL_N_PER_S: f64 = 20.0;
 
 /// Insertion depth at which `estop` opens the E-STOP line, µm.
 pub const ESTOP_DEPTH_UM: i32 = 10_000;
+
+/// What `estop-bounce` does to the E-STOP input.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EstopDisturbance {
+    /// Open for this long (µs), then closed: two edges.
+    Pulse(u32),
+    /// Open for [`BOUNCE_OPEN_MS`], then a release that bounces: closed, then
+    /// [`BOUNCE_RELEASE_US`] open pulses (µs) with [`BOUNCE_GAP_US`] closed between
+    /// them: two edges and two a bounce.
+    BouncingRelease,
+}
+
+impl EstopDisturbance {
+    /// Edges of the input it makes.
+    pub const fn edges(self) -> u32 {
+        match self {
+            Self::Pulse(_) => 2,
+            Self::BouncingRelease => 2 + 2 * BOUNCE_RELEASE_US.len() as u32,
+        }
+    }
+}
+
+/// How long the input stays open before a bouncing release, ms.
+pub const BOUNCE_OPEN_MS: u64 = 300;
+/// The open pulses of a bouncing release, µs.
+pub const BOUNCE_RELEASE_US: [u32; 3] = [100, 50, 20];
+/// Closed between them, µs.
+pub const BOUNCE_GAP_US: u32 = 200;
+
+/// Where `estop-bounce` disturbs the E-STOP input, and how: every stage of a docking
+/// that moves something, and idle.
+pub const ESTOP_BOUNCE: [(Stage, EstopDisturbance); 8] = [
+    (Stage::Idle, EstopDisturbance::Pulse(50)),
+    (Stage::Idle, EstopDisturbance::Pulse(5_000)),
+    (Stage::Idle, EstopDisturbance::BouncingRelease),
+    (Stage::PreAlign, EstopDisturbance::Pulse(300)),
+    (Stage::Inserting, EstopDisturbance::Pulse(500)),
+    (Stage::Inserting, EstopDisturbance::BouncingRelease),
+    (Stage::Mated, EstopDisturbance::Pulse(2_000)),
+    (Stage::Mated, EstopDisturbance::BouncingRelease),
+];
+
+/// Insertion depth from which `estop-bounce` disturbs an insertion, µm.
+pub const ESTOP_BOUNCE_DEPTH_UM: i32 = 5_000;
+
+/// The machine of `heavy-default`: 18 kg, µ2 0.1 (its phase-4 peak is ≈ 352 N, over the
+/// default guard's 300 N hard limit).
+pub fn heavy_machine() -> docking_controller::plant::PlantParams {
+    docking_controller::plant::PlantParams {
+        mass_kg: 18.0,
+        mu2: 0.1,
+        ..docking_controller::plant::PlantParams::PAPER
+    }
+}
+
+/// The PIN the scenes' technician sets and enters.
+pub const SCENE_PIN: &str = "2468";
 
 /// Scene options.
 #[derive(Clone, Copy, Debug)]
@@ -150,6 +214,9 @@ pub struct SceneReport {
     pub watchdog_bit: bool,
     /// In-service scenes: what the PLC saw.
     pub plc: Option<PlcReport>,
+    /// `heavy-default`: after a clear-fault the machine went home, out of the cone (idle,
+    /// locked, driver off).
+    pub recovered_after_clear: Option<bool>,
 }
 
 /// What an in-service scene ([`PLC_SCENES`]) saw on the handshake.
@@ -173,13 +240,41 @@ pub struct PlcReport {
     pub clear_accepted_when_closed: Option<bool>,
     /// After a `hold_force` fault the axis stayed driven (enabled) and where it was.
     pub axis_held: Option<bool>,
+    /// `estop-bounce`: disturbances of the E-STOP input.
+    pub estop_episodes: Option<u32>,
+    /// `estop-bounce`: edges of the input the scene made.
+    pub estop_edges_injected: Option<u32>,
+    /// `estop-bounce`: edges the controller reported having latched (its
+    /// `EstopEdges` events on the host rig, its log on the board).
+    pub estop_edges_latched: Option<u32>,
+    /// `estop-bounce`: episodes that ended with `emergency_stop` latched, FAULT high,
+    /// READY low and every motor off.
+    pub estop_faults_latched: Option<u32>,
+    /// `estop-bounce`: the PLC's clears accepted once the input was closed (one an
+    /// episode), and refused while it was open (one a bouncing release).
+    pub clears_accepted: Option<u32>,
+    /// See [`PlcReport::clears_accepted`].
+    pub clears_refused_while_open: Option<u32>,
+    /// `estop-bounce`: a dock after the last episode completed (mated, undocked, home).
+    pub docked_after_estops: Option<bool>,
+    /// `maintenance-lockout`: READY low throughout maintenance mode.
+    pub ready_low_in_maintenance: Option<bool>,
+    /// `maintenance-lockout`: status bit 11 and input register 10 showed the mode.
+    pub maintenance_shown: Option<bool>,
+    /// `maintenance-lockout`: the Modbus dock (coil 0) was refused with exception 04.
+    pub modbus_dock_refused: Option<bool>,
+    /// `maintenance-lockout`: the DOCK pin was ignored (nothing moved).
+    pub dock_pin_ignored: Option<bool>,
+    /// `maintenance-lockout`: after `maint exit` the PLC docked (mated, undocked, home).
+    pub docked_after_maintenance: Option<bool>,
 }
 
 impl PlcReport {
     fn to_json(&self) -> String {
         let ob = |x: Option<bool>| x.map_or("null".to_string(), |b| b.to_string());
+        let on = |x: Option<u32>| x.map_or("null".to_string(), |n| n.to_string());
         format!(
-            "{{\"mated_s\":{},\"hold_load_distance_q1\":{},\"mated_low_before_extraction\":{},\"estop_latency_s\":{},\"lock_off_after_estop\":{},\"clear_refused_while_open\":{},\"clear_accepted_when_closed\":{},\"axis_held\":{}}}",
+            "{{\"mated_s\":{},\"hold_load_distance_q1\":{},\"mated_low_before_extraction\":{},\"estop_latency_s\":{},\"lock_off_after_estop\":{},\"clear_refused_while_open\":{},\"clear_accepted_when_closed\":{},\"axis_held\":{},\"estop_episodes\":{},\"estop_edges_injected\":{},\"estop_edges_latched\":{},\"estop_faults_latched\":{},\"clears_accepted\":{},\"clears_refused_while_open\":{},\"docked_after_estops\":{},\"ready_low_in_maintenance\":{},\"maintenance_shown\":{},\"modbus_dock_refused\":{},\"dock_pin_ignored\":{},\"docked_after_maintenance\":{}}}",
             num(self.mated_s),
             self.hold_load_distance_q1.map_or("null".to_string(), |x| x.to_string()),
             ob(self.mated_low_before_extraction),
@@ -188,6 +283,18 @@ impl PlcReport {
             ob(self.clear_refused_while_open),
             ob(self.clear_accepted_when_closed),
             ob(self.axis_held),
+            on(self.estop_episodes),
+            on(self.estop_edges_injected),
+            on(self.estop_edges_latched),
+            on(self.estop_faults_latched),
+            on(self.clears_accepted),
+            on(self.clears_refused_while_open),
+            ob(self.docked_after_estops),
+            ob(self.ready_low_in_maintenance),
+            ob(self.maintenance_shown),
+            ob(self.modbus_dock_refused),
+            ob(self.dock_pin_ignored),
+            ob(self.docked_after_maintenance),
         )
     }
 }
@@ -713,6 +820,21 @@ fn run_inner(
 ) -> Result<SceneReport, String> {
     let mut driver = SceneDriver::new(name, opts.cycles.max(1))?;
     let started = Instant::now();
+    match name {
+        "estop-bounce" => return estop_bounce(opts, each_tick),
+        "maintenance-lockout" => return maintenance_lockout(opts, each_tick),
+        _ => {}
+    }
+    let opts = if name == "heavy-default" {
+        SceneOptions {
+            force_model: crate::machine::ForceModel::plant(heavy_machine())
+                .map_err(|e| format!("heavy-default: {e:?}"))?,
+            tuning: None,
+            ..opts
+        }
+    } else {
+        opts
+    };
     let mut rig = Rig::new(RigOptions {
         seed: opts.seed,
         adc: opts.adc,
@@ -808,6 +930,22 @@ fn run_inner(
         }
     }
 
+    // `heavy-default`: a clear-fault must take the machine out of the cone, home.
+    let recovered_after_clear = (name == "heavy-default").then(|| {
+        let engage = rig.ctrl.config().machine.engage_um as f64;
+        let cleared = rig.ctrl.command(Request::ClearFault).is_ok();
+        let deadline = rig.clock.now_ns() + 60_000_000_000;
+        while rig.ctrl.state() != State::Idle && rig.clock.now_ns() < deadline {
+            each_tick(&mut rig, &mut tick_rng);
+            rig.tick();
+            while rig.ctrl.next_event().is_some() {}
+        }
+        cleared
+            && rig.ctrl.state() == State::Idle
+            && rig.axis.pos_um() < engage
+            && rig.lock.fraction_locked() >= 1.0
+            && !rig.axis.enabled()
+    });
     for f in rig.ctrl.faults() {
         faults.push(FaultSeen {
             kind: f.kind.name(),
@@ -839,7 +977,305 @@ fn run_inner(
         wall_time_s: started.elapsed().as_secs_f64(),
         watchdog_bit: rig.wdg.check(),
         plc: plc.map(|p| p.rep),
+        recovered_after_clear,
     })
+}
+
+/// A host rig a scripted scene runs step by step: each tick runs the scene's hook (a
+/// flood, a trace) first and drains the controller's events into what the report needs.
+struct Stepper<'a> {
+    rig: Rig,
+    each_tick: &'a mut dyn FnMut(&mut Rig, &mut Rng),
+    rng: Rng,
+    started: Instant,
+    steps: u64,
+    insertion_phases: Vec<Vec<u8>>,
+    /// E-STOP edges the controller reported ([`Event::EstopEdges`]).
+    estop_edges_latched: u32,
+}
+
+impl<'a> Stepper<'a> {
+    fn new(opts: SceneOptions, each_tick: &'a mut dyn FnMut(&mut Rig, &mut Rng)) -> Self {
+        Self {
+            rig: Rig::new(RigOptions {
+                seed: opts.seed,
+                adc: opts.adc,
+                force_model: opts.force_model,
+                tuning: opts.tuning,
+                ..RigOptions::new(opts.rate_sps)
+            }),
+            each_tick,
+            rng: Rng::new(opts.seed ^ 0xf100d),
+            started: Instant::now(),
+            steps: 0,
+            insertion_phases: Vec::new(),
+            estop_edges_latched: 0,
+        }
+    }
+
+    fn tick(&mut self) {
+        (self.each_tick)(&mut self.rig, &mut self.rng);
+        if self.rig.tick().stepped {
+            self.steps += 1;
+        }
+        let inserting = matches!(self.rig.ctrl.state(), State::Inserting { .. });
+        while let Some(ev) = self.rig.ctrl.next_event() {
+            match ev.event {
+                Event::Seq(SeqEvent::CycleStarted(_)) => self.insertion_phases.push(Vec::new()),
+                Event::Phase(p) if inserting => {
+                    if let Some(v) = self.insertion_phases.last_mut() {
+                        v.push(p.number());
+                    }
+                }
+                Event::EstopEdges { edges, .. } => self.estop_edges_latched += edges,
+                _ => {}
+            }
+        }
+    }
+
+    /// Tick for `ms` of virtual time.
+    fn run_ms(&mut self, ms: u64) {
+        let end = self.rig.clock.now_ns() + ms * 1_000_000;
+        while self.rig.clock.now_ns() < end {
+            self.tick();
+        }
+    }
+
+    /// Tick until `pred` holds (checked after every tick) or `s` seconds have passed;
+    /// whether it held.
+    fn run_until(&mut self, s: u64, pred: impl Fn(&Rig) -> bool) -> bool {
+        let end = self.rig.clock.now_ns() + s * 1_000_000_000;
+        while !pred(&self.rig) {
+            if self.rig.clock.now_ns() >= end {
+                return false;
+            }
+            self.tick();
+        }
+        true
+    }
+
+    /// The machine's progress by the controller's status.
+    fn progress(rig: &Rig) -> Progress {
+        Progress::of_status(&rig.ctrl.status(), rig.ctrl.config().machine.engage_um)
+    }
+
+    /// Idle, homed, READY.
+    fn ready(rig: &Rig) -> bool {
+        rig.ctrl.state() == State::Idle && rig.ctrl.handshake().ready
+    }
+
+    /// The PLC sends `pdu` to unit 1 over Modbus (the server's own frame handling);
+    /// the reply's PDU (empty: none). A command is acted on in the next control step.
+    fn modbus(&mut self, pdu: &[u8]) -> Vec<u8> {
+        use docking_controller::modbus::{crc16, handle_frame, MAX_FRAME};
+        let mut f = vec![1u8];
+        f.extend_from_slice(pdu);
+        let crc = crc16(&f);
+        f.extend_from_slice(&crc.to_le_bytes());
+        let mut out = [0u8; MAX_FRAME];
+        match handle_frame(&f, 1, &mut self.rig.ctrl, "scene", &mut out) {
+            Some(n) if n >= 4 => out[1..n - 2].to_vec(),
+            _ => Vec::new(),
+        }
+    }
+
+    /// Write coil `coil` on: `Ok` (echoed) or the exception code.
+    fn coil(&mut self, coil: u8) -> Result<(), u8> {
+        let pdu = [0x05, 0, coil, 0xFF, 0x00];
+        let r = self.modbus(&pdu);
+        match r.as_slice() {
+            r if r == pdu => Ok(()),
+            [0x85, code] => Err(*code),
+            _ => Err(0),
+        }
+    }
+
+    /// The technician types `line` on the console; the reply.
+    fn console(&mut self, line: &str) -> String {
+        self.rig.command(line, 200)
+    }
+
+    fn report(self, name: &str, opts: SceneOptions, plc: PlcReport) -> SceneReport {
+        let rig = &self.rig;
+        let st = rig.ctrl.status();
+        SceneReport {
+            scene: name.to_string(),
+            rate_sps: opts.rate_sps,
+            seed: opts.seed,
+            cycles_completed: st.cycles_completed,
+            faults: rig
+                .ctrl
+                .faults()
+                .map(|f| FaultSeen {
+                    kind: f.kind.name(),
+                    cycle: f.cycle,
+                    phase: f.phase.map(ContactPhase::number),
+                    t_s: f.t_ms as f64 / 1000.0,
+                    peak_force_n: f.peak_force_mn as f64 / 1000.0,
+                })
+                .collect(),
+            peak_force_n: st.peak_force_mn as f64 / 1000.0,
+            stop_latency_s: None,
+            final_state: st.state.name(),
+            insertion_phases: self.insertion_phases,
+            motors_disabled: !rig.axis.enabled() && !rig.lock.driven(),
+            forward_after_trip_um: None,
+            backed_off_um: None,
+            spikes_rejected: rig.kernel.spikes_rejected(),
+            spikes_injected: 0,
+            control_steps: self.steps,
+            sim_time_s: rig.clock.now_s(),
+            wall_time_s: self.started.elapsed().as_secs_f64(),
+            watchdog_bit: rig.wdg.check(),
+            plc: Some(plc),
+            recovered_after_clear: None,
+        }
+    }
+}
+
+/// `estop-bounce` on the host rig: the disturbances of [`ESTOP_BOUNCE`], each at its
+/// stage of a docking the PLC asks for with DOCK; after each the PLC releases DOCK and
+/// clears over Modbus (coil 2) once the input is closed; then one more dock.
+fn estop_bounce(
+    opts: SceneOptions,
+    each_tick: &mut dyn FnMut(&mut Rig, &mut Rng),
+) -> Result<SceneReport, String> {
+    let mut x = Stepper::new(opts, each_tick);
+    let mut rep = PlcReport {
+        estop_episodes: Some(0),
+        estop_edges_injected: Some(0),
+        estop_faults_latched: Some(0),
+        clears_accepted: Some(0),
+        clears_refused_while_open: Some(0),
+        ..PlcReport::default()
+    };
+    let inc = |c: &mut Option<u32>, n: u32| *c = Some(c.unwrap_or(0) + n);
+    x.run_until(10, Stepper::ready);
+    for (stage, d) in ESTOP_BOUNCE {
+        if stage != Stage::Idle {
+            x.rig.dock_line.set(false); // the PLC asserts DOCK
+            let there = x.run_until(60, |r| {
+                let p = Stepper::progress(r);
+                p.stage == stage
+                    && (stage != Stage::Inserting || p.depth_um >= ESTOP_BOUNCE_DEPTH_UM)
+            });
+            if !there {
+                break; // the counts show the episodes that did not happen
+            }
+        }
+        inc(&mut rep.estop_episodes, 1);
+        match d {
+            EstopDisturbance::Pulse(us) => x.rig.estop_pulse(u64::from(us)),
+            EstopDisturbance::BouncingRelease => {
+                x.rig.estop_line.set(true);
+                x.run_ms(BOUNCE_OPEN_MS);
+                if x.coil(2) == Err(0x04) {
+                    inc(&mut rep.clears_refused_while_open, 1);
+                }
+                x.rig.estop_line.set(false);
+                // (The rig is not interrupt-accurate: the closing edge is seen at the
+                // next tick, the bounce's pulses now.)
+                for us in BOUNCE_RELEASE_US {
+                    x.rig.estop_pulse(u64::from(us));
+                }
+            }
+        }
+        inc(&mut rep.estop_edges_injected, d.edges());
+        x.run_ms(100);
+        let r = &x.rig;
+        let h = r.ctrl.handshake();
+        if r.ctrl.state()
+            == (State::Faulted {
+                fault: docking_controller::sequencer::FaultKind::EmergencyStop,
+            })
+            && h.fault
+            && !h.ready
+            && !r.axis.enabled()
+            && !r.lock.driven()
+        {
+            inc(&mut rep.estop_faults_latched, 1);
+        }
+        x.rig.dock_line.set(true); // the PLC releases DOCK on the fault
+        x.run_ms(100);
+        if x.coil(2).is_ok() {
+            inc(&mut rep.clears_accepted, 1);
+        }
+        x.run_until(60, Stepper::ready);
+        x.run_ms(300);
+    }
+    rep.estop_edges_latched = Some(x.estop_edges_latched);
+    // The next dock completes: mated, undocked, home.
+    let before = x.rig.ctrl.status().cycles_completed;
+    x.rig.dock_line.set(false);
+    let mated = x.run_until(60, |r| r.ctrl.handshake().mated);
+    x.rig.dock_line.set(true);
+    let home = x.run_until(60, Stepper::ready);
+    rep.docked_after_estops =
+        Some(mated && home && x.rig.ctrl.status().cycles_completed == before + 1);
+    Ok(x.report("estop-bounce", opts, rep))
+}
+
+/// `maintenance-lockout` on the host rig: a technician in maintenance mode at the
+/// console; the PLC's Modbus dock and DOCK pin are refused and ignored, READY low; after
+/// `maint exit` the PLC docks over Modbus and undocks.
+fn maintenance_lockout(
+    opts: SceneOptions,
+    each_tick: &mut dyn FnMut(&mut Rig, &mut Rng),
+) -> Result<SceneReport, String> {
+    use docking_controller::modbus::{ir, status};
+    let mut x = Stepper::new(opts, each_tick);
+    let mut rep = PlcReport::default();
+    x.run_until(10, Stepper::ready);
+    let pin = x.console(&format!("pin set {SCENE_PIN}"));
+    let maint = x.console(&format!("maint {SCENE_PIN}"));
+    if !(pin.starts_with("ok") && maint.starts_with("ok")) {
+        return Err(format!(
+            "maintenance mode not entered: '{}' / '{}'",
+            pin.trim(),
+            maint.trim()
+        ));
+    }
+    x.run_ms(50);
+    let mut ready_low = !x.rig.ctrl.handshake().ready;
+    let regs = x.modbus(&[0x04, 0, 0, 0, ir::MAINTENANCE_MODE as u8 + 1]);
+    let word = |i: usize| {
+        regs.get(2 + 2 * i..4 + 2 * i)
+            .map(|b| u16::from_be_bytes([b[0], b[1]]))
+    };
+    rep.maintenance_shown = Some(
+        word(0).is_some_and(|w| w & status::MAINTENANCE_MODE != 0)
+            && word(usize::from(ir::MAINTENANCE_MODE)) == Some(1),
+    );
+    rep.modbus_dock_refused = Some(x.coil(0) == Err(0x04));
+    // The DOCK pin, asserted for 2 s.
+    x.rig.dock_line.set(false);
+    let end = x.rig.clock.now_ns() + 2_000_000_000;
+    let mut moved = false;
+    while x.rig.clock.now_ns() < end {
+        x.tick();
+        moved |= x.rig.axis.enabled() || x.rig.lock.driven();
+        ready_low &= !x.rig.ctrl.handshake().ready;
+    }
+    rep.dock_pin_ignored = Some(!moved && x.rig.ctrl.state() == State::Idle);
+    rep.ready_low_in_maintenance = Some(ready_low);
+    x.rig.dock_line.set(true);
+    x.run_ms(200);
+    let exit = x.console("maint exit").starts_with("ok");
+    x.run_ms(100);
+    let ready = Stepper::ready(&x.rig) && !x.rig.ctrl.maintenance_mode();
+    let accepted = x.coil(0).is_ok();
+    let mated = x.run_until(60, |r| r.ctrl.handshake().mated);
+    let undock = x.coil(1).is_ok();
+    let home = x.run_until(60, Stepper::ready);
+    rep.docked_after_maintenance = Some(
+        exit && ready
+            && accepted
+            && mated
+            && undock
+            && home
+            && x.rig.ctrl.status().cycles_completed == 1,
+    );
+    Ok(x.report("maintenance-lockout", opts, rep))
 }
 
 /// A number for JSON: up to 6 decimals, trailing zeros trimmed; `null` if not finite.
@@ -881,7 +1317,7 @@ impl SceneReport {
             .collect();
         let opt = |x: Option<f64>| x.map_or("null".to_string(), num);
         format!(
-            "{{\"scene\":\"{}\",\"plc\":{},\"rate_sps\":{},\"seed\":{},\"cycles_completed\":{},\"faults\":[{}],\"peak_force_n\":{},\"stop_latency_s\":{},\"final_state\":\"{}\",\"motors_disabled\":{},\"insertion_phases\":[{}],\"forward_after_trip_um\":{},\"backed_off_um\":{},\"spikes_injected\":{},\"spikes_rejected\":{},\"control_steps\":{},\"sim_time_s\":{},\"wall_time_s\":{},\"watchdog_bit\":{}}}",
+            "{{\"scene\":\"{}\",\"plc\":{},\"rate_sps\":{},\"seed\":{},\"cycles_completed\":{},\"faults\":[{}],\"peak_force_n\":{},\"stop_latency_s\":{},\"final_state\":\"{}\",\"motors_disabled\":{},\"insertion_phases\":[{}],\"forward_after_trip_um\":{},\"backed_off_um\":{},\"spikes_injected\":{},\"spikes_rejected\":{},\"control_steps\":{},\"sim_time_s\":{},\"wall_time_s\":{},\"watchdog_bit\":{},\"recovered_after_clear\":{}}}",
             self.scene,
             self.plc
                 .as_ref()
@@ -902,7 +1338,9 @@ impl SceneReport {
             self.control_steps,
             num(self.sim_time_s),
             num(self.wall_time_s),
-            self.watchdog_bit
+            self.watchdog_bit,
+            self.recovered_after_clear
+                .map_or("null".to_string(), |b| b.to_string())
         )
     }
 

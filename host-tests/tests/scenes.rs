@@ -290,3 +290,60 @@ fn the_paper_machine_as_a_plant_behaves_as_eq7_does() {
     assert_eq!(r.insertion_phases, vec![vec![1, 2, 3, 4]]);
     assert!((r.peak_force_n - 206.0).abs() < 3.0, "{}", r.peak_force_n);
 }
+
+#[test]
+fn estop_bounce_latches_every_edge_and_the_clear_and_the_next_dock_work() {
+    for rate in [10, 80] {
+        let r = scene("estop-bounce", 1, rate, 5);
+        let p = r.plc.clone().expect("an in-service scene");
+        let n = hil_sim::scene::ESTOP_BOUNCE.len() as u32;
+        assert_eq!(p.estop_episodes, Some(n), "{}", r.to_json());
+        // Every pulse and bounce, at idle, pre-alignment, insertion and mated: each edge
+        // accounted for, the fault latched with every motor off.
+        assert!(p.estop_edges_injected.unwrap() >= 2 * n, "{}", r.to_json());
+        assert_eq!(
+            p.estop_edges_latched,
+            p.estop_edges_injected,
+            "{}",
+            r.to_json()
+        );
+        assert_eq!(p.estop_faults_latched, Some(n), "{}", r.to_json());
+        assert!(
+            r.faults.iter().all(|f| f.kind == "emergency_stop"),
+            "{}",
+            r.to_json()
+        );
+        // The PLC's clear: refused while a bouncing release held the input open,
+        // accepted once it was closed, every time.
+        assert_eq!(p.clears_refused_while_open, Some(3), "{}", r.to_json());
+        assert_eq!(p.clears_accepted, Some(n), "{}", r.to_json());
+        assert_eq!(p.docked_after_estops, Some(true), "{}", r.to_json());
+        assert_eq!(r.final_state, "idle");
+        assert!(r.motors_disabled && !r.watchdog_bit);
+    }
+}
+
+#[test]
+fn heavy_default_trips_once_backs_off_and_a_clear_takes_it_out_of_the_cone() {
+    let r = scene("heavy-default", 1, 80, 1);
+    let kinds: Vec<_> = r.faults.iter().map(|f| f.kind).collect();
+    assert_eq!(kinds, ["overload"], "one overload only: {}", r.to_json());
+    let back = r.backed_off_um.expect("a trip");
+    assert!((1_990.0..=2_010.0).contains(&back), "{}", r.to_json());
+    assert_eq!(r.recovered_after_clear, Some(true), "{}", r.to_json());
+    assert_eq!(r.final_state, "idle");
+    assert!(r.motors_disabled);
+}
+
+#[test]
+fn maintenance_lockout_refuses_remote_motion_until_maint_exit() {
+    let r = scene("maintenance-lockout", 1, 80, 1);
+    let p = r.plc.clone().expect("an in-service scene");
+    assert_eq!(p.ready_low_in_maintenance, Some(true), "{}", r.to_json());
+    assert_eq!(p.maintenance_shown, Some(true), "{}", r.to_json());
+    assert_eq!(p.modbus_dock_refused, Some(true), "{}", r.to_json());
+    assert_eq!(p.dock_pin_ignored, Some(true), "{}", r.to_json());
+    assert_eq!(p.docked_after_maintenance, Some(true), "{}", r.to_json());
+    assert!(r.faults.is_empty(), "{}", r.to_json());
+    assert_eq!(r.cycles_completed, 1);
+}

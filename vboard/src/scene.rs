@@ -1319,6 +1319,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         wall_time_s: wall,
         watchdog_bit: s.watchdog_resets() > 0,
         plc: plc.map(|p| p.rep),
+        recovered_after_clear: None,
     };
     Ok(Report {
         scene,
