@@ -12,6 +12,9 @@ use crate::scene::{Options, SceneOptions, SCENES};
 /// One-line usage summary.
 pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] | estimate-cost [--readings N] [--firmware ELF]";
 
+/// The sweep's usage (`vboard sweep`).
+pub const SWEEP_USAGE: &str = "       vboard sweep [--scene NAME[,NAME...]] [--seeds 1..10|1,2,3] [--cpi X[,X...]] [--timing cpi|art[,...]] [--flood] [--cycles N] [--rate 10|80] [--lsi-hz HZ] [--flash-timing max|typical] [--firmware ELF] [--jobs N] [--json]";
+
 /// How the command failed.
 #[derive(Debug)]
 pub enum Failure {
@@ -152,6 +155,112 @@ fn serve(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     crate::serve::run(&opts, out).map_err(Failure::Run)
 }
 
+/// `vboard sweep`: `--scene` (default `overload,estop`) over `--seeds` (default 1..10)
+/// and every timing model (each of the `--timing` list, default `cpi`, at each of the
+/// `--cpi` list, default 1; with neither: CPI 1, 2, 3 and `art` at CPI 1); one row a run
+/// as it completes on stderr, the table (or `--json`) on stdout. Exit 1 when a run
+/// misses a target (the reasons on stderr).
+fn sweep_cmd(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
+    let own = ["scene", "seeds", "cpi", "timing", "jobs"];
+    let common = ["firmware", "cycles", "rate", "lsi-hz", "flash-timing"];
+    let valued: Vec<&str> = own.iter().chain(&common).copied().collect();
+    let o = Opts::parse(args, &valued, &["json", "flood"])?;
+    let scenes: Vec<String> = o
+        .get("scene")
+        .unwrap_or("overload,estop")
+        .split(',')
+        .map(|x| x.trim().to_string())
+        .collect();
+    if let Some(bad) = scenes.iter().find(|n| !SCENES.contains(&n.as_str())) {
+        return usage(format!(
+            "unknown scene '{bad}' (scenes: {})",
+            SCENES.join(", ")
+        ));
+    }
+    let seeds =
+        crate::sweep::parse_seeds(o.get("seeds").unwrap_or("1..10")).map_err(Failure::Usage)?;
+    // The models: each `--timing` with each `--cpi`; by default the set, CPI 1,
+    // 2 and 3 and the ART cache model at CPI 1.
+    let plan: Vec<(Option<&str>, &str)> = match (o.get("timing"), o.get("cpi")) {
+        (None, None) => vec![(None, "1"), (None, "2"), (None, "3"), (Some("art"), "1")],
+        (t, c) => {
+            let cpis: Vec<&str> = c.unwrap_or("1").split(',').map(str::trim).collect();
+            let timings: Vec<Option<&str>> = match t {
+                None => vec![None],
+                Some(t) => t.split(',').map(|x| Some(x.trim())).collect(),
+            };
+            timings
+                .iter()
+                .flat_map(|&t| cpis.iter().map(move |&c| (t, c)))
+                .collect()
+        }
+    };
+    // Each model's board from the scene's own options: `--cpi X [--timing T]` and the
+    // common flags, as `vboard scene` would take them.
+    let mut base_args: Vec<String> = Vec::new();
+    for k in common {
+        if let Some(v) = o.get(k) {
+            base_args.extend([format!("--{k}"), v.to_string()]);
+        }
+    }
+    let mut models = Vec::new();
+    let mut base = None;
+    for (t, c) in plan {
+        let mut a = base_args.clone();
+        a.extend(["--cpi".to_string(), c.to_string()]);
+        if let Some(t) = t {
+            a.extend(["--timing".to_string(), t.to_string()]);
+        }
+        let mut keys = vec!["cpi", "timing"];
+        keys.extend(common);
+        let s = session(&Opts::parse(&a, &keys, &[])?)?;
+        models.push(crate::sweep::Model {
+            label: format!("{} {c}", t.unwrap_or("cpi")),
+            board: s.board,
+        });
+        base.get_or_insert(s);
+    }
+    let Some(session) = base else {
+        return usage("--cpi needs at least one value");
+    };
+    let jobs_default = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let opts = crate::sweep::SweepOptions {
+        scenes,
+        seeds,
+        models,
+        base: SceneOptions {
+            session,
+            cycles: o.num("cycles", 1u32, 1, 1_000)?,
+            flood: o.flag("flood"),
+        },
+        jobs: o.num("jobs", jobs_default, 1, 64)?,
+    };
+    let total = opts.scenes.len() * opts.seeds.len() * opts.models.len();
+    let count = std::sync::atomic::AtomicUsize::new(0);
+    let r = crate::sweep::sweep(&opts, &|row| {
+        let n = count.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+        eprintln!("[{n}/{total}] {}", row.to_text());
+    });
+    let text = if o.flag("json") {
+        r.to_json()
+    } else {
+        r.to_text()
+    };
+    let _ = writeln!(out, "{text}");
+    let misses = r.misses();
+    if misses.is_empty() {
+        Ok(())
+    } else {
+        for m in &misses {
+            eprintln!("missed: {m}");
+        }
+        Err(Failure::Run(format!(
+            "{} of {total} run(s) miss a target",
+            r.worst(None).missing
+        )))
+    }
+}
+
 fn estimate_cost(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     let o = Opts::parse(args, &["firmware", "readings"], &[])?;
     let mut opts = Options::new();
@@ -173,8 +282,9 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
         "scene" => scene(rest, out),
         "serve" => serve(rest, out),
         "estimate-cost" => estimate_cost(rest, out),
+        "sweep" => sweep_cmd(rest, out),
         "help" | "--help" | "-h" => {
-            let _ = writeln!(out, "{USAGE}");
+            let _ = writeln!(out, "{USAGE}\n{SWEEP_USAGE}");
             Ok(())
         }
         other => usage(format!("unknown command '{other}'; {USAGE}")),

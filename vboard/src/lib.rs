@@ -11,7 +11,8 @@
 //! * [`rtt`]: the defmt log, read over RTT as a probe would;
 //! * [`scene`]: the scenes of `vboard scene`;
 //! * [`realtime`]: the control step's period, the watchdog's feeding and the E-STOP's
-//!   reaction, measured on the peripheral models.
+//!   reaction, measured on the peripheral models;
+//! * [`sweep`]: scenes over seeds and timing models, the worst figures.
 //!
 //! GPL-2.0 (it links unicorn); nothing of the firmware depends on it.
 
@@ -24,5 +25,6 @@ pub mod rtt;
 pub mod scene;
 pub mod serve;
 pub mod soc;
+pub mod sweep;
 pub mod time;
 pub mod world;

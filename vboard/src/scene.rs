@@ -15,16 +15,31 @@
 //! | `power-cut-write` | a pin reset at a random instant inside a record write, then a reboot on the same flash |
 //! | `power-cycle` | a pin reset in the middle of an insertion: after the reboot nothing may move until a request (DOCK released and asserted again), then the machine homes out of the cone |
 //!
-//! `dock-hold`, `vehicle-pull` and `estop` are the host rig's in-service scenes; here the
-//! E-STOP's edge to EN high and the lock bridge low is measured on the pins.
+//! | `estop-bounce` | the host rig's disturbances ([`ESTOP_BOUNCE`]) at the board's own timing: a 50 µs pulse is 50 µs on the EXTI line, a bouncing release closes, opens for 100, 50 and 20 µs with 200 µs closed between; the edges the firmware logs as latched must be the edges made, the PLC's clears go over Modbus |
+//! | `heavy-default` | the 18 kg machine (µ2 0.1) on the default configuration, one test cycle: one overload, the back-off done, and a console `clear-fault` takes it home out of the cone |
+//! | `maintenance-lockout` | the technician's `pin set` / `maint <pin>` on USART2, the PLC's reads and coil writes on USART3 and its DOCK pin; READY (PD0) judged on its recorded edges |
+//!
+//! `dock-hold`, `vehicle-pull`, `estop` and `estop-bounce` are the host rig's in-service
+//! scenes; here the E-STOP's edge to EN high and the lock bridge low is measured on the
+//! pins.
+//!
+//! Every scene also reports, **over the time anything moves** (EN low or a lock bridge
+//! input high, on the pins; see [`crate::realtime`]), the longest interval between
+//! entries of the control task's interrupt (TIM2) on the NVIC model
+//! (`control_period_max_ms`), how many exceeded the sample period + 1 ms
+//! (`control_late`), and the gaps between watchdog reloads (`KR` = 0xAAAA) on the IWDG
+//! model longer than 3 sample periods (`watchdog_feeds_missed`); and for every E-STOP
+//! edge while something moved, the edge to EN high and the lock off
+//! (`estop_off_max_us`).
 
 use std::time::Instant;
 
 use hil_sim::flash::{SharedFlash, SimFlash};
 use hil_sim::rig::{Machine, RigOptions};
 use hil_sim::scene::{
-    num, FaultSeen, PlcReport, Progress, SceneDriver, SceneReport, Stage, DOCK_HOLD_S,
-    FLOOD_PIECES, PLC_SCENES,
+    num, EstopDisturbance, FaultSeen, PlcReport, Progress, SceneDriver, SceneReport, Stage,
+    BOUNCE_GAP_US, BOUNCE_OPEN_MS, BOUNCE_RELEASE_US, DOCK_HOLD_S, ESTOP_BOUNCE,
+    ESTOP_BOUNCE_DEPTH_UM, FLOOD_PIECES, PLC_SCENES,
 };
 
 use crate::cpu::{Board, BoardConfig, Halt};
@@ -53,6 +68,8 @@ pub struct Options {
     /// A technician has calibrated the load cell: a new board's odometer flash holds the
     /// calibration (without one the firmware refuses to dock).
     pub commissioned: bool,
+    /// The machine's contact forces (Eq. 7, or another machine's plant).
+    pub force_model: hil_sim::machine::ForceModel,
 }
 
 impl Options {
@@ -64,6 +81,7 @@ impl Options {
             seed: 1,
             board: BoardConfig::default(),
             commissioned: true,
+            force_model: hil_sim::machine::ForceModel::Eq7,
         }
     }
 }
@@ -87,6 +105,8 @@ pub struct Observed {
     pub insertion_phases: Vec<Vec<u8>>,
     /// The firmware logged that it booted, this many times.
     pub boots: u32,
+    /// E-STOP edges the firmware logged having latched (`E-STOP: N edge(s), …`).
+    pub estop_edges_logged: u32,
     /// Lines read so far.
     cursor: usize,
     /// The current insertion is over (a phase went down: extraction).
@@ -138,6 +158,7 @@ impl Session {
         let img = image(&opts.firmware)?;
         let machine = Machine::new(&RigOptions {
             seed: opts.seed,
+            force_model: opts.force_model,
             ..RigOptions::new(opts.rate_sps)
         });
         if opts.commissioned {
@@ -240,6 +261,32 @@ impl Session {
         self.inputs_changed();
     }
 
+    /// The E-STOP input opens for `open_ps`, then closes (in the board's own time: the
+    /// EXTI sees both edges where they are).
+    pub fn estop_pulse(&mut self, open_ps: u64) -> Result<(), Halt> {
+        self.set_estop(true);
+        let t = self.now() + open_ps;
+        self.board.run_until(t)?;
+        self.set_estop(false);
+        Ok(())
+    }
+
+    /// Run `dt_ps` without the millisecond housekeeping (a sub-millisecond wait).
+    pub fn run_exact(&mut self, dt_ps: u64) -> Result<(), Halt> {
+        let t = self.now() + dt_ps;
+        self.board.run_until(t)
+    }
+
+    /// At rest by the pins alone: home, locked, driver off, READY high.
+    pub fn home_and_ready(&self) -> bool {
+        let m = self.machine();
+        m.axis.pos_um() <= 0.0
+            && m.lock.fraction_locked() >= 1.0
+            && !m.axis.enabled()
+            && !m.lock.driven()
+            && self.plc_out().ready
+    }
+
     /// A scene changed an input line: let the EXTI see it now.
     pub fn inputs_changed(&mut self) {
         let open = self.machine().estop.is_high();
@@ -330,6 +377,9 @@ impl Session {
                     });
                 }
                 ["docking-controller", _, "booted;", ..] => self.seen.boots += 1,
+                ["E-STOP:", n, "edge(s),", ..] => {
+                    self.seen.estop_edges_logged += n.parse::<u32>().unwrap_or(0);
+                }
                 _ => {}
             }
         }
@@ -398,6 +448,32 @@ impl Session {
             eprintln!("[{:.6} s] > {line}\n{reply}", self.now() as f64 * 1e-12);
         }
         Ok(reply)
+    }
+
+    /// The technician enters maintenance mode with PIN 2468 (setting it first on a board
+    /// that has none); whether the console said ok. A reply a lost byte spoiled is
+    /// typed again (three times at most).
+    pub fn maint_enter(&mut self) -> Result<bool, Halt> {
+        for _ in 0..3 {
+            let r = self.console("maint 2468", 5 * PS_PER_S)?;
+            if r.starts_with("ok") {
+                return Ok(true);
+            }
+            if r.contains("no maintenance PIN") {
+                self.console("pin set 2468", 5 * PS_PER_S)?;
+            }
+        }
+        Ok(false)
+    }
+
+    /// The technician leaves maintenance mode; whether the console said ok.
+    pub fn maint_exit(&mut self) -> Result<bool, Halt> {
+        for _ in 0..3 {
+            if self.console("maint exit", 2 * PS_PER_S)?.starts_with("ok") {
+                return Ok(true);
+            }
+        }
+        Ok(false)
     }
 
     /// Ask `cmd` (a `--json` command) until a JSON reply comes (a byte the one-byte
@@ -519,6 +595,34 @@ impl ModbusFlood {
 }
 
 impl Session {
+    /// The PLC writes coil `coil` on (unit 1): `Ok` (echoed) or the exception code (0:
+    /// no reply, or one that is neither).
+    pub fn coil(&mut self, coil: u8) -> Result<Result<(), u8>, Halt> {
+        let frame = rtu(1, &[0x05, 0, coil, 0xFF, 0x00]);
+        let r = self.modbus(&frame, PS_PER_S)?;
+        Ok(match r.as_slice() {
+            r if r == frame => Ok(()),
+            [1, 0x85, code, ..] if r == rtu(1, &[0x85, *code]) => Err(*code),
+            _ => Err(0),
+        })
+    }
+
+    /// The PLC reads `n` input registers from `addr` (unit 1); `None`: no valid reply.
+    pub fn read_inputs(&mut self, addr: u16, n: u16) -> Result<Option<Vec<u16>>, Halt> {
+        let [ah, al] = addr.to_be_bytes();
+        let [nh, nl] = n.to_be_bytes();
+        let r = self.modbus(&rtu(1, &[0x04, ah, al, nh, nl]), PS_PER_S)?;
+        let ok = r.len() == 5 + 2 * n as usize
+            && r[..3] == [1, 0x04, 2 * n as u8]
+            && rtu(1, &r[1..r.len() - 2]) == r;
+        Ok(ok.then(|| {
+            r[3..r.len() - 2]
+                .chunks_exact(2)
+                .map(|c| u16::from_be_bytes([c[0], c[1]]))
+                .collect()
+        }))
+    }
+
     /// The PLC sends `frame` on the Modbus line; the reply bytes that reached the bus
     /// (empty: none within `timeout_ps`; a reply ends after 5 ms of silence).
     pub fn modbus(&mut self, frame: &[u8], timeout_ps: u64) -> Result<Vec<u8>, Halt> {
@@ -557,7 +661,7 @@ fn docking_controller_fault_name(s: &str) -> &'static str {
 }
 
 /// The scenes of `vboard scene`.
-pub const SCENES: [&str; 16] = [
+pub const SCENES: [&str; 19] = [
     "boot",
     "nominal",
     "overload",
@@ -574,6 +678,9 @@ pub const SCENES: [&str; 16] = [
     "dock-hold",
     "vehicle-pull",
     "estop",
+    "estop-bounce",
+    "heavy-default",
+    "maintenance-lockout",
 ];
 
 /// What the PLC of an in-service scene saw on the pins.
@@ -689,9 +796,7 @@ impl VbPlc {
                 lock_off,
                 String::new(),
             ));
-            for cmd in ["pin set 2468", "maint 2468"] {
-                s.console(cmd, 2 * PS_PER_S)?;
-            }
+            s.maint_enter()?;
             let r = s.console("clear-fault", 2 * PS_PER_S)?;
             let refused = r.contains("E-STOP");
             self.rep.clear_refused_while_open = Some(refused);
@@ -710,6 +815,8 @@ impl VbPlc {
                 ok,
                 r.trim().into(),
             ));
+            // The technician leaves maintenance mode: READY may come back.
+            s.maint_exit()?;
             let deadline = s.now() + 60 * PS_PER_S;
             let home = s.run_until(deadline, |x| x.at_rest() && x.plc_out().ready)?;
             checks.push(("recovered home, READY".into(), home, String::new()));
@@ -1107,12 +1214,22 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
     if name == "sector-move" {
         prefill = Some(prefill_log(&flash)?);
     }
-    let mut s =
-        Session::with_flash(opts.session.clone(), flash.clone()).map_err(|e| e.to_string())?;
+    let mut session = opts.session.clone();
+    if name == "heavy-default" {
+        session.force_model = hil_sim::machine::ForceModel::plant(hil_sim::scene::heavy_machine())
+            .map_err(|e| format!("heavy-default: {e:?}"))?;
+    }
+    let mut s = Session::with_flash(session, flash.clone()).map_err(|e| e.to_string())?;
     let host_scene = !matches!(
         name,
-        "boot" | "sector-move" | "power-cut-write" | "power-cycle"
+        "boot"
+            | "sector-move"
+            | "power-cut-write"
+            | "power-cycle"
+            | "estop-bounce"
+            | "maintenance-lockout"
     );
+    let mut scripted_plc: Option<PlcReport> = None;
     let mut motion_before_request = None;
     let mut driver = if host_scene {
         Some(SceneDriver::new(name, cycles)?)
@@ -1196,6 +1313,13 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         "power-cut-write" => {
             power_cut_write(&mut s, &mut checks, opts).map_err(|e| e.to_string())?;
         }
+        "estop-bounce" => {
+            scripted_plc = Some(estop_bounce(&mut s, &mut checks).map_err(|e| e.to_string())?);
+        }
+        "maintenance-lockout" => {
+            scripted_plc =
+                Some(maintenance_lockout(&mut s, &mut checks).map_err(|e| e.to_string())?);
+        }
         _ => loop {
             if opts.flood {
                 // Keep the line busy: the next piece queued before the last one is sent.
@@ -1269,17 +1393,23 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         },
     }
 
-    if let Some(p) = plc.as_mut() {
-        p.finish(name, &mut s, &mut checks)
-            .map_err(|e| e.to_string())?;
-    }
     if opts.flood {
-        // Let the line drain before asking.
+        // Let the line drain before asking (the flood's own replies would be taken for
+        // the answers).
         let t = s.now() + 3 * PS_PER_S;
         s.run_until(t, |x| x.board.soc().usart2.far_pending() == 0)
             .map_err(|e| e.to_string())?;
         s.run_for(PS_PER_S).map_err(|e| e.to_string())?;
     }
+    if let Some(p) = plc.as_mut() {
+        p.finish(name, &mut s, &mut checks)
+            .map_err(|e| e.to_string())?;
+    }
+    let recovered_after_clear = if name == "heavy-default" {
+        Some(clear_out_of_the_cone(&mut s, &mut checks).map_err(|e| e.to_string())?)
+    } else {
+        None
+    };
     // The end state, as the console reports it.
     let status = s.console_json("status --json").map_err(|e| e.to_string())?;
     let final_state = json_field(&status, "state").unwrap_or_else(|| "unknown".into());
@@ -1318,8 +1448,8 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         sim_time_s: sim_s,
         wall_time_s: wall,
         watchdog_bit: s.watchdog_resets() > 0,
-        plc: plc.map(|p| p.rep),
-        recovered_after_clear: None,
+        plc: plc.map(|p| p.rep).or(scripted_plc),
+        recovered_after_clear,
     };
     Ok(Report {
         scene,
@@ -1527,6 +1657,261 @@ fn power_cycle(s: &mut Session, checks: &mut Vec<(String, bool, String)>) -> Res
         format!("carriage at {:.3} mm", s.machine().axis.pos_um() / 1000.0),
     ));
     Ok(moved)
+}
+
+/// Whether the pins show the machine at `stage` (`estop-bounce`'s moments; the log's
+/// cycle bookkeeping is not used: an aborted cycle never completes).
+fn at_stage(s: &Session, stage: Stage) -> bool {
+    let m = s.machine();
+    let depth = m.axis.pos_um() as i32 - s.engage_um;
+    let moving_in = m.axis.enabled() && m.axis.forward();
+    match stage {
+        Stage::Idle => s.home_and_ready(),
+        Stage::PreAlign => moving_in && m.lock.fraction_locked() >= 1.0 && depth < 0,
+        Stage::Inserting => {
+            moving_in && m.lock.fraction_locked() <= 0.0 && depth >= ESTOP_BOUNCE_DEPTH_UM
+        }
+        Stage::Mated => s.plc_out().mated,
+        Stage::Returning | Stage::Other => false,
+    }
+}
+
+/// `estop-bounce`: the disturbances of [`ESTOP_BOUNCE`], each at its stage of a docking
+/// the PLC asks for with DOCK, at the board's own timing (a 50 µs pulse is 50 µs on the
+/// EXTI line). After each: the fault latched with FAULT high, READY low and every motor
+/// off; the PLC releases DOCK and clears over Modbus (coil 2), refused while a bouncing
+/// release holds the input open, accepted once it is closed; home. Then one more dock.
+fn estop_bounce(
+    s: &mut Session,
+    checks: &mut Vec<(String, bool, String)>,
+) -> Result<PlcReport, Halt> {
+    let mut rep = PlcReport::default();
+    let (mut episodes, mut injected, mut latched, mut accepted, mut refused) = (0u32, 0, 0, 0, 0);
+    let mut notes = Vec::new();
+    let deadline = s.now() + 10 * PS_PER_S;
+    s.run_until(deadline, Session::home_and_ready)?;
+    for (stage, d) in ESTOP_BOUNCE {
+        if stage != Stage::Idle {
+            s.set_dock(true);
+            let deadline = s.now() + 60 * PS_PER_S;
+            if !s.run_until(deadline, |x| at_stage(x, stage))? {
+                notes.push(format!("{stage:?} never reached"));
+                break;
+            }
+        }
+        episodes += 1;
+        match d {
+            EstopDisturbance::Pulse(us) => s.estop_pulse(u64::from(us) * 1_000_000)?,
+            EstopDisturbance::BouncingRelease => {
+                s.set_estop(true);
+                s.run_for(BOUNCE_OPEN_MS * PS_PER_MS)?;
+                if s.coil(2)? == Err(0x04) {
+                    refused += 1;
+                }
+                s.set_estop(false);
+                for us in BOUNCE_RELEASE_US {
+                    s.run_exact(u64::from(BOUNCE_GAP_US) * 1_000_000)?;
+                    s.estop_pulse(u64::from(us) * 1_000_000)?;
+                }
+            }
+        }
+        injected += d.edges();
+        s.run_for(100 * PS_PER_MS)?;
+        let st = s.console_json("status --json")?;
+        let out = s.plc_out();
+        let m = s.machine();
+        let off = !m.axis.enabled() && !m.lock.driven();
+        if json_field(&st, "fault").as_deref() == Some("emergency_stop")
+            && out.fault
+            && !out.ready
+            && off
+        {
+            latched += 1;
+        } else {
+            notes.push(format!(
+                "{stage:?} {d:?}: not latched ({out:?}, motors off {off}): {st}"
+            ));
+        }
+        s.set_dock(false);
+        s.run_for(100 * PS_PER_MS)?;
+        match s.coil(2)? {
+            Ok(()) => accepted += 1,
+            Err(code) => notes.push(format!("{stage:?} {d:?}: clear refused ({code})")),
+        }
+        let deadline = s.now() + 60 * PS_PER_S;
+        s.run_until(deadline, Session::home_and_ready)?;
+        s.run_for(300 * PS_PER_MS)?;
+    }
+    s.board.poll_rtt();
+    s.observe();
+    let logged = s.seen.estop_edges_logged;
+    // The next dock completes: mated, undocked, home.
+    let before = s.seen.cycles_completed;
+    s.set_dock(true);
+    let deadline = s.now() + 60 * PS_PER_S;
+    let mated = s.run_until(deadline, |x| x.plc_out().mated)?;
+    s.set_dock(false);
+    let deadline = s.now() + 60 * PS_PER_S;
+    let home = s.run_until(deadline, Session::home_and_ready)?;
+    let docked = mated && home && s.seen.cycles_completed == before + 1;
+    let n = ESTOP_BOUNCE.len() as u32;
+    checks.push((
+        "every episode latched emergency_stop, FAULT high, READY low, every motor off".into(),
+        episodes == n && latched == n,
+        format!(
+            "{latched} of {episodes} episodes ({n} planned); {}",
+            notes.join("; ")
+        ),
+    ));
+    checks.push((
+        "every edge accounted for by the firmware".into(),
+        logged == injected,
+        format!("{injected} edges made, {logged} logged as latched"),
+    ));
+    checks.push((
+        "the PLC's clear refused while open, accepted once closed".into(),
+        refused == 3 && accepted == n,
+        format!("{refused} refused while open (3 expected), {accepted} accepted of {n}"),
+    ));
+    checks.push((
+        "the next dock completes".into(),
+        docked,
+        format!("mated {mated}, home {home}"),
+    ));
+    rep.estop_episodes = Some(episodes);
+    rep.estop_edges_injected = Some(injected);
+    rep.estop_edges_latched = Some(logged);
+    rep.estop_faults_latched = Some(latched);
+    rep.clears_accepted = Some(accepted);
+    rep.clears_refused_while_open = Some(refused);
+    rep.docked_after_estops = Some(docked);
+    Ok(rep)
+}
+
+/// `maintenance-lockout`: the technician enters maintenance mode at the console; the
+/// PLC reads the mode (status bit 11, input register 10), asks to dock over Modbus (coil
+/// 0: exception 04) and with the DOCK pin for 2 s (nothing moves; READY, PD0, stays low
+/// throughout, on the pin's recorded edges); `maint exit`; the PLC docks over Modbus,
+/// undocks, home.
+fn maintenance_lockout(
+    s: &mut Session,
+    checks: &mut Vec<(String, bool, String)>,
+) -> Result<PlcReport, Halt> {
+    use crate::world::Signal;
+    use docking_controller::modbus::{ir, status};
+    let mut rep = PlcReport::default();
+    let deadline = s.now() + 10 * PS_PER_S;
+    let ready_at_boot = s.run_until(deadline, Session::home_and_ready)?;
+    let entered = s.maint_enter()?;
+    s.run_for(50 * PS_PER_MS)?;
+    let t_in = s.now();
+    let ready_after_entry = s.plc_out().ready;
+    let regs = s.read_inputs(0, ir::MAINTENANCE_MODE + 1)?;
+    let shown = regs.as_ref().is_some_and(|r| {
+        r[0] & status::MAINTENANCE_MODE != 0 && r[usize::from(ir::MAINTENANCE_MODE)] == 1
+    });
+    let dock_reply = s.coil(0)?;
+    let refused = dock_reply == Err(0x04);
+    // The DOCK pin, asserted for 2 s.
+    let pulses = |x: &Session| {
+        let t = x.machine().axis.step_timing();
+        t.pulses_pos + t.pulses_neg + t.pulses_disabled
+    };
+    let p0 = pulses(s);
+    s.set_dock(true);
+    s.run_for(2 * PS_PER_S)?;
+    s.set_dock(false);
+    s.run_for(200 * PS_PER_MS)?;
+    let t_out = s.now();
+    let pulses_meanwhile = pulses(s) - p0;
+    let edges = &s.board.soc().edges;
+    let in_window = |e: &&crate::soc::Edge| e.t_ps >= t_in && e.t_ps <= t_out;
+    let moved = pulses_meanwhile != 0
+        || edges.iter().filter(in_window).any(|e| match e.signal {
+            Signal::EnN => !e.high,
+            Signal::LockIn1 | Signal::LockIn2 => e.high,
+            _ => false,
+        });
+    let ready_rose = edges
+        .iter()
+        .filter(in_window)
+        .any(|e| e.signal == Signal::Ready && e.high);
+    let ready_low = ready_at_boot && !ready_after_entry && !ready_rose && !s.plc_out().ready;
+    let exited = s.maint_exit()?;
+    s.run_for(100 * PS_PER_MS)?;
+    let ready_back = s.plc_out().ready;
+    let regs_after = s.read_inputs(ir::MAINTENANCE_MODE, 1)?;
+    let accepted = s.coil(0)? == Ok(());
+    let deadline = s.now() + 60 * PS_PER_S;
+    let mated = s.run_until(deadline, |x| x.plc_out().mated)?;
+    let undock = s.coil(1)? == Ok(());
+    let deadline = s.now() + 60 * PS_PER_S;
+    let home = s.run_until(deadline, Session::home_and_ready)?;
+    let docked =
+        exited && ready_back && accepted && mated && undock && home && s.seen.cycles_completed == 1;
+    checks.push((
+        "maintenance mode entered at the console".into(),
+        entered,
+        String::new(),
+    ));
+    checks.push((
+        "READY (PD0) low throughout maintenance mode".into(),
+        ready_low,
+        format!("READY at boot {ready_at_boot}, after entry {ready_after_entry}, rose meanwhile {ready_rose}"),
+    ));
+    checks.push((
+        "status bit 11 and input register 10 show the mode".into(),
+        shown,
+        format!("{regs:?}"),
+    ));
+    checks.push((
+        "the Modbus dock (coil 0) refused with exception 04".into(),
+        refused,
+        format!("{dock_reply:?}"),
+    ));
+    checks.push((
+        "the DOCK pin ignored: nothing moved".into(),
+        !moved,
+        format!("{pulses_meanwhile} step pulses"),
+    ));
+    checks.push((
+        "after maint exit the PLC docks over Modbus".into(),
+        docked,
+        format!("exit {exited}, READY {ready_back}, register 10 {regs_after:?}, dock accepted {accepted}, mated {mated}, undock {undock}, home {home}, cycles {}", s.seen.cycles_completed),
+    ));
+    rep.ready_low_in_maintenance = Some(ready_low);
+    rep.maintenance_shown = Some(shown);
+    rep.modbus_dock_refused = Some(refused);
+    rep.dock_pin_ignored = Some(!moved);
+    rep.docked_after_maintenance = Some(docked);
+    Ok(rep)
+}
+
+/// `heavy-default` after its trip: the technician clears the fault at the console
+/// (maintenance mode, `clear-fault`, `maint exit`); the machine must go home, out of the
+/// cone, locked, driver off, within 60 s.
+fn clear_out_of_the_cone(
+    s: &mut Session,
+    checks: &mut Vec<(String, bool, String)>,
+) -> Result<bool, Halt> {
+    let entered = s.maint_enter()?;
+    let r = s.console("clear-fault", 2 * PS_PER_S)?;
+    let cleared = r.starts_with("ok");
+    let exited = s.maint_exit()?;
+    let deadline = s.now() + 60 * PS_PER_S;
+    let home = s.run_until(deadline, Session::home_and_ready)?;
+    let pos = s.machine().axis.pos_um();
+    let out = entered && cleared && exited && home && pos < s.engage_um as f64;
+    checks.push((
+        "out of the cone after a clear-fault".into(),
+        out,
+        format!(
+            "'{}'; carriage at {:.3} mm, home and READY {home}",
+            r.trim(),
+            pos / 1000.0
+        ),
+    ));
+    Ok(out)
 }
 
 /// Boot, make the firmware write a record (a latched fault writes a counter snapshot),

@@ -58,3 +58,61 @@ fn a_broken_estop_wire_at_power_on_is_a_stop_and_nothing_moves() {
     assert!(out.fault && !out.ready && !out.mated, "{out:?}");
     assert!(!s.machine().axis.enabled() && !s.machine().lock.driven());
 }
+
+#[test]
+fn estop_bounce_on_the_board_latches_every_edge_and_recovers() {
+    let r = run("estop-bounce", &opts()).expect("board runs");
+    assert!(r.passed(), "{}", r.to_text());
+    let p = r.scene.plc.clone().expect("PLC report");
+    let n = hil_sim::scene::ESTOP_BOUNCE.len() as u32;
+    assert_eq!(p.estop_episodes, Some(n), "{}", r.to_text());
+    assert_eq!(p.estop_faults_latched, Some(n), "{}", r.to_text());
+    assert_eq!(
+        p.estop_edges_latched,
+        p.estop_edges_injected,
+        "{}",
+        r.to_text()
+    );
+    assert_eq!(p.clears_accepted, Some(n), "{}", r.to_text());
+    assert_eq!(p.clears_refused_while_open, Some(3), "{}", r.to_text());
+    assert_eq!(p.docked_after_estops, Some(true), "{}", r.to_text());
+    assert!(
+        r.scene.faults.iter().all(|f| f.kind == "emergency_stop"),
+        "{}",
+        r.to_text()
+    );
+    // Pre-alignment, insertion and mated: the edges while something moved, each
+    // stopped within 10 µs on the pins.
+    assert!(r.estop_reactions_us.len() >= 3, "{}", r.to_text());
+    let worst = r.estop_off_max_us().unwrap();
+    assert!(
+        worst <= 10.0,
+        "E-STOP edge to EN high / lock off {worst} µs"
+    );
+    assert_eq!(r.reset_causes, vec!["power_on"]);
+}
+
+#[test]
+fn heavy_default_on_the_board_trips_once_backs_off_and_clears_out_of_the_cone() {
+    let r = run("heavy-default", &opts()).expect("board runs");
+    assert!(r.passed(), "{}", r.to_text());
+    let kinds: Vec<_> = r.scene.faults.iter().map(|f| f.kind).collect();
+    assert_eq!(kinds, ["overload"], "{}", r.to_text());
+    let back = r.scene.backed_off_um.expect("a trip");
+    assert!((1_900.0..=2_100.0).contains(&back), "backed off {back} µm");
+    assert!(r.scene.peak_force_n > 330.0, "the heavy machine's forces");
+    assert_eq!(r.scene.recovered_after_clear, Some(true), "{}", r.to_text());
+}
+
+#[test]
+fn maintenance_lockout_on_the_board_refuses_remote_motion_until_maint_exit() {
+    let r = run("maintenance-lockout", &opts()).expect("board runs");
+    assert!(r.passed(), "{}", r.to_text());
+    let p = r.scene.plc.clone().expect("PLC report");
+    assert_eq!(p.ready_low_in_maintenance, Some(true));
+    assert_eq!(p.maintenance_shown, Some(true));
+    assert_eq!(p.modbus_dock_refused, Some(true));
+    assert_eq!(p.dock_pin_ignored, Some(true));
+    assert_eq!(p.docked_after_maintenance, Some(true));
+    assert!(r.scene.faults.is_empty(), "{}", r.to_text());
+}
