@@ -5,18 +5,28 @@
 //! stops the propulsion itself, in the same call, on an overload, a pull or a sensor
 //! fault, and hands the judged sample on as a [`KernelEvent`]. [`Controller::step`]
 //! then runs once per event, and once a sample period without one (so that deadlines
-//! still run):
+//! still run), as its stages, each a function named for it:
 //!
-//! 1. the propulsion's emitted pulses are counted (position), the switches read and
-//!    filtered (a change counts when two steps agree);
-//! 2. the kernel's verdict is acted on: a stop it made becomes a latched fault (an
-//!    overload backs off under control), sensor faults too; the force feeds the wear
-//!    odometer and, at rest, the tare;
-//! 3. the contact phase is derived from the depth and cross-checked with the force;
-//! 4. the pure sequencer decides; its commands are applied to the drivers (the driver is
+//! 1. **sample** (`stage_sample`): the stops the event reports, the propulsion's emitted
+//!    pulses counted (position), the switches read and filtered (a change counts when two
+//!    steps agree), I/O faults;
+//! 2. **guard** (`stage_guard`): the kernel's verdict acted on: a stop it made becomes a
+//!    latched fault (an overload backs off under control), sensor faults too;
+//! 3. **odometer** (`stage_odometer`): the force feeds the wear odometer and, at rest,
+//!    the tare;
+//! 4. **phase** (`stage_phase`): the contact phase from the depth, cross-checked with the
+//!    force;
+//! 5. **PLC inputs** (`stage_plc`): DOCK's edges, E-STOP's edges and level, the hold
+//!    envelope;
+//! 6. **sequencer** (`stage_sequencer`): the request's gates, then the pure sequencer
+//!    decides;
+//! 7. **outputs** (`stage_outputs`): its commands applied to the drivers (the driver is
 //!    enabled again only once the controller has seen every stop the kernel made);
-//! 5. the kernel is told the limit for the next samples ([`Controller::kernel_config`]);
-//! 6. the watchdog is fed if the steps keep their period.
+//! 8. **watchdog** (`stage_watchdog`): fed if the steps keep their period.
+//!
+//! After the step the kernel is told the limit for the next samples
+//! ([`Controller::kernel_config`]) and the board writes the PLC outputs
+//! ([`Controller::handshake`]).
 //!
 //! On the board the kernel runs in the HX711's data-ready interrupt and the step in a
 //! lower-priority task (`src/board.rs`); on the host rig one after the other. The
@@ -443,6 +453,24 @@ pub struct Controller<B: Bsp> {
     /// [`Controller::wear_level`] as of `level_key` (cone id, cone cycles, readings).
     level: WearLevel,
     level_key: Option<(u16, u32, usize)>,
+}
+
+/// What one control step's stages hand on to the next ([`Controller::step`]).
+struct Step {
+    now_us: u64,
+    now_ms: u64,
+    /// The sequencer's state at the step's start.
+    state: State,
+    /// The kernel's judged sample, if this step has one.
+    sample: Option<crate::safety::Sample>,
+    /// Counted position, µm.
+    pos_um: i32,
+    /// The switches, debounced.
+    switches: Switches,
+    /// The fault this step detected (the first one wins).
+    fault: Option<FaultKind>,
+    /// The guard tripped (overload or tension) in this step.
+    tripped: bool,
 }
 
 /// Why a command ([`Controller::command`]) was refused.
@@ -1042,7 +1070,26 @@ impl<B: Bsp> Controller<B> {
     /// One control step at `now_us` for the kernel's event `ev` (`None`: a period passed
     /// without one).
     pub fn step(&mut self, now_us: u64, ev: Option<KernelEvent>) -> PollResult {
-        let period = self.period_us;
+        // The stages in order; each reads and writes its own part of the controller
+        // and hands on what the next needs in `st`.
+        let (mut st, dt_us) = self.stage_sample(now_us, ev);
+        self.stage_guard(&mut st);
+        self.stage_odometer(&st);
+        self.stage_phase(&st);
+        self.stage_plc(&mut st);
+        let out = self.stage_sequencer(&mut st);
+        self.stage_outputs(&st, &out);
+        self.stage_watchdog(dt_us);
+        PollResult {
+            stepped: true,
+            sampled: st.sample.is_some(),
+            tripped: st.tripped,
+        }
+    }
+
+    /// Stage 1, **sample**: the time, the stops the kernel's event reports, the counted
+    /// position, the switches (debounced) and the I/O faults.
+    fn stage_sample(&mut self, now_us: u64, ev: Option<KernelEvent>) -> (Step, u64) {
         let sample = match ev {
             Some(KernelEvent::Sample(s)) => Some(s),
             _ => None,
@@ -1052,18 +1099,9 @@ impl<B: Bsp> Controller<B> {
         }
         let dt_us = self
             .last_step_us
-            .map_or(period, |t| now_us.saturating_sub(t));
+            .map_or(self.period_us, |t| now_us.saturating_sub(t));
         self.last_step_us = Some(now_us);
-        let now_ms = now_us / 1000;
-        let mut result = PollResult {
-            stepped: true,
-            sampled: sample.is_some(),
-            tripped: false,
-        };
-
-        // 1. Position and switches.
         self.prop.sync();
-        let pos_um = self.prop.position_um();
         let mut fault = match ev {
             Some(KernelEvent::Io { .. }) => Some(FaultKind::Io),
             Some(KernelEvent::Silent { .. }) => Some(FaultKind::SensorDisconnected),
@@ -1086,46 +1124,57 @@ impl<B: Bsp> Controller<B> {
                 Switches::default()
             }
         };
-        let state = self.seq.state();
-        let depth_um = state
-            .in_compliant_motion()
-            .then(|| pos_um - self.cfg.machine.engage_um);
-        // 2. The kernel's verdict on the sample (it has stopped the propulsion already if
-        // it had to).
-        if let Some(smp) = sample {
-            let code = smp.code;
+        let st = Step {
+            now_us,
+            now_ms: now_us / 1000,
+            state: self.seq.state(),
+            sample,
+            pos_um: self.prop.position_um(),
+            switches,
+            fault,
+            tripped: false,
+        };
+        (st, dt_us)
+    }
+
+    /// Stage 2, **guard**: the kernel's verdict on the sample (it has stopped the
+    /// propulsion already if it had to) becomes the force, the limit, a trip, a
+    /// warning; any fault but an overload (which backs off under control) turns the
+    /// propulsion off now.
+    fn stage_guard(&mut self, st: &mut Step) {
+        if let Some(smp) = st.sample {
             self.force_mn = smp.force_mn;
             self.peak_force_mn = self.peak_force_mn.max(self.force_mn);
             if let Some(f) = self.faults.back_mut() {
-                if matches!(state, State::Faulted { .. } | State::BackingOff { .. }) {
+                if matches!(st.state, State::Faulted { .. } | State::BackingOff { .. }) {
                     f.peak_force_mn = f.peak_force_mn.max(self.force_mn);
                 }
             }
             if let Some(sf) = smp.sensor {
-                fault = fault.or(Some(sensor_fault(sf)));
+                st.fault = st.fault.or(Some(sensor_fault(sf)));
             }
             self.limit_mn = smp.limit_mn;
             match smp.verdict {
                 Verdict::Trip { .. } => {
-                    // The kernel stopped it at the sample; the propulsion driver learns it
+                    // The kernel stopped it at the st.sample; the propulsion driver learns it
                     // here, and the sequencer backs off under control.
                     let _ = self.prop.disable();
                     self.disabled_at_us = Some(smp.t_us);
-                    result.tripped = true;
+                    st.tripped = true;
                     self.overload_trips = self.overload_trips.saturating_add(1);
-                    if !matches!(state, State::BackingOff { .. }) {
+                    if !matches!(st.state, State::BackingOff { .. }) {
                         // The back-off's ceiling: the load may not rise past it.
                         self.trip_force_mn = self.force_mn;
                     }
                     self.odo.record_overload(self.force_mn);
                     self.persist_pending = true;
-                    fault = fault.or(Some(FaultKind::Overload));
+                    st.fault = st.fault.or(Some(FaultKind::Overload));
                 }
                 Verdict::Tension { .. } => {
                     let _ = self.prop.disable();
                     self.disabled_at_us = Some(smp.t_us);
-                    result.tripped = true;
-                    fault = fault.or(Some(FaultKind::Tension));
+                    st.tripped = true;
+                    st.fault = st.fault.or(Some(FaultKind::Tension));
                 }
                 Verdict::Warn => {
                     if !self.warning {
@@ -1133,43 +1182,61 @@ impl<B: Bsp> Controller<B> {
                             "force {} mN above the warning level (limit {} mN)",
                             self.force_mn, self.limit_mn
                         );
-                        self.push_event(now_ms, Event::ForceWarning(self.force_mn));
+                        self.push_event(st.now_ms, Event::ForceWarning(self.force_mn));
                     }
                     self.warning = true;
                 }
                 Verdict::Ok | Verdict::Suspect => self.warning = false,
             }
-            // Wear: load × sliding distance wherever the rod can touch the cone (by
-            // position, whatever the state: the sample at the cone mouth belongs to the
-            // stroke); outside it the chain is broken so sensor noise adds nothing.
-            self.odo.record_force(self.force_mn);
-            let cone_depth_um = pos_um - self.cfg.machine.engage_um;
-            if (-CONE_MARGIN_UM..=STROKE_UM + CONE_MARGIN_UM).contains(&cone_depth_um) {
-                self.odo.on_contact_sample(pos_um, self.force_mn);
-            } else {
-                self.odo.end_contact();
-            }
-            if matches!(state, State::Idle | State::Faulted { .. }) {
-                if self.recent_raw.is_full() {
-                    self.recent_raw.pop_front();
-                }
-                let _ = self.recent_raw.push_back(code);
-            } else {
-                self.recent_raw.clear();
-            }
         }
-        if fault.is_some_and(|f| f != FaultKind::Overload) && self.prop.is_enabled() {
+        if st.fault.is_some_and(|f| f != FaultKind::Overload) && self.prop.is_enabled() {
             let _ = self.prop.disable();
-            self.disabled_at_us = Some(now_us);
+            self.disabled_at_us = Some(st.now_us);
         }
+    }
 
-        // 3. Contact phase from the depth, cross-checked with the force near 3→4.
-        self.track_phase(now_ms, depth_um, sample.is_some());
+    /// Stage 3, **odometer**: the sample's load–distance where the rod can touch the
+    /// cone, and the zero-load samples for the tare at rest.
+    fn stage_odometer(&mut self, st: &Step) {
+        let Some(smp) = st.sample else { return };
+        // Wear: load × sliding distance wherever the rod can touch the cone (by
+        // position, whatever the state: the st.sample at the cone mouth belongs to the
+        // stroke); outside it the chain is broken so sensor noise adds nothing.
+        self.odo.record_force(self.force_mn);
+        let cone_depth_um = st.pos_um - self.cfg.machine.engage_um;
+        if (-CONE_MARGIN_UM..=STROKE_UM + CONE_MARGIN_UM).contains(&cone_depth_um) {
+            self.odo.on_contact_sample(st.pos_um, self.force_mn);
+        } else {
+            self.odo.end_contact();
+        }
+        if matches!(st.state, State::Idle | State::Faulted { .. }) {
+            if self.recent_raw.is_full() {
+                self.recent_raw.pop_front();
+            }
+            let _ = self.recent_raw.push_back(smp.code);
+        } else {
+            self.recent_raw.clear();
+        }
+    }
 
+    /// Stage 4, **phase**: the contact phase from the depth, cross-checked with the
+    /// force near the 3→4 jump.
+    fn stage_phase(&mut self, st: &Step) {
+        let depth_um = st
+            .state
+            .in_compliant_motion()
+            .then(|| st.pos_um - self.cfg.machine.engage_um);
+        self.track_phase(st.now_ms, depth_um, st.sample.is_some());
+    }
+
+    /// Stage 5, **PLC inputs**: DOCK's edges become requests (none in maintenance
+    /// mode), E-STOP edges and level latch the fault, and a mated force outside the
+    /// hold envelope latches `hold_force`.
+    fn stage_plc(&mut self, st: &mut Step) {
         // The PLC: DOCK counts once two steps read it alike, and acts at its edges.
         if self.dock_raw == self.dock_seen && self.dock_raw != self.dock {
             self.dock = self.dock_raw;
-            let r = match (self.dock, state) {
+            let r = match (self.dock, st.state) {
                 (true, State::PowerUp) => Some(Request::Home),
                 (true, _) => Some(Request::Dock),
                 (false, s) if s.is_docking() => Some(Request::Undock),
@@ -1179,7 +1246,7 @@ impl<B: Bsp> Controller<B> {
                 if self.maintenance_mode {
                     // Consumed, not deferred: after maintenance the PLC asks again.
                     warn!("DOCK {:?} ignored: maintenance mode", r);
-                    self.push_event(now_ms, Event::RemoteRefused(Refusal::MaintenanceMode));
+                    self.push_event(st.now_ms, Event::RemoteRefused(Refusal::MaintenanceMode));
                 } else {
                     self.queue(r);
                 }
@@ -1197,7 +1264,7 @@ impl<B: Bsp> Controller<B> {
             let open_us = (!self.estop_open).then(|| es.closed_us.wrapping_sub(es.opened_us));
             warn!("E-STOP: {} edge(s), open {:?} us", new_edges, open_us);
             self.push_event(
-                now_ms,
+                st.now_ms,
                 Event::EstopEdges {
                     edges: new_edges,
                     open_us,
@@ -1205,12 +1272,12 @@ impl<B: Bsp> Controller<B> {
             );
         }
         if (new_edges != 0 || self.estop_open)
-            && state
+            && st.state
                 != (State::Faulted {
                     fault: FaultKind::EmergencyStop,
                 })
         {
-            fault = fault.or(Some(FaultKind::EmergencyStop));
+            st.fault = st.fault.or(Some(FaultKind::EmergencyStop));
         }
         // Mated: the force must stay in the hold envelope.
         if let (
@@ -1218,7 +1285,7 @@ impl<B: Bsp> Controller<B> {
             State::Holding {
                 unmating: false, ..
             },
-        ) = (sample, state)
+        ) = (st.sample, st.state)
         {
             if (self.force_mn - self.cfg.hold_expected_mn).abs() > HOLD_TOLERANCE_MN {
                 self.hold_out = self.hold_out.saturating_add(1);
@@ -1230,20 +1297,23 @@ impl<B: Bsp> Controller<B> {
                     "mated force {} mN outside {}±{} mN: the vehicle pulls or drifts",
                     self.force_mn, self.cfg.hold_expected_mn, HOLD_TOLERANCE_MN
                 );
-                fault = fault.or(Some(FaultKind::HoldForce));
+                st.fault = st.fault.or(Some(FaultKind::HoldForce));
             }
-        } else if !matches!(state, State::Holding { .. }) {
+        } else if !matches!(st.state, State::Holding { .. }) {
             self.hold_out = 0;
         }
+    }
 
-        // 4. Sequencer.
+    /// Stage 6, **sequencer**: the pending request through its gates (E-STOP, wear
+    /// limit, calibration, tare), the faults of this step, the sequencer's decision.
+    fn stage_sequencer(&mut self, st: &mut Step) -> crate::sequencer::Outputs {
         let mut request = self.pending.take();
         let starting =
-            matches!(request, Some(Request::StartCycle | Request::Dock)) && state == State::Idle;
+            matches!(request, Some(Request::StartCycle | Request::Dock)) && st.state == State::Idle;
         if request == Some(Request::ClearFault) && self.estop_open {
             request = None;
             error!("clear refused: the E-STOP input is open");
-            self.push_event(now_ms, Event::EstopClearRefusal);
+            self.push_event(st.now_ms, Event::EstopClearRefusal);
         }
         if starting && self.estop_open {
             request = None;
@@ -1256,14 +1326,14 @@ impl<B: Bsp> Controller<B> {
                 self.odo.wear_nm(),
                 self.cfg.wear.limit_nm
             );
-            self.push_event(now_ms, Event::WearLimitRefusal);
+            self.push_event(st.now_ms, Event::WearLimitRefusal);
         }
         if starting && request.is_some() && !self.calibrated {
             request = None;
             error!(
                 "start refused: the load cell is not calibrated (calibrate tare, calibrate span)"
             );
-            self.push_event(now_ms, Event::UncalibratedRefusal);
+            self.push_event(st.now_ms, Event::UncalibratedRefusal);
         }
         if starting && request.is_some() {
             match self.take_tare() {
@@ -1271,37 +1341,41 @@ impl<B: Bsp> Controller<B> {
                 TareResult::NotYet => {
                     self.pending = request.take(); // wait for more zero-load samples
                 }
-                TareResult::Implausible => fault = fault.or(Some(FaultKind::ImplausibleTare)),
+                TareResult::Implausible => st.fault = st.fault.or(Some(FaultKind::ImplausibleTare)),
             }
         }
-        if request == Some(Request::ClearFault) && matches!(state, State::Faulted { .. }) {
-            // The kernel forgets its sample history and restarts its timeout.
+        if request == Some(Request::ClearFault) && matches!(st.state, State::Faulted { .. }) {
+            // The kernel forgets its st.sample history and restarts its timeout.
             self.clear_epoch = self.clear_epoch.wrapping_add(1);
             // The flash gets another STORAGE_ATTEMPTS tries.
             self.storage_blocked = false;
             self.storage_failures = 0;
             self.storage_fault_due = false;
-        } else if self.storage_fault_due && !matches!(state, State::Faulted { .. }) {
+        } else if self.storage_fault_due && !matches!(st.state, State::Faulted { .. }) {
             self.storage_fault_due = false;
-            fault = fault.or(Some(FaultKind::Storage));
+            st.fault = st.fault.or(Some(FaultKind::Storage));
         }
         if core::mem::take(&mut self.unseen_stop_due) {
-            fault = fault.or(Some(FaultKind::UnseenStop));
+            st.fault = st.fault.or(Some(FaultKind::UnseenStop));
         }
         let inputs = Inputs {
-            now_ms,
-            pos_um,
+            now_ms: st.now_ms,
+            pos_um: st.pos_um,
             axis_idle: self.prop.is_idle(),
-            switches,
-            fault,
+            switches: st.switches,
+            fault: st.fault,
             request,
         };
         let out = self.seq.step(&inputs);
         if let Some(ev) = out.event {
-            self.on_seq_event(now_ms, ev);
+            self.on_seq_event(st.now_ms, ev);
         }
+        out
+    }
 
-        // 5. Apply.
+    /// Stage 7, **outputs**: the sequencer's commands to the propulsion (through the
+    /// stop latch's gate) and the lock.
+    fn stage_outputs(&mut self, st: &Step, out: &crate::sequencer::Outputs) {
         if out.zero_position {
             self.prop.set_position_um(0);
         }
@@ -1330,7 +1404,7 @@ impl<B: Bsp> Controller<B> {
             }
             AxisCmd::Disabled => {
                 if self.prop.is_enabled() {
-                    self.disabled_at_us = Some(now_us);
+                    self.disabled_at_us = Some(st.now_us);
                 }
                 self.prop.disable().is_ok()
             }
@@ -1350,16 +1424,22 @@ impl<B: Bsp> Controller<B> {
             }
         };
         let lock_ok = self.lock.apply(out.lock).is_ok();
-        let plan_ok = self.prop.plan(period.min(u32::MAX as u64) as u32).is_ok();
+        let plan_ok = self
+            .prop
+            .plan(self.period_us.min(u32::MAX as u64) as u32)
+            .is_ok();
         if !(pin_ok && lock_ok && plan_ok) {
             // Could not drive an output: everything off; the next step latches `Io`.
             let _ = self.prop.disable();
             let _ = self.lock.apply(LockCmd::Off);
             self.pending = None;
         }
+    }
 
-        // 6. A loop that keeps its period feeds the watchdog; a stalled one does not.
-        if dt_us <= 3 * period {
+    /// Stage 8, **watchdog** (fed by a loop that keeps its period) and the wear level
+    /// the handshake reports.
+    fn stage_watchdog(&mut self, dt_us: u64) {
+        if dt_us <= 3 * self.period_us {
             self.wdg.feed();
         }
         // 7. The wear level the handshake reports, when what it depends on changed (the
@@ -1370,7 +1450,6 @@ impl<B: Bsp> Controller<B> {
             self.level_key = Some(key);
             self.level = self.wear_level();
         }
-        result
     }
 
     /// Switch debouncing: a switch's change counts once two consecutive steps read it,
