@@ -280,7 +280,9 @@ fn pieces<T: Copy>(items: &[T], split: impl Fn(&T, &T) -> bool) -> Vec<&[T]> {
 
 /// Force against insertion depth for a scene: the trace's samples as lines (insertion,
 /// extraction, other states), the phases shaded, `envelope` ((depth mm, limit N), from
-/// [`guard_envelope`]) and the hard limit, and the events as markers with labels.
+/// [`guard_envelope`]) and the hard limit, and the events as markers with labels. The
+/// rejected spikes' legend entry reads `spike_label` when given (the counts behind the
+/// markers), else the number of markers.
 pub fn force_vs_depth(
     path: &Path,
     title: &str,
@@ -288,6 +290,7 @@ pub fn force_vs_depth(
     events: &[TraceEvent],
     envelope: &[(f64, f64)],
     hard_limit_n: f64,
+    spike_label: Option<&str>,
 ) -> Result<(), PlotError> {
     let stroke_mm = STROKE_UM as f64 / 1000.0;
     let depths = trace
@@ -372,7 +375,10 @@ pub fn force_vs_depth(
                     .map(|e| Circle::new((e.depth_mm, e.force_n), 4, SPIKE.stroke_width(2))),
             )?;
             legend.add(
-                format!("rejected spike ({})", spikes.len()),
+                spike_label.map_or_else(
+                    || format!("rejected spike ({})", spikes.len()),
+                    str::to_string,
+                ),
                 Mark::Dot(SPIKE, false),
             );
         }
@@ -439,6 +445,24 @@ pub fn scene(
         "scene {}: force against insertion depth (cycle {}, {} SPS, seed {})",
         report.scene, trace.cycle, report.rate_sps, report.seed
     );
+    // The counts are the safety kernel's, as the report's `spikes_rejected`: the traced
+    // cycle's and the run's (a marker is drawn for those in the traced depths).
+    let drawn = trace
+        .events
+        .iter()
+        .filter(|e| e.kind == TraceEventKind::SpikeRejected)
+        .count() as u32;
+    let spike_label = format!(
+        "rejected spike ({}{} in cycle {}; {} in the run)",
+        if drawn == trace.spikes_rejected_in_cycle {
+            String::new()
+        } else {
+            format!("{drawn} drawn of ")
+        },
+        trace.spikes_rejected_in_cycle,
+        trace.cycle,
+        report.spikes_rejected
+    );
     force_vs_depth(
         path,
         &title,
@@ -446,6 +470,7 @@ pub fn scene(
         &trace.events,
         &guard_envelope_of(guard),
         guard.hard_limit_mn as f64 / 1000.0,
+        Some(&spike_label),
     )
 }
 

@@ -200,9 +200,11 @@ pub struct SceneReport {
     pub forward_after_trip_um: Option<f64>,
     /// Retreat after the trip, µm.
     pub backed_off_um: Option<f64>,
-    /// Spikes the guard rejected.
+    /// Spikes the guard rejected (the safety kernel's own count).
     pub spikes_rejected: u32,
-    /// Spikes injected.
+    /// Spikes delivered: scheduled spikes that went into a conversion the controller
+    /// read out ([`SpikeTally`]); a spike scheduled past the run's end, or in a
+    /// conversion nobody read, is not one.
     pub spikes_injected: u32,
     /// Control steps run.
     pub control_steps: u64,
@@ -685,6 +687,70 @@ pub struct TraceEvent {
     pub t_s: f64,
 }
 
+/// Counts the scheduled spikes ([`ForceScript::spikes_at`]: conversion numbers) that
+/// went into a conversion the controller read: each completed conversion is one call of
+/// the force source, in order, so the `k` conversions that completed since the last look
+/// are the newest `k` of [`SimHx711::recent_conversions`]; a spike's conversion counts
+/// once it is marked read, and is dropped if a newer one completed before it was.
+///
+/// [`ForceScript::spikes_at`]: crate::rig::ForceScript::spikes_at
+#[derive(Clone, Debug, Default)]
+pub struct SpikeTally {
+    at: Vec<u64>,
+    conversions_seen: u64,
+    /// Completion times of spiked conversions not read yet, ns.
+    pending: Vec<u64>,
+    /// Spikes delivered in a conversion that was read.
+    pub delivered: u32,
+}
+
+impl SpikeTally {
+    /// For the spikes scheduled in `dev`'s script; conversions before now are not looked
+    /// at.
+    pub fn new(dev: Devices<'_>, conversions: u64) -> Self {
+        Self {
+            at: dev.script.borrow().spikes_at.clone(),
+            conversions_seen: conversions,
+            ..Self::default()
+        }
+    }
+
+    /// Whether [`SpikeTally::observe`] has anything to do with `conversions` completed.
+    pub fn due(&self, conversions: u64) -> bool {
+        !self.at.is_empty() && (conversions > self.conversions_seen || !self.pending.is_empty())
+    }
+
+    /// Look after the devices ran: the HX711's `recent` conversions (time ns, code,
+    /// read), oldest first, and `conversions` completed so far (the force source's count,
+    /// read after `recent`: asking for the recent conversions completes those due).
+    pub fn observe(&mut self, conversions: u64, recent: &[(u64, i32, bool)]) {
+        let new = conversions.saturating_sub(self.conversions_seen);
+        if new > 0 {
+            let k = (new as usize).min(recent.len());
+            let first = conversions - k as u64;
+            for (i, c) in recent[recent.len() - k..].iter().enumerate() {
+                if self.at.binary_search(&(first + i as u64)).is_ok() {
+                    self.pending.push(c.0);
+                }
+            }
+            self.conversions_seen = conversions;
+        }
+        let newest = recent.last().map(|c| c.0);
+        let mut delivered = 0;
+        self.pending
+            .retain(|&t| match recent.iter().find(|c| c.0 == t) {
+                Some(c) if c.2 => {
+                    delivered += 1;
+                    false
+                }
+                // Unread, and a newer conversion replaced it (or it left the window).
+                Some(_) => Some(t) == newest,
+                None => false,
+            });
+        self.delivered += delivered;
+    }
+}
+
 /// A scene's force trace (for `--plot`): the samples taken within 2 mm of the cone or
 /// deeper in the scene's last cycle (the one with the disturbance), and the events.
 /// Samples are kept when the stroke changes, the carriage has moved or the force has
@@ -698,6 +764,11 @@ pub struct SceneTrace {
     pub samples: Vec<TraceSample>,
     /// Events in time order.
     pub events: Vec<TraceEvent>,
+    /// Spikes the safety kernel rejected during the traced cycle (its own count, as
+    /// the report's `spikes_rejected`; the markers are those in the traced depths).
+    pub spikes_rejected_in_cycle: u32,
+    /// Spikes the kernel rejected in the whole run (the report's `spikes_rejected`).
+    pub spikes_rejected_total: u32,
 }
 
 /// Depth from which samples are traced, µm (a little before the cone).
@@ -765,6 +836,10 @@ impl TraceRecorder {
                 self.over_since = None;
             }
             let spikes = rig.kernel.spikes_rejected();
+            if in_cycle {
+                self.trace.spikes_rejected_in_cycle += spikes.saturating_sub(self.spikes_seen);
+            }
+            self.trace.spikes_rejected_total = spikes;
             if spikes > self.spikes_seen && in_cycle {
                 if let Some(p) = self
                     .prev
@@ -843,7 +918,8 @@ fn run_inner(
         ..RigOptions::new(opts.rate_sps)
     });
     let cycles = opts.cycles.max(1);
-    let spikes_injected = driver.setup(rig.devices(), opts.seed, opts.rate_sps, cycles);
+    driver.setup(rig.devices(), opts.seed, opts.rate_sps, cycles);
+    let mut spikes = SpikeTally::new(rig.devices(), rig.conversions.get());
 
     let mut insertion_phases: Vec<Vec<u8>> = Vec::new();
     let mut faults = Vec::new();
@@ -867,6 +943,11 @@ fn run_inner(
         }
         let now = rig.clock.now_ns();
         let st = rig.ctrl.status();
+        if spikes.due(rig.conversions.get()) {
+            // The recent conversions first: reading them completes any that are due.
+            let recent = rig.hx.recent_conversions();
+            spikes.observe(rig.conversions.get(), &recent);
+        }
 
         // First over-limit sample of an episode, by the controller's own limit.
         if r.sampled {
@@ -971,7 +1052,7 @@ fn run_inner(
         forward_after_trip_um: tripped.then_some(max_after.max(0.0)),
         backed_off_um: tripped.then_some((-min_after).max(0.0).min(BACK_OFF_UM as f64 + 100.0)),
         spikes_rejected: rig.kernel.spikes_rejected(),
-        spikes_injected,
+        spikes_injected: spikes.delivered,
         control_steps: steps,
         sim_time_s: rig.clock.now_s(),
         wall_time_s: started.elapsed().as_secs_f64(),
@@ -1367,6 +1448,12 @@ impl SceneReport {
                 1.0 / self.rate_sps as f64
             );
         }
+        if self.spikes_injected > 0 || self.spikes_rejected > 0 {
+            s += &format!(
+                "  spikes: {} delivered in samples the controller read, {} rejected by the guard\n",
+                self.spikes_injected, self.spikes_rejected
+            );
+        }
         if let Some(p) = &self.plc {
             s += &format!("  plc: {}\n", p.to_json());
         }
@@ -1375,5 +1462,33 @@ impl SceneReport {
             self.motors_disabled, self.control_steps, self.sim_time_s, self.wall_time_s
         );
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A tally over spikes at conversions 2 and 5, fed conversions as an HX711 would
+    /// report them (time ns = 10 × number).
+    #[test]
+    fn only_spikes_in_conversions_read_are_delivered() {
+        let mut t = SpikeTally {
+            at: vec![2, 5, 9],
+            ..SpikeTally::default()
+        };
+        let conv = |n: u64, read: bool| (10 * n, 0, read);
+        // Conversions 0–2 complete; 2 (a spike) is not read yet.
+        t.observe(3, &[conv(0, true), conv(1, true), conv(2, false)]);
+        assert_eq!(t.delivered, 0);
+        // Now it is read.
+        t.observe(3, &[conv(0, true), conv(1, true), conv(2, true)]);
+        assert_eq!(t.delivered, 1);
+        // 3–6 complete together; 5 (a spike) was never read, 6 replaced it.
+        let recent: Vec<_> = (0..7).map(|n| conv(n, n != 5)).collect();
+        t.observe(7, &recent);
+        assert_eq!(t.delivered, 1, "a spike in a conversion nobody read");
+        // 9 is scheduled past the end of the run: never delivered.
+        assert!(!t.due(7));
     }
 }

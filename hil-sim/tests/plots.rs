@@ -247,3 +247,54 @@ fn the_drawn_envelope_is_the_guards_limit_at_every_depth() {
         assert_eq!(level_at(x), Some(limit), "at {x} mm");
     }
 }
+
+/// Defect (issue 17, item 4): `spikes_injected` counted every scheduled spike (155),
+/// `spikes_rejected` the kernel's count (115), and the plot's legend the markers of the
+/// traced cycle (104): three numbers for one thing. Now the JSON, the text and the
+/// legend give the kernel's count, the legend the traced cycle's too, and a spike is
+/// counted as injected only once the controller read the conversion it was in.
+#[test]
+fn spike_counts_agree_in_json_text_and_plot() {
+    let d = dir("spike-counts");
+    let args = ["scene", "spike", "--cycles", "3", "--seed", "2"];
+    let (code, json, _) = run(&[&args[..], &["--json"]].concat());
+    assert_eq!(code, 0);
+    let field = |k: &str| -> u64 {
+        let at = json.find(&format!("\"{k}\":")).expect(k) + k.len() + 3;
+        let end = json[at..].find([',', '}']).unwrap() + at;
+        json[at..end].parse().unwrap()
+    };
+    let (injected, rejected) = (field("spikes_injected"), field("spikes_rejected"));
+    assert!(rejected > 50, "{json}");
+    assert!(
+        rejected <= injected,
+        "a rejected spike was delivered: {json}"
+    );
+    // Scheduled over the horizon (3 × 75 s at 80 SPS, one about every 41 samples:
+    // ≈ 440), far more than the run's conversions could carry.
+    assert!(injected < 400, "only spikes in conversions read: {json}");
+    let (text, svg) = plot(&d, "s.svg", &args);
+    assert!(
+        text.contains(&format!(
+            "spikes: {injected} delivered in samples the controller read, {rejected} rejected"
+        )),
+        "{text}"
+    );
+    let label = svg
+        .split("rejected spike (")
+        .nth(1)
+        .and_then(|r| r.split(')').next())
+        .expect("the legend's spike entry");
+    assert!(
+        label.ends_with(&format!("; {rejected} in the run")),
+        "legend '{label}' vs JSON {rejected}"
+    );
+    let in_cycle: u64 = label
+        .split(" in cycle 3")
+        .next()
+        .and_then(|p| p.rsplit(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("the traced cycle's count in '{label}'"));
+    assert!(in_cycle > 0 && in_cycle <= rejected, "{label}");
+    let _ = std::fs::remove_dir_all(&d);
+}

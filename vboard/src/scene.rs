@@ -37,8 +37,8 @@ use std::time::Instant;
 use hil_sim::flash::{SharedFlash, SimFlash};
 use hil_sim::rig::{Machine, RigOptions};
 use hil_sim::scene::{
-    num, EstopDisturbance, FaultSeen, PlcReport, Progress, SceneDriver, SceneReport, Stage,
-    BOUNCE_GAP_US, BOUNCE_OPEN_MS, BOUNCE_RELEASE_US, DOCK_HOLD_S, ESTOP_BOUNCE,
+    num, EstopDisturbance, FaultSeen, PlcReport, Progress, SceneDriver, SceneReport, SpikeTally,
+    Stage, BOUNCE_GAP_US, BOUNCE_OPEN_MS, BOUNCE_RELEASE_US, DOCK_HOLD_S, ESTOP_BOUNCE,
     ESTOP_BOUNCE_DEPTH_UM, FLOOD_PIECES, PLC_SCENES,
 };
 
@@ -1236,14 +1236,16 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
     } else {
         None
     };
-    let spikes_injected = driver.as_ref().map_or(0, |d| {
+    if let Some(d) = driver.as_ref() {
         d.setup(
             s.machine().devices(),
             opts.session.seed,
             opts.session.rate_sps,
             cycles,
-        )
-    });
+        );
+    }
+    // Spikes count as injected once the firmware read the conversion they were in.
+    let mut spikes = SpikeTally::new(s.machine().devices(), s.machine().conversions.get());
     let mut trip: Option<(u64, f64)> = None;
     let mut stop_latency_pins_us = None;
     let (mut max_after, mut min_after) = (f64::MIN, f64::MAX);
@@ -1335,6 +1337,11 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
                 mb_flood.tick(&mut s, &mut flood_rng);
             }
             s.run_for(PS_PER_MS).map_err(|e| e.to_string())?;
+            if spikes.due(s.machine().conversions.get()) {
+                // The recent conversions first: reading them completes any that are due.
+                let recent = s.machine().hx.recent_conversions();
+                spikes.observe(s.machine().conversions.get(), &recent);
+            }
             let p = s.progress();
             if let Some(d) = driver.as_mut() {
                 d.on_progress(s.machine().devices(), &p);
@@ -1443,7 +1450,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         forward_after_trip_um: trip.map(|_| max_after.max(0.0)),
         backed_off_um: trip.map(|_| (-min_after).max(0.0)),
         spikes_rejected: 0,
-        spikes_injected,
+        spikes_injected: spikes.delivered,
         control_steps: hx.samples_read,
         sim_time_s: sim_s,
         wall_time_s: wall,
