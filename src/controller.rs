@@ -221,7 +221,7 @@ pub enum Event {
     UncalibratedRefusal,
     /// A fault clear refused: the E-STOP input is open.
     EstopClearRefusal,
-    /// A DOCK pin request ignored (maintenance mode).
+    /// A DOCK pin request refused (why: the same reasons as a command's).
     RemoteRefused(Refusal),
     /// E-STOP edges the control step had not seen (each stopped the machine in its
     /// interrupt): how many, and how long the input was open if it has closed again
@@ -1242,13 +1242,13 @@ impl<B: Bsp> Controller<B> {
                 (false, s) if s.is_docking() => Some(Request::Undock),
                 (false, _) => None,
             };
+            // Through the same gate as the console's and Modbus's commands. A refused
+            // edge is consumed, not deferred: the PLC asks again (after maintenance,
+            // once READY).
             if let Some(r) = r {
-                if self.maintenance_mode {
-                    // Consumed, not deferred: after maintenance the PLC asks again.
-                    warn!("DOCK {:?} ignored: maintenance mode", r);
-                    self.push_event(st.now_ms, Event::RemoteRefused(Refusal::MaintenanceMode));
-                } else {
-                    self.queue(r);
+                if let Err(why) = self.command_from(Source::Plc, r) {
+                    warn!("DOCK {:?} refused: {}", r, why);
+                    self.push_event(st.now_ms, Event::RemoteRefused(why));
                 }
             }
         }
