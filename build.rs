@@ -18,8 +18,13 @@ fn main() {
     let tuning = out_dir.join("tuning.rs");
     match env::var_os("DOCKING_TUNING") {
         Some(path) => {
-            println!("cargo:rerun-if-changed={}", PathBuf::from(&path).display());
-            fs::copy(&path, &tuning).expect("DOCKING_TUNING names a readable file");
+            let shown = PathBuf::from(&path).display().to_string();
+            println!("cargo:rerun-if-changed={shown}");
+            if let Err(e) = fs::copy(&path, &tuning) {
+                // One line naming the file, not a panic's backtrace.
+                println!("cargo::error=DOCKING_TUNING={shown}: {e}");
+                return;
+            }
         }
         None => fs::write(
             &tuning,
