@@ -1247,7 +1247,7 @@ impl<B: Bsp> Controller<B> {
             // once READY).
             if let Some(r) = r {
                 if let Err(why) = self.command_from(Source::Plc, r) {
-                    warn!("DOCK {:?} refused: {}", r, why);
+                    warn!("DOCK {:?} refused ({})", r, why);
                     self.push_event(st.now_ms, Event::RemoteRefused(why));
                 }
             }

@@ -190,7 +190,12 @@ fn an_uncalibrated_load_cell_docked() {
     assert!(logged(&s, "load cell not calibrated"), "{:?}", s.board.log);
     s.press_dock();
     s.run_for(3 * PS_PER_S).unwrap();
-    assert!(logged(&s, "start refused: the load cell is not calibrated"));
+    // The DOCK edge goes through the command gate: refused, with the reason logged.
+    assert!(
+        logged(&s, "DOCK Dock refused (Uncalibrated)"),
+        "{:?}",
+        s.board.log
+    );
     let m = s.machine();
     let st = m.axis.step_timing();
     assert_eq!(st.pulses_pos + st.pulses_neg, 0, "no step pulse");
