@@ -416,6 +416,12 @@ fn audit_record_waits_for_rest_while_the_axis_is_held() {
         "not written while the axis is driven"
     );
     assert_eq!(r.ctrl.records_queued(), 1);
+    let f = json(&r.command("faults --json", 1));
+    assert_eq!(
+        (f["records_queued"].as_u64(), f["records_dropped"].as_u64()),
+        (Some(1), Some(0)),
+        "{f}"
+    );
     assert!(host_tests::run_until(&mut r, 8_000, |r| r.ctrl.state() == State::Idle));
     r.tick();
     assert_eq!(r.ctrl.records_queued(), 0);

@@ -907,6 +907,8 @@ impl Console {
         let recs: heapless::Vec<crate::controller::FaultRecord, 16> =
             ctrl.faults().copied().collect();
         let resets = ctrl.reset_counts();
+        // Records waiting for a rest to be written, and those the full queue dropped.
+        let (queued, dropped) = (ctrl.records_queued(), ctrl.records_dropped());
         let crash = ctrl.last_crash();
         if json {
             self.reply_json(|j| {
@@ -915,7 +917,9 @@ impl Console {
                     None => j.null("active")?,
                 };
                 j.u64("count_since_boot", count as u64)?
-                    .u64("overload_events_lifetime", overloads as u64)?;
+                    .u64("overload_events_lifetime", overloads as u64)?
+                    .u64("records_queued", queued as u64)?
+                    .u64("records_dropped", dropped as u64)?;
                 j.object("resets", |r| {
                     for c in crate::diag::ResetCause::ALL {
                         r.u64(c.name(), resets.of(c) as u64)?;
@@ -959,7 +963,7 @@ impl Console {
             self.reply(|o| {
                 write!(
                     o,
-                    "active={} count_since_boot={count} overload_events_lifetime={overloads}\r\n",
+                    "active={} count_since_boot={count} overload_events_lifetime={overloads} records_queued={queued} records_dropped={dropped}\r\n",
                     active.unwrap_or("none")
                 )?;
                 for f in &recs {
