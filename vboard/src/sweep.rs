@@ -13,8 +13,12 @@
 //! | `stop_latency_pins_us` | DOUT falling → EN high, overload | ≤ 100 µs |
 //! | `estop_off_max_us` | E-STOP edge → EN high and the lock off on the pins, while anything moves | ≤ 10 µs |
 //!
-//! A run whose own checks fail, whose board took a core fault or a watchdog reset, or
-//! that could not run at all, also misses its targets.
+//! A run whose own checks fail, that latched more than one overload, whose board took a
+//! core fault or a watchdog reset, or that could not run at all, also misses its
+//! targets.
+//!
+//! The sweep: `vboard sweep --flood` (`overload` and `estop`, seeds 1 to 10,
+//! CPI 1, 2, 3 and the ART cache model at CPI 1).
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
