@@ -80,13 +80,17 @@
 //! (1–2000 bits, 1–125 registers read; 1–1968 coils, 1–123 registers written), a byte
 //! count that does not match, a frame of the wrong length for its function, a coil value
 //! other than 0x0000/0xFF00, an unknown command code, more than one command at once, an
-//! unknown read device id code; **04** (SERVER DEVICE FAILURE) a command the controller
-//! does not accept in its present state. The checks run in the spec's order: function,
-//! quantity, address, value, then the action.
+//! unknown read device id code; **01** (ILLEGAL FUNCTION) also for a command the
+//! controller does not accept in its present state — the Modbus Application Protocol's
+//! definition of 01 includes a server "in the wrong state to process a request of this
+//! type" — with the reason in input register 9. The checks run in the spec's order:
+//! function, quantity, address, value, then the action.
 //!
-//! 0x04 rather than 0x06 (SERVER DEVICE BUSY) for a refused command: some masters retry
-//! BUSY by themselves, and a dock retried until the machine is READY again would start a
-//! motion nobody asked for at that moment. The PLC reads the status word to learn why.
+//! Not 04 (SERVER DEVICE FAILURE): a dock refused because the machine is not READY is
+//! not a failed device, and masters report 04 as one (a PLC may mark the node dead). Not
+//! 06 (SERVER DEVICE BUSY): some masters retry BUSY by themselves, and a dock retried
+//! until the machine is READY again would start a motion nobody asked for at that
+//! moment. The PLC reads input register 9 (or the status word) to learn why.
 //!
 //! ## Register map
 //!
@@ -160,7 +164,7 @@
 //!
 //! **Coils** (0x01 / 0x05 / 0x0F), momentary commands, read back 0:
 //!
-//! | addr | command | accepted when (else exception 04) |
+//! | addr | command | accepted when (else exception 01, the reason in input register 9) |
 //! |---|---|---|
 //! | 0 | dock (and hold until undock) | READY: idle, homed and locked, calibrated, cone not worn out, E-STOP closed |
 //! | 1 | undock | a docking under way or mated |
@@ -242,13 +246,15 @@ pub fn crc16(bytes: &[u8]) -> u16 {
 
 /// Exception codes.
 pub mod exception {
-    /// The function (or MEI type) is not supported.
+    /// The function (or MEI type) is not supported, **or** the command is one the
+    /// controller does not accept in its present state (the specification's "server in
+    /// the wrong state"; the reason is in input register 9).
     pub const ILLEGAL_FUNCTION: u8 = 0x01;
     /// An address (range) outside the map, or not writable.
     pub const ILLEGAL_DATA_ADDRESS: u8 = 0x02;
     /// A quantity, byte count, length or value that is not allowed.
     pub const ILLEGAL_DATA_VALUE: u8 = 0x03;
-    /// The controller does not accept the command in its present state.
+    /// Not used: a refused command is not a failed device (see [`ILLEGAL_FUNCTION`]).
     pub const SERVER_DEVICE_FAILURE: u8 = 0x04;
 }
 
@@ -1122,7 +1128,7 @@ fn run_commands<B: Bsp>(
         }
     };
     if result.is_err() {
-        Err(ErrorKind::SlaveDeviceFailure)
+        Err(ErrorKind::IllegalFunction)
     } else if mask != 1u8 << cmd.coil() {
         Err(ErrorKind::IllegalDataValue) // a stop with other commands: only the stop ran
     } else {

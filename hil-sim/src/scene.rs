@@ -17,7 +17,7 @@
 //! | `estop` | docked by DOCK; E-STOP opens at 10 mm insertion depth | `emergency_stop`, motors and lock off; a clear is refused while E-STOP is open, accepted once closed (recovery home) |
 //! | `estop-bounce` | E-STOP open pulses of 50 µs to 5 ms and releases with contact bounce ([`ESTOP_BOUNCE`]), at idle, in pre-alignment, in the insertion and mated | every episode latches `emergency_stop` with every edge accounted for, motors and lock off; the clear (the PLC's, over Modbus) is refused while the input is open and accepted once it is closed; after the last one the next dock completes |
 //! | `heavy-default` | the 18 kg machine (µ2 0.1) on the default configuration, one test cycle | one `overload`, the back-off done (2 mm), and out of the cone (home) after a clear-fault |
-//! | `maintenance-lockout` | a technician enters maintenance mode at the console (`pin set`, `maint <pin>`); the PLC asks to dock over Modbus (coil 0) and with the DOCK pin; then `maint exit` | READY low, status bit 11 and input register 10 show the mode, the Modbus dock is exception 04, the pin is ignored and nothing moves; after `maint exit` the PLC docks |
+//! | `maintenance-lockout` | a technician enters maintenance mode at the console (`pin set`, `maint <pin>`); the PLC asks to dock over Modbus (coil 0) and with the DOCK pin; then `maint exit` | READY low, status bit 11 and input register 10 show the mode, the Modbus dock is exception 01 (the wrong state), the pin is ignored and nothing moves; after `maint exit` the PLC docks |
 //!
 //! `dock-hold`, `vehicle-pull`, `estop`, `estop-bounce` and `maintenance-lockout` are
 //! driven by the PLC's lines (DOCK asserted when READY, released to undock) and its
@@ -263,7 +263,7 @@ pub struct PlcReport {
     pub ready_low_in_maintenance: Option<bool>,
     /// `maintenance-lockout`: status bit 11 and input register 10 showed the mode.
     pub maintenance_shown: Option<bool>,
-    /// `maintenance-lockout`: the Modbus dock (coil 0) was refused with exception 04.
+    /// `maintenance-lockout`: the Modbus dock (coil 0) was refused with exception 01 (the wrong state).
     pub modbus_dock_refused: Option<bool>,
     /// `maintenance-lockout`: the DOCK pin was ignored (nothing moved).
     pub dock_pin_ignored: Option<bool>,
@@ -1250,7 +1250,7 @@ fn estop_bounce(
             EstopDisturbance::BouncingRelease => {
                 x.rig.estop_line.set(true);
                 x.run_ms(BOUNCE_OPEN_MS);
-                if x.coil(2) == Err(0x04) {
+                if x.coil(2) == Err(0x01) {
                     inc(&mut rep.clears_refused_while_open, 1);
                 }
                 x.rig.estop_line.set(false);
@@ -1327,7 +1327,7 @@ fn maintenance_lockout(
         word(0).is_some_and(|w| w & status::MAINTENANCE_MODE != 0)
             && word(usize::from(ir::MAINTENANCE_MODE)) == Some(1),
     );
-    rep.modbus_dock_refused = Some(x.coil(0) == Err(0x04));
+    rep.modbus_dock_refused = Some(x.coil(0) == Err(0x01));
     // The DOCK pin, asserted for 2 s.
     x.rig.dock_line.set(false);
     let end = x.rig.clock.now_ns() + 2_000_000_000;

@@ -379,14 +379,14 @@ fn a_plc_docks_and_undocks_over_modbus_rtu_and_the_cycle_counts() {
         s & status::DOCKING != 0 && s & status::READY == 0,
         "{s:#06x}"
     );
-    // A second dock is refused: exception 04, "not idle".
+    // A second dock is refused: exception 01 (the wrong state), "not idle" in input register 9.
     let mut mreq = ModbusRequest::new(UNIT, ModbusProto::Rtu);
     let mut req = Vec::new();
     mreq.generate_set_coil(0, true, &mut req).unwrap();
     let reply = plc.transact(&req, |b| b.len() >= 8);
     assert_eq!(
         mreq.parse_ok(&reply),
-        Err(ErrorKind::SlaveDeviceFailure),
+        Err(ErrorKind::IllegalFunction),
         "{reply:02X?}"
     );
     assert_eq!(plc.inputs(ir::LAST_COMMAND, 2), [1, 2]);

@@ -711,7 +711,7 @@ fn dock_when_ready_leaves_idle_and_undock_brings_it_back() {
     assert!(run_until(&mut r, 50, |r| r.ctrl.state() != State::Idle));
     assert!(r.ctrl.state().is_docking(), "{:?}", r.ctrl.state());
     // Dock again while docking: refused (not idle).
-    assert_eq!(coil(&mut r, Command::Dock, true), Err(4));
+    assert_eq!(coil(&mut r, Command::Dock, true), Err(1));
     assert!(run_until(&mut r, 3_000, |r| matches!(
         r.ctrl.state(),
         State::Inserting { .. }
@@ -725,7 +725,7 @@ fn dock_when_ready_leaves_idle_and_undock_brings_it_back() {
         "an aborted insertion counts"
     );
     // Nothing to undock now.
-    assert_eq!(coil(&mut r, Command::Undock, true), Err(4));
+    assert_eq!(coil(&mut r, Command::Undock, true), Err(1));
 }
 
 #[test]
@@ -750,8 +750,8 @@ fn dock_when_not_ready_is_exception_4() {
     let mut r = rig_with(opts);
     assert_eq!(r.ctrl.state(), State::Idle);
     assert!(!r.ctrl.handshake().ready);
-    assert_eq!(coil(&mut r, Command::Dock, true), Err(4));
-    assert_eq!(call(&mut r, &pdu(0x06, 0, 1)), Err(4));
+    assert_eq!(coil(&mut r, Command::Dock, true), Err(1));
+    assert_eq!(call(&mut r, &pdu(0x06, 0, 1)), Err(1));
     assert_eq!(
         read_inputs(&mut r, 0, 1).unwrap()[0] & status::CALIBRATED,
         0
@@ -768,14 +768,14 @@ fn dock_when_not_ready_is_exception_4() {
         r.ctrl.state(),
         State::Faulted { .. }
     )));
-    assert_eq!(coil(&mut r, Command::Dock, true), Err(4));
+    assert_eq!(coil(&mut r, Command::Dock, true), Err(1));
 
     // E-STOP open at rest.
     let mut r = rig();
     r.estop_line.set(true);
     r.tick();
     r.tick();
-    assert_eq!(coil(&mut r, Command::Dock, true), Err(4));
+    assert_eq!(coil(&mut r, Command::Dock, true), Err(1));
     assert_ne!(
         read_inputs(&mut r, 0, 1).unwrap()[0] & status::ESTOP_OPEN,
         0
@@ -785,7 +785,7 @@ fn dock_when_not_ready_is_exception_4() {
 #[test]
 fn stop_and_clear_fault_paths() {
     let mut r = rig();
-    assert_eq!(coil(&mut r, Command::ClearFault, true), Err(4), "no fault");
+    assert_eq!(coil(&mut r, Command::ClearFault, true), Err(1), "no fault");
     // Stop while docking; then the clear recovers to home.
     coil(&mut r, Command::Dock, true).unwrap();
     assert!(run_until(&mut r, 3_000, |r| matches!(
@@ -799,12 +799,12 @@ fn stop_and_clear_fault_paths() {
         }));
     // A stop when stopped already is answered normally (never refused).
     coil(&mut r, Command::Stop, true).unwrap();
-    assert_eq!(coil(&mut r, Command::Undock, true), Err(4));
+    assert_eq!(coil(&mut r, Command::Undock, true), Err(1));
     // E-STOP open: the clear is refused.
     r.estop_line.set(true);
     r.tick();
     r.tick();
-    assert_eq!(coil(&mut r, Command::ClearFault, true), Err(4));
+    assert_eq!(coil(&mut r, Command::ClearFault, true), Err(1));
     r.estop_line.set(false);
     r.tick();
     r.tick();
@@ -863,7 +863,7 @@ fn home_only_after_a_reset() {
     assert_eq!(read_inputs(&mut r, ir::STATE, 1).unwrap(), [0]);
     coil(&mut r, Command::Home, true).unwrap();
     assert!(run_until(&mut r, 100, |r| r.ctrl.state() == State::Idle));
-    assert_eq!(coil(&mut r, Command::Home, true), Err(4), "homed already");
+    assert_eq!(coil(&mut r, Command::Home, true), Err(1), "homed already");
 }
 
 // ---------------------------------------------------------------------------------
@@ -900,7 +900,11 @@ fn server_answers_over_the_line_and_counts() {
         &frame(UNIT, &pdu(0x05, 2, 0xFF00)),
     )
     .unwrap();
-    assert_eq!(e[1..3], [0x85, 4], "no fault to clear");
+    assert_eq!(
+        e[1..3],
+        [0x85, 1],
+        "no fault to clear: exception 01, the wrong state"
+    );
     assert_eq!(srv.last_command(), (Command::ClearFault.code(), 7));
     let regs = transact(&mut r, &mut srv, &mut t, &frame(UNIT, &pdu(0x04, 8, 2))).unwrap();
     assert_eq!(regs[3..7], [0, 3, 0, 7], "clear fault: no fault (7)");
@@ -1354,9 +1358,12 @@ fn corpus_frames_keep_invariants() {
         assert_eq!(over_line, expect, "{}", path.display());
     }
     assert!(
-        total.replies >= 60 && total.silent >= 30 && total.exceptions[1..].iter().all(|&n| n >= 6),
+        total.replies >= 60 && total.silent >= 30 && total.exceptions[1..4].iter().all(|&n| n >= 6),
         "{total:?}"
     );
+    // A refused command is exception 01 (the wrong state), never 04: the device has not
+    // failed (issue 18).
+    assert_eq!(total.exceptions[4], 0, "{total:?}");
 }
 
 /// Defect (issue 17, item 7): a Modbus dock or the DOCK pin moved the machine while a
@@ -1374,7 +1381,7 @@ fn maintenance_mode_locks_out_plc_motion() {
     assert_eq!(regs[0] & status::MAINTENANCE, 0, "bit 5 keeps its meaning");
     assert_eq!(regs[usize::from(ir::MAINTENANCE_MODE)], 1);
     // Modbus dock: refused, with the reason in input register 9.
-    assert_eq!(coil(&mut r, Command::Dock, true), Err(0x04));
+    assert_eq!(coil(&mut r, Command::Dock, true), Err(0x01));
     assert_eq!(
         r.ctrl
             .command_from(docking_controller::controller::Source::Plc, Request::Dock),

@@ -1712,7 +1712,7 @@ fn estop_bounce(
             EstopDisturbance::BouncingRelease => {
                 s.set_estop(true);
                 s.run_for(BOUNCE_OPEN_MS * PS_PER_MS)?;
-                if s.coil(2)? == Err(0x04) {
+                if s.coil(2)? == Err(0x01) {
                     refused += 1;
                 }
                 s.set_estop(false);
@@ -1797,7 +1797,7 @@ fn estop_bounce(
 
 /// `maintenance-lockout`: the technician enters maintenance mode at the console; the
 /// PLC reads the mode (status bit 11, input register 10), asks to dock over Modbus (coil
-/// 0: exception 04) and with the DOCK pin for 2 s (nothing moves; READY, PD0, stays low
+/// 0: exception 01, the wrong state) and with the DOCK pin for 2 s (nothing moves; READY, PD0, stays low
 /// throughout, on the pin's recorded edges); `maint exit`; the PLC docks over Modbus,
 /// undocks, home.
 fn maintenance_lockout(
@@ -1818,7 +1818,7 @@ fn maintenance_lockout(
         r[0] & status::MAINTENANCE_MODE != 0 && r[usize::from(ir::MAINTENANCE_MODE)] == 1
     });
     let dock_reply = s.coil(0)?;
-    let refused = dock_reply == Err(0x04);
+    let refused = dock_reply == Err(0x01);
     // The DOCK pin, asserted for 2 s.
     let pulses = |x: &Session| {
         let t = x.machine().axis.step_timing();
@@ -1872,7 +1872,7 @@ fn maintenance_lockout(
         format!("{regs:?}"),
     ));
     checks.push((
-        "the Modbus dock (coil 0) refused with exception 04".into(),
+        "the Modbus dock (coil 0) refused with exception 01 (the wrong state)".into(),
         refused,
         format!("{dock_reply:?}"),
     ));

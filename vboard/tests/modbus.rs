@@ -115,13 +115,13 @@ fn the_plc_docks_and_undocks_through_the_map_and_the_reply_waits_t3_5() {
         .run_until(t, |x| x.at_rest() && x.plc_out().ready)
         .unwrap());
     assert_eq!(read_inputs(&mut s, ir::LIFETIME_CYCLES, 2), [0, 1]);
-    // A dock refused (E-STOP open): exception 04, never silence.
+    // A dock refused (E-STOP open): exception 01 (the wrong state), never silence.
     s.set_estop(true);
     s.run_for(100 * PS_PER_MS).unwrap();
     let r = s
         .modbus(&rtu(1, &[0x05, 0, 0, 0xFF, 0x00]), PS_PER_S)
         .unwrap();
-    assert_eq!(&r[..3], &[1, 0x85, 0x04], "{r:02x?}");
+    assert_eq!(&r[..3], &[1, 0x85, 0x01], "{r:02x?}");
     assert_eq!(s.board.soc().modbus_de_losses, 0);
 }
 
