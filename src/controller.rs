@@ -357,8 +357,6 @@ pub struct Controller<B: Bsp> {
     locked: B::Locked,
     released: B::Released,
     stop: B::Stop,
-    /// The highest stop number the controller has seen (re-arm only up to it).
-    seen_stop: u32,
     wdg: B::Wdg,
     options: B::Options,
     seq: Sequencer,
@@ -366,36 +364,99 @@ pub struct Controller<B: Bsp> {
     period_us: u64,
     /// Bumped when a fault is cleared: the kernel forgets its history.
     clear_epoch: u32,
-    /// A technician's calibration is in flash: without one the machine does not dock.
-    calibrated: bool,
     /// Switch debouncing: the raw reading of the last step and the accepted state.
     switch_raw: Switches,
     switches: Switches,
-    cal: Calibration,
-    /// Raw codes of the last samples taken at rest (Idle or Faulted): the per-cycle tare
-    /// and the technician's calibration both average them.
-    recent_raw: Deque<i32, TARE_SAMPLES>,
-    /// The calibration as set by a technician (the tare moves `cal.offset` per cycle).
-    base_cal: Calibration,
-    phase: Option<ContactPhase>,
-    mismatch_reported: bool,
-    mismatch_run: u8,
+    last_step_us: Option<u64>,
+    pending: Option<Request>,
+    odo: Odometer,
+    /// The current cone's micrometer readings (not its baseline), oldest first.
+    readings: heapless::Vec<Measurement, { odometer::READINGS_KEPT }>,
+    /// The wear estimate's fit to them.
+    fit: Fit,
+    /// [`Controller::wear_level`] as of `level_key` (cone id, cone cycles, readings).
+    level: WearLevel,
+    level_key: Option<(u16, u32, usize)>,
+    /// Stage 2, guard: the force, the limit and what the kernel's verdicts left.
+    guard: GuardState,
+    /// The load cell's calibration and tare (stage 3 keeps its zero-load samples).
+    cell: CellState,
+    /// Stage 4, phase: the contact phase and its cross-check with the force.
+    contact: ContactState,
+    /// Stage 5, PLC inputs: DOCK's filter, E-STOP's edges and level, the hold envelope, maintenance mode.
+    plc: PlcState,
+    /// Stages 1 and 7: the stops seen and the stop latch's gate.
+    gate: GateState,
+    /// The odometer flash: the log, what waits for a rest, the storage faults (written by `background` only at rest).
+    store: StoreState<B::Flash>,
+    /// What the console and the log report: faults, events, resets, crashes, the stack.
+    diag: DiagState,
+}
+
+/// Stage 2, guard: the force, the limit and what the kernel's verdicts left.
+struct GuardState {
     force_mn: i32,
     /// The force at the overload trip that started the back-off, mN.
     trip_force_mn: i32,
     limit_mn: i32,
     warning: bool,
     peak_force_mn: i32,
-    last_step_us: Option<u64>,
-    pending: Option<Request>,
-    faults: Deque<FaultRecord, FAULTS_KEPT>,
-    fault_count: u32,
     overload_trips: u32,
-    events: Deque<Timed, EVENT_QUEUE>,
-    events_dropped: u32,
     disabled_at_us: Option<u64>,
-    odo: Odometer,
-    log: Option<RecordLog<B::Flash>>,
+}
+
+/// The load cell's calibration and tare (stage 3 keeps its zero-load samples).
+struct CellState {
+    /// A technician's calibration is in flash: without one the machine does not dock.
+    calibrated: bool,
+    cal: Calibration,
+    /// The calibration as set by a technician (the tare moves `cal.offset` per cycle).
+    base_cal: Calibration,
+    /// Raw codes of the last samples taken at rest (Idle or Faulted): the per-cycle tare
+    /// and the technician's calibration both average them.
+    recent_raw: Deque<i32, TARE_SAMPLES>,
+}
+
+/// Stage 4, phase: the contact phase and its cross-check with the force.
+struct ContactState {
+    phase: Option<ContactPhase>,
+    mismatch_reported: bool,
+    mismatch_run: u8,
+}
+
+/// Stage 5, PLC inputs: DOCK's filter, E-STOP's edges and level, the hold envelope, maintenance mode.
+struct PlcState {
+    /// DOCK input: last raw reading, filtered level.
+    dock_raw: bool,
+    dock_seen: bool,
+    dock: bool,
+    /// E-STOP input open.
+    estop_open: bool,
+    /// A technician's maintenance mode at the console: remote motion locked out.
+    maintenance_mode: bool,
+    /// The E-STOP interrupt's record as last read, and how many of its edges the
+    /// control step has consumed.
+    estop_events: EstopEvents,
+    estop_edges_seen: u32,
+    /// Consecutive samples outside the hold envelope while mated.
+    hold_out: u8,
+    /// The PLC inputs were read once since the reset.
+    plc_read: bool,
+}
+
+/// Stages 1 and 7: the stops seen and the stop latch's gate.
+struct GateState {
+    /// The highest stop number the controller has seen (re-arm only up to it).
+    seen_stop: u32,
+    /// Consecutive steps the stop latch refused to re-arm with motion commanded.
+    gate_refused: u8,
+    /// An unaccounted stop waits for the sequencer (raised at the next step).
+    unseen_stop_due: bool,
+}
+
+/// The odometer flash: the log, what waits for a rest, the storage faults (written by `background` only at rest).
+struct StoreState<F: NorFlash> {
+    log: Option<RecordLog<F>>,
     open_report: OpenReport,
     /// A counter snapshot waits for a moment with every motor off.
     persist_pending: bool,
@@ -416,6 +477,12 @@ pub struct Controller<B: Bsp> {
     storage_blocked: bool,
     /// A storage fault waits for the sequencer (raised at the next step it can latch).
     storage_fault_due: bool,
+    /// The newest completed cycles as recorded in flash, oldest first.
+    recent_cycles: Deque<HistoryEntry, HISTORY_KEPT>,
+}
+
+/// What the console and the log report: faults, events, resets, crashes, the stack.
+struct DiagState {
     /// Resets by cause since commissioning (from flash).
     resets: ResetCounts,
     /// This boot's reset cause (`None` until the board reports it).
@@ -424,35 +491,10 @@ pub struct Controller<B: Bsp> {
     last_crash: Option<Crash>,
     /// Deepest stack use seen (bytes) and the stack's size, as the board measures it.
     stack: Option<(u32, u32)>,
-    /// The newest completed cycles as recorded in flash, oldest first.
-    recent_cycles: Deque<HistoryEntry, HISTORY_KEPT>,
-    /// The current cone's micrometer readings (not its baseline), oldest first.
-    readings: heapless::Vec<Measurement, { odometer::READINGS_KEPT }>,
-    /// The wear estimate's fit to them.
-    fit: Fit,
-    /// DOCK input: last raw reading, filtered level.
-    dock_raw: bool,
-    dock_seen: bool,
-    dock: bool,
-    /// E-STOP input open.
-    estop_open: bool,
-    /// A technician's maintenance mode at the console: remote motion locked out.
-    maintenance_mode: bool,
-    /// The E-STOP interrupt's record as last read, and how many of its edges the
-    /// control step has consumed.
-    estop_events: EstopEvents,
-    estop_edges_seen: u32,
-    /// Consecutive steps the stop latch refused to re-arm with motion commanded.
-    gate_refused: u8,
-    /// An unaccounted stop waits for the sequencer (raised at the next step).
-    unseen_stop_due: bool,
-    /// Consecutive samples outside the hold envelope while mated.
-    hold_out: u8,
-    /// The PLC inputs were read once since the reset.
-    plc_read: bool,
-    /// [`Controller::wear_level`] as of `level_key` (cone id, cone cycles, readings).
-    level: WearLevel,
-    level_key: Option<(u16, u32, usize)>,
+    faults: Deque<FaultRecord, FAULTS_KEPT>,
+    fault_count: u32,
+    events: Deque<Timed, EVENT_QUEUE>,
+    events_dropped: u32,
 }
 
 /// What one control step's stages hand on to the next ([`Controller::step`]).
@@ -775,66 +817,80 @@ impl<B: Bsp> Controller<B> {
             locked: parts.locked,
             released: parts.released,
             stop: parts.stop,
-            seen_stop: 0,
             wdg: parts.wdg,
             options: parts.options,
             seq: Sequencer::new(cfg.machine),
             period_us: 1_000_000 / cfg.sample_rate_sps.max(1) as u64,
             clear_epoch: 0,
-            calibrated,
             switch_raw: Switches::default(),
             switches: Switches::default(),
-            cal: cal0,
-            recent_raw: Deque::new(),
-            base_cal: cal0,
-            phase: None,
-            mismatch_reported: false,
-            mismatch_run: 0,
-            force_mn: 0,
-            trip_force_mn: 0,
-            limit_mn: cfg.guard.hard_limit_mn,
-            warning: false,
-            peak_force_mn: 0,
             last_step_us: None,
             pending: None,
-            faults: Deque::new(),
-            fault_count: 0,
-            overload_trips: 0,
-            events: Deque::new(),
-            events_dropped: 0,
-            disabled_at_us: None,
             odo,
-            log,
-            open_report,
-            persist_pending: false,
-            persist_cycle_end: false,
-            storage_errors: 0,
-            record_queue: Deque::new(),
-            records_dropped: 0,
-            bus_busy: false,
-            storage_failures: 0,
-            storage_blocked: false,
-            storage_fault_due: false,
-            resets,
-            last_reset: None,
-            last_crash,
-            stack: None,
             readings: heapless::Vec::new(),
-            recent_cycles: Deque::new(),
             fit: Fit::prior(),
-            dock_raw: false,
-            dock_seen: false,
-            dock: false,
-            estop_open: false,
-            maintenance_mode: false,
-            estop_events: EstopEvents::default(),
-            estop_edges_seen: 0,
-            gate_refused: 0,
-            unseen_stop_due: false,
-            hold_out: 0,
-            plc_read: false,
             level: WearLevel::Ok,
             level_key: None,
+            guard: GuardState {
+                force_mn: 0,
+                trip_force_mn: 0,
+                limit_mn: cfg.guard.hard_limit_mn,
+                warning: false,
+                peak_force_mn: 0,
+                overload_trips: 0,
+                disabled_at_us: None,
+            },
+            cell: CellState {
+                calibrated,
+                cal: cal0,
+                base_cal: cal0,
+                recent_raw: Deque::new(),
+            },
+            contact: ContactState {
+                phase: None,
+                mismatch_reported: false,
+                mismatch_run: 0,
+            },
+            plc: PlcState {
+                dock_raw: false,
+                dock_seen: false,
+                dock: false,
+                estop_open: false,
+                maintenance_mode: false,
+                estop_events: EstopEvents::default(),
+                estop_edges_seen: 0,
+                hold_out: 0,
+                plc_read: false,
+            },
+            gate: GateState {
+                seen_stop: 0,
+                gate_refused: 0,
+                unseen_stop_due: false,
+            },
+            store: StoreState {
+                log,
+                open_report,
+                persist_pending: false,
+                persist_cycle_end: false,
+                storage_errors: 0,
+                record_queue: Deque::new(),
+                records_dropped: 0,
+                bus_busy: false,
+                storage_failures: 0,
+                storage_blocked: false,
+                storage_fault_due: false,
+                recent_cycles: Deque::new(),
+            },
+            diag: DiagState {
+                resets,
+                last_reset: None,
+                last_crash,
+                stack: None,
+                faults: Deque::new(),
+                fault_count: 0,
+                events: Deque::new(),
+                events_dropped: 0,
+            },
         };
         me.load_readings();
         me.load_history();
@@ -862,9 +918,9 @@ impl<B: Bsp> Controller<B> {
 
     fn write_cone_record(&mut self) {
         let bytes = odometer::cone_to_bytes(self.odo.cone());
-        if let Some(l) = self.log.as_mut() {
+        if let Some(l) = self.store.log.as_mut() {
             if l.append(odometer::kind::CONE, &bytes).is_err() {
-                self.storage_errors = self.storage_errors.saturating_add(1);
+                self.store.storage_errors = self.store.storage_errors.saturating_add(1);
                 error!("odometer: cone record not written");
             }
         }
@@ -877,23 +933,24 @@ impl<B: Bsp> Controller<B> {
     /// rig after each step.
     pub fn background(&mut self) {
         if self.at_rest() {
-            while let Some(r) = self.record_queue.front() {
+            while let Some(r) = self.store.record_queue.front() {
                 let ok = self
+                    .store
                     .log
                     .as_mut()
                     .is_some_and(|l| l.append(r.kind, &r.data).is_ok());
                 if !ok {
-                    self.storage_errors = self.storage_errors.saturating_add(1);
+                    self.store.storage_errors = self.store.storage_errors.saturating_add(1);
                     error!("odometer: a queued record was not written");
                 }
-                self.record_queue.pop_front();
+                self.store.record_queue.pop_front();
             }
             // A cycle that ended in a fault (or a recovery that touched the cone) left
             // load–distance no completed cycle will count: it is the cone's now.
             let w = self.odo.fold_pending();
             if w > 0 {
                 info!("odometer: {} mN·µm of an unfinished cycle counted", w / 2);
-                self.persist_pending = true;
+                self.store.persist_pending = true;
             }
             self.persist();
         }
@@ -904,24 +961,26 @@ impl<B: Bsp> Controller<B> {
     /// storage fault is raised and nothing more is tried until it is cleared (a retry at
     /// every step would fill a sector with torn slots in seconds).
     fn persist(&mut self) {
-        if self.storage_blocked {
+        if self.store.storage_blocked {
             return;
         }
-        let Some(l) = self.log.as_mut() else { return };
+        let Some(l) = self.store.log.as_mut() else {
+            return;
+        };
         let mut failed = false;
-        if self.persist_pending {
-            let st = StateRecord::of(&self.odo, self.persist_cycle_end);
+        if self.store.persist_pending {
+            let st = StateRecord::of(&self.odo, self.store.persist_cycle_end);
             let rec = st.to_bytes();
             match l.append(odometer::kind::STATE, &rec) {
                 Ok(_) => {
                     if st.cycle_end {
-                        if self.recent_cycles.is_full() {
-                            self.recent_cycles.pop_front();
+                        if self.store.recent_cycles.is_full() {
+                            self.store.recent_cycles.pop_front();
                         }
-                        let _ = self.recent_cycles.push_back(HistoryEntry::of(&st));
+                        let _ = self.store.recent_cycles.push_back(HistoryEntry::of(&st));
                     }
-                    self.persist_pending = false;
-                    self.persist_cycle_end = false;
+                    self.store.persist_pending = false;
+                    self.store.persist_cycle_end = false;
                 }
                 Err(_) => {
                     // Kept pending (the counters stay in RAM and in the RAM journal).
@@ -930,25 +989,26 @@ impl<B: Bsp> Controller<B> {
                 }
             }
         }
-        if !self.persist_pending && !failed && l.needs_maintenance() && l.maintain().is_err() {
+        if !self.store.persist_pending && !failed && l.needs_maintenance() && l.maintain().is_err()
+        {
             failed = true;
             error!("odometer: sector pre-erase failed");
         }
         if !failed {
-            if !self.persist_pending {
-                self.storage_failures = 0;
+            if !self.store.persist_pending {
+                self.store.storage_failures = 0;
             }
             return;
         }
-        self.storage_errors = self.storage_errors.saturating_add(1);
-        self.storage_failures = self.storage_failures.saturating_add(1);
-        if self.storage_failures >= STORAGE_ATTEMPTS {
+        self.store.storage_errors = self.store.storage_errors.saturating_add(1);
+        self.store.storage_failures = self.store.storage_failures.saturating_add(1);
+        if self.store.storage_failures >= STORAGE_ATTEMPTS {
             error!(
                 "odometer: flash failed {} times in a row; storage fault",
-                self.storage_failures
+                self.store.storage_failures
             );
-            self.storage_blocked = true;
-            self.storage_fault_due = true;
+            self.store.storage_blocked = true;
+            self.store.storage_fault_due = true;
         }
     }
 
@@ -957,8 +1017,8 @@ impl<B: Bsp> Controller<B> {
     /// `journals` (the RAM journals the last run left that survived) what the flash
     /// snapshot does not hold yet.
     pub fn boot(&mut self, cause: ResetCause, crash: Option<Crash>, journals: &[Journal]) {
-        self.resets.count(cause);
-        self.last_reset = Some(cause);
+        self.diag.resets.count(cause);
+        self.diag.last_reset = Some(cause);
         info!("reset cause: {}", cause.name());
         if let Some(c) = crash {
             error!(
@@ -969,7 +1029,7 @@ impl<B: Bsp> Controller<B> {
                 c.cfsr,
                 c.line
             );
-            self.last_crash = Some(c);
+            self.diag.last_crash = Some(c);
         }
         let before = self.odo.journal();
         let w: u64 = journals.iter().map(|j| self.odo.recover(j)).sum();
@@ -980,18 +1040,18 @@ impl<B: Bsp> Controller<B> {
                     w / 2,
                     self.odo.cone().cycles.saturating_sub(before.cone_cycles)
                 );
-                self.persist_pending = true;
+                self.store.persist_pending = true;
             }
         }
-        if let Some(l) = self.log.as_mut() {
+        if let Some(l) = self.store.log.as_mut() {
             let mut ok = l
-                .append(odometer::kind::RESETS, &self.resets.to_bytes())
+                .append(odometer::kind::RESETS, &self.diag.resets.to_bytes())
                 .is_ok();
             if let Some(c) = crash {
                 ok &= l.append(odometer::kind::CRASH, &c.to_bytes()).is_ok();
             }
             if !ok {
-                self.storage_errors = self.storage_errors.saturating_add(1);
+                self.store.storage_errors = self.store.storage_errors.saturating_add(1);
             }
         }
     }
@@ -1004,27 +1064,27 @@ impl<B: Bsp> Controller<B> {
 
     /// The board's measurement of the stack: deepest use and size, bytes.
     pub fn set_stack_usage(&mut self, used: u32, size: u32) {
-        self.stack = Some((used, size));
+        self.diag.stack = Some((used, size));
     }
 
     /// Resets by cause since commissioning.
     pub fn reset_counts(&self) -> ResetCounts {
-        self.resets
+        self.diag.resets
     }
 
     /// This boot's reset cause.
     pub fn last_reset(&self) -> Option<ResetCause> {
-        self.last_reset
+        self.diag.last_reset
     }
 
     /// The last crash on record.
     pub fn last_crash(&self) -> Option<Crash> {
-        self.last_crash
+        self.diag.last_crash
     }
 
     /// Deepest stack use and the stack's size, bytes (`None` off the board).
     pub fn stack_usage(&self) -> Option<(u32, u32)> {
-        self.stack
+        self.diag.stack
     }
 
     /// Ask for something; acted on in the next control step.
@@ -1095,7 +1155,7 @@ impl<B: Bsp> Controller<B> {
             _ => None,
         };
         if let Some(n) = ev.and_then(|e| e.stop()) {
-            self.seen_stop = self.seen_stop.max(n);
+            self.gate.seen_stop = self.gate.seen_stop.max(n);
         }
         let dt_us = self
             .last_step_us
@@ -1143,55 +1203,55 @@ impl<B: Bsp> Controller<B> {
     /// propulsion off now.
     fn stage_guard(&mut self, st: &mut Step) {
         if let Some(smp) = st.sample {
-            self.force_mn = smp.force_mn;
-            self.peak_force_mn = self.peak_force_mn.max(self.force_mn);
-            if let Some(f) = self.faults.back_mut() {
+            self.guard.force_mn = smp.force_mn;
+            self.guard.peak_force_mn = self.guard.peak_force_mn.max(self.guard.force_mn);
+            if let Some(f) = self.diag.faults.back_mut() {
                 if matches!(st.state, State::Faulted { .. } | State::BackingOff { .. }) {
-                    f.peak_force_mn = f.peak_force_mn.max(self.force_mn);
+                    f.peak_force_mn = f.peak_force_mn.max(self.guard.force_mn);
                 }
             }
             if let Some(sf) = smp.sensor {
                 st.fault = st.fault.or(Some(sensor_fault(sf)));
             }
-            self.limit_mn = smp.limit_mn;
+            self.guard.limit_mn = smp.limit_mn;
             match smp.verdict {
                 Verdict::Trip { .. } => {
                     // The kernel stopped it at the st.sample; the propulsion driver learns it
                     // here, and the sequencer backs off under control.
                     let _ = self.prop.disable();
-                    self.disabled_at_us = Some(smp.t_us);
+                    self.guard.disabled_at_us = Some(smp.t_us);
                     st.tripped = true;
-                    self.overload_trips = self.overload_trips.saturating_add(1);
+                    self.guard.overload_trips = self.guard.overload_trips.saturating_add(1);
                     if !matches!(st.state, State::BackingOff { .. }) {
                         // The back-off's ceiling: the load may not rise past it.
-                        self.trip_force_mn = self.force_mn;
+                        self.guard.trip_force_mn = self.guard.force_mn;
                     }
-                    self.odo.record_overload(self.force_mn);
-                    self.persist_pending = true;
+                    self.odo.record_overload(self.guard.force_mn);
+                    self.store.persist_pending = true;
                     st.fault = st.fault.or(Some(FaultKind::Overload));
                 }
                 Verdict::Tension { .. } => {
                     let _ = self.prop.disable();
-                    self.disabled_at_us = Some(smp.t_us);
+                    self.guard.disabled_at_us = Some(smp.t_us);
                     st.tripped = true;
                     st.fault = st.fault.or(Some(FaultKind::Tension));
                 }
                 Verdict::Warn => {
-                    if !self.warning {
+                    if !self.guard.warning {
                         warn!(
                             "force {} mN above the warning level (limit {} mN)",
-                            self.force_mn, self.limit_mn
+                            self.guard.force_mn, self.guard.limit_mn
                         );
-                        self.push_event(st.now_ms, Event::ForceWarning(self.force_mn));
+                        self.push_event(st.now_ms, Event::ForceWarning(self.guard.force_mn));
                     }
-                    self.warning = true;
+                    self.guard.warning = true;
                 }
-                Verdict::Ok | Verdict::Suspect => self.warning = false,
+                Verdict::Ok | Verdict::Suspect => self.guard.warning = false,
             }
         }
         if st.fault.is_some_and(|f| f != FaultKind::Overload) && self.prop.is_enabled() {
             let _ = self.prop.disable();
-            self.disabled_at_us = Some(st.now_us);
+            self.guard.disabled_at_us = Some(st.now_us);
         }
     }
 
@@ -1202,20 +1262,20 @@ impl<B: Bsp> Controller<B> {
         // Wear: load × sliding distance wherever the rod can touch the cone (by
         // position, whatever the state: the st.sample at the cone mouth belongs to the
         // stroke); outside it the chain is broken so sensor noise adds nothing.
-        self.odo.record_force(self.force_mn);
+        self.odo.record_force(self.guard.force_mn);
         let cone_depth_um = st.pos_um - self.cfg.machine.engage_um;
         if (-CONE_MARGIN_UM..=STROKE_UM + CONE_MARGIN_UM).contains(&cone_depth_um) {
-            self.odo.on_contact_sample(st.pos_um, self.force_mn);
+            self.odo.on_contact_sample(st.pos_um, self.guard.force_mn);
         } else {
             self.odo.end_contact();
         }
         if matches!(st.state, State::Idle | State::Faulted { .. }) {
-            if self.recent_raw.is_full() {
-                self.recent_raw.pop_front();
+            if self.cell.recent_raw.is_full() {
+                self.cell.recent_raw.pop_front();
             }
-            let _ = self.recent_raw.push_back(smp.code);
+            let _ = self.cell.recent_raw.push_back(smp.code);
         } else {
-            self.recent_raw.clear();
+            self.cell.recent_raw.clear();
         }
     }
 
@@ -1234,9 +1294,9 @@ impl<B: Bsp> Controller<B> {
     /// hold envelope latches `hold_force`.
     fn stage_plc(&mut self, st: &mut Step) {
         // The PLC: DOCK counts once two steps read it alike, and acts at its edges.
-        if self.dock_raw == self.dock_seen && self.dock_raw != self.dock {
-            self.dock = self.dock_raw;
-            let r = match (self.dock, st.state) {
+        if self.plc.dock_raw == self.plc.dock_seen && self.plc.dock_raw != self.plc.dock {
+            self.plc.dock = self.plc.dock_raw;
+            let r = match (self.plc.dock, st.state) {
                 (true, State::PowerUp) => Some(Request::Home),
                 (true, _) => Some(Request::Dock),
                 (false, s) if s.is_docking() => Some(Request::Undock),
@@ -1252,16 +1312,16 @@ impl<B: Bsp> Controller<B> {
                 }
             }
         }
-        self.dock_seen = self.dock_raw;
+        self.plc.dock_seen = self.plc.dock_raw;
         // E-STOP: every edge its interrupt counted (each one stopped the machine
         // there) latches the fault, however short the pulse; so does the input open.
-        let es = self.estop_events;
-        let new_edges = es.edges.wrapping_sub(self.estop_edges_seen);
+        let es = self.plc.estop_events;
+        let new_edges = es.edges.wrapping_sub(self.plc.estop_edges_seen);
         if new_edges != 0 {
-            self.estop_edges_seen = es.edges;
+            self.plc.estop_edges_seen = es.edges;
             // Its stops are accounted for by the fault latched here.
-            self.seen_stop = self.seen_stop.max(es.stop);
-            let open_us = (!self.estop_open).then(|| es.closed_us.wrapping_sub(es.opened_us));
+            self.gate.seen_stop = self.gate.seen_stop.max(es.stop);
+            let open_us = (!self.plc.estop_open).then(|| es.closed_us.wrapping_sub(es.opened_us));
             warn!("E-STOP: {} edge(s), open {:?} us", new_edges, open_us);
             self.push_event(
                 st.now_ms,
@@ -1271,7 +1331,7 @@ impl<B: Bsp> Controller<B> {
                 },
             );
         }
-        if (new_edges != 0 || self.estop_open)
+        if (new_edges != 0 || self.plc.estop_open)
             && st.state
                 != (State::Faulted {
                     fault: FaultKind::EmergencyStop,
@@ -1287,20 +1347,20 @@ impl<B: Bsp> Controller<B> {
             },
         ) = (st.sample, st.state)
         {
-            if (self.force_mn - self.cfg.hold_expected_mn).abs() > HOLD_TOLERANCE_MN {
-                self.hold_out = self.hold_out.saturating_add(1);
+            if (self.guard.force_mn - self.cfg.hold_expected_mn).abs() > HOLD_TOLERANCE_MN {
+                self.plc.hold_out = self.plc.hold_out.saturating_add(1);
             } else {
-                self.hold_out = 0;
+                self.plc.hold_out = 0;
             }
-            if self.hold_out >= 2 {
+            if self.plc.hold_out >= 2 {
                 warn!(
                     "mated force {} mN outside {}±{} mN: the vehicle pulls or drifts",
-                    self.force_mn, self.cfg.hold_expected_mn, HOLD_TOLERANCE_MN
+                    self.guard.force_mn, self.cfg.hold_expected_mn, HOLD_TOLERANCE_MN
                 );
                 st.fault = st.fault.or(Some(FaultKind::HoldForce));
             }
         } else if !matches!(st.state, State::Holding { .. }) {
-            self.hold_out = 0;
+            self.plc.hold_out = 0;
         }
     }
 
@@ -1310,12 +1370,12 @@ impl<B: Bsp> Controller<B> {
         let mut request = self.pending.take();
         let starting =
             matches!(request, Some(Request::StartCycle | Request::Dock)) && st.state == State::Idle;
-        if request == Some(Request::ClearFault) && self.estop_open {
+        if request == Some(Request::ClearFault) && self.plc.estop_open {
             request = None;
             error!("clear refused: the E-STOP input is open");
             self.push_event(st.now_ms, Event::EstopClearRefusal);
         }
-        if starting && self.estop_open {
+        if starting && self.plc.estop_open {
             request = None;
         }
         if starting && request.is_some() && self.wear_level() == WearLevel::Limit {
@@ -1328,7 +1388,7 @@ impl<B: Bsp> Controller<B> {
             );
             self.push_event(st.now_ms, Event::WearLimitRefusal);
         }
-        if starting && request.is_some() && !self.calibrated {
+        if starting && request.is_some() && !self.cell.calibrated {
             request = None;
             error!(
                 "start refused: the load cell is not calibrated (calibrate tare, calibrate span)"
@@ -1348,14 +1408,14 @@ impl<B: Bsp> Controller<B> {
             // The kernel forgets its st.sample history and restarts its timeout.
             self.clear_epoch = self.clear_epoch.wrapping_add(1);
             // The flash gets another STORAGE_ATTEMPTS tries.
-            self.storage_blocked = false;
-            self.storage_failures = 0;
-            self.storage_fault_due = false;
-        } else if self.storage_fault_due && !matches!(st.state, State::Faulted { .. }) {
-            self.storage_fault_due = false;
+            self.store.storage_blocked = false;
+            self.store.storage_failures = 0;
+            self.store.storage_fault_due = false;
+        } else if self.store.storage_fault_due && !matches!(st.state, State::Faulted { .. }) {
+            self.store.storage_fault_due = false;
             st.fault = st.fault.or(Some(FaultKind::Storage));
         }
-        if core::mem::take(&mut self.unseen_stop_due) {
+        if core::mem::take(&mut self.gate.unseen_stop_due) {
             st.fault = st.fault.or(Some(FaultKind::UnseenStop));
         }
         let inputs = Inputs {
@@ -1382,19 +1442,19 @@ impl<B: Bsp> Controller<B> {
         // The driver may be enabled only once every stop the kernel made has been seen
         // here; a stop still in flight keeps it off for this step.
         let gate_open = !matches!(out.axis, AxisCmd::Disabled)
-            && (!self.stop.latched() || self.stop.rearm(self.seen_stop));
+            && (!self.stop.latched() || self.stop.rearm(self.gate.seen_stop));
         // A refusal for one step is a stop whose event is still on its way (it faults
         // the next step); refused twice, the stop is one this controller never heard of
         // (an event lost): a fault, not a silent stall.
         if gate_open || matches!(out.axis, AxisCmd::Disabled) {
-            self.gate_refused = 0;
+            self.gate.gate_refused = 0;
         } else {
-            self.gate_refused = self.gate_refused.saturating_add(1);
-            if self.gate_refused >= 2 {
-                self.gate_refused = 0;
+            self.gate.gate_refused = self.gate.gate_refused.saturating_add(1);
+            if self.gate.gate_refused >= 2 {
+                self.gate.gate_refused = 0;
                 error!("the stop latch holds the driver off for a stop never reported");
-                self.seen_stop = self.seen_stop.max(self.stop.stops());
-                self.unseen_stop_due = true;
+                self.gate.seen_stop = self.gate.seen_stop.max(self.stop.stops());
+                self.gate.unseen_stop_due = true;
             }
         }
         let pin_ok = match out.axis {
@@ -1404,7 +1464,7 @@ impl<B: Bsp> Controller<B> {
             }
             AxisCmd::Disabled => {
                 if self.prop.is_enabled() {
-                    self.disabled_at_us = Some(st.now_us);
+                    self.guard.disabled_at_us = Some(st.now_us);
                 }
                 self.prop.disable().is_ok()
             }
@@ -1474,7 +1534,7 @@ impl<B: Bsp> Controller<B> {
         let state = self.seq.state();
         let mode = match state {
             State::BackingOff { .. } => GuardMode::BackOff {
-                ceiling_mn: self.trip_force_mn.saturating_add(BACKOFF_RISE_MN),
+                ceiling_mn: self.guard.trip_force_mn.saturating_add(BACKOFF_RISE_MN),
             },
             s if s.in_compliant_motion() => GuardMode::Cone {
                 depth_um: self.prop.position_um() - self.cfg.machine.engage_um,
@@ -1482,7 +1542,7 @@ impl<B: Bsp> Controller<B> {
             _ => GuardMode::Free,
         };
         KernelConfig {
-            cal: self.cal,
+            cal: self.cell.cal,
             mode,
             clear: self.clear_epoch,
         }
@@ -1491,7 +1551,7 @@ impl<B: Bsp> Controller<B> {
     /// Whether a technician's calibration is stored (without one the machine does not
     /// dock).
     pub fn calibrated(&self) -> bool {
-        self.calibrated
+        self.cell.calibrated
     }
 
     /// The zero of the samples at rest, once there are enough of them: their
@@ -1500,7 +1560,7 @@ impl<B: Bsp> Controller<B> {
     /// moves it by nothing more than the noise, where a plain mean of 16 samples moves
     /// 22 N for one 350 N spike and fails the tare (`spike_during_tare_neither_faults_nor_moves_the_zero`).
     fn rest_mean_code(&self) -> Option<i32> {
-        rest_zero_code(self.recent_raw.iter().copied())
+        rest_zero_code(self.cell.recent_raw.iter().copied())
     }
 
     fn take_tare(&mut self) -> TareResult {
@@ -1508,8 +1568,8 @@ impl<B: Bsp> Controller<B> {
             return TareResult::NotYet;
         };
         let drift_mn = Calibration {
-            offset_counts: self.base_cal.offset_counts,
-            ..self.cal
+            offset_counts: self.cell.base_cal.offset_counts,
+            ..self.cell.cal
         }
         .to_force_mn(mean);
         if !Calibration::tare_plausible(mean)
@@ -1521,23 +1581,23 @@ impl<B: Bsp> Controller<B> {
             );
             return TareResult::Implausible;
         }
-        self.cal = self.cal.with_tare(mean);
-        self.recent_raw.clear();
+        self.cell.cal = self.cell.cal.with_tare(mean);
+        self.cell.recent_raw.clear();
         TareResult::Ready
     }
 
     fn track_phase(&mut self, now_ms: u64, depth_um: Option<i32>, sampled: bool) {
         let phase = depth_um.and_then(ContactPhase::at_depth_um);
-        if phase != self.phase {
-            self.phase = phase;
+        if phase != self.contact.phase {
+            self.contact.phase = phase;
             if let Some(p) = phase {
                 info!("contact phase {}", p.number());
                 self.push_event(now_ms, Event::Phase(p));
             }
         }
         if depth_um.is_none() {
-            self.mismatch_reported = false;
-            self.mismatch_run = 0;
+            self.contact.mismatch_reported = false;
+            self.contact.mismatch_run = 0;
             return;
         }
         // The 3→4 jump: within 1–3 mm before the boundary N3 < 156.7 N, within 1–4 mm
@@ -1555,19 +1615,19 @@ impl<B: Bsp> Controller<B> {
             None
         };
         match expect_high {
-            Some(high) if (self.force_mn > JUMP_MID_MN) != high => {
-                self.mismatch_run = self.mismatch_run.saturating_add(1);
-                if self.mismatch_run >= 3 && !self.mismatch_reported {
-                    self.mismatch_reported = true;
+            Some(high) if (self.guard.force_mn > JUMP_MID_MN) != high => {
+                self.contact.mismatch_run = self.contact.mismatch_run.saturating_add(1);
+                if self.contact.mismatch_run >= 3 && !self.contact.mismatch_reported {
+                    self.contact.mismatch_reported = true;
                     warn!(
                         "phase {} by position, but {} mN contradicts it",
                         p.number(),
-                        self.force_mn
+                        self.guard.force_mn
                     );
                     self.push_event(now_ms, Event::PhaseMismatch(p));
                 }
             }
-            _ => self.mismatch_run = 0,
+            _ => self.contact.mismatch_run = 0,
         }
     }
 
@@ -1579,22 +1639,22 @@ impl<B: Bsp> Controller<B> {
                     kind.name(),
                     self.seq.cycle_number(),
                     now_ms,
-                    self.force_mn
+                    self.guard.force_mn
                 );
-                if self.faults.is_full() {
-                    self.faults.pop_front();
+                if self.diag.faults.is_full() {
+                    self.diag.faults.pop_front();
                 }
                 let rec = FaultRecord {
                     kind,
                     cycle: self.seq.cycle_number(),
-                    phase: self.phase,
+                    phase: self.contact.phase,
                     t_ms: now_ms,
-                    peak_force_mn: self.force_mn,
+                    peak_force_mn: self.guard.force_mn,
                 };
-                let _ = self.faults.push_back(rec);
-                self.fault_count = self.fault_count.saturating_add(1);
+                let _ = self.diag.faults.push_back(rec);
+                self.diag.fault_count = self.diag.fault_count.saturating_add(1);
                 self.odo.record_fault();
-                self.persist_pending = true;
+                self.store.persist_pending = true;
             }
             SeqEvent::CycleCompleted(n) => {
                 let mut c = self.odo.complete_cycle();
@@ -1615,8 +1675,8 @@ impl<B: Bsp> Controller<B> {
                     ),
                 }
                 self.push_event(now_ms, Event::CycleCounted(c));
-                self.persist_pending = true;
-                self.persist_cycle_end = true;
+                self.store.persist_pending = true;
+                self.store.persist_cycle_end = true;
             }
             SeqEvent::CycleStarted(n) => info!("cycle {} started", n),
             SeqEvent::FaultCleared => info!("fault cleared; recovering"),
@@ -1631,16 +1691,16 @@ impl<B: Bsp> Controller<B> {
     }
 
     fn push_event(&mut self, t_ms: u64, event: Event) {
-        if self.events.is_full() {
-            self.events.pop_front();
-            self.events_dropped = self.events_dropped.saturating_add(1);
+        if self.diag.events.is_full() {
+            self.diag.events.pop_front();
+            self.diag.events_dropped = self.diag.events_dropped.saturating_add(1);
         }
-        let _ = self.events.push_back(Timed { t_ms, event });
+        let _ = self.diag.events.push_back(Timed { t_ms, event });
     }
 
     /// The oldest unread event.
     pub fn next_event(&mut self) -> Option<Timed> {
-        self.events.pop_front()
+        self.diag.events.pop_front()
     }
 
     /// The PLC's inputs as read now (the board reads its pins before each step): DOCK
@@ -1653,14 +1713,14 @@ impl<B: Bsp> Controller<B> {
     /// `estop` is the E-STOP interrupt's record ([`crate::safety::EstopEdges`]): its
     /// edges latch `emergency_stop` even when the level reads closed again.
     pub fn set_plc(&mut self, dock_asserted: bool, estop_open: bool, estop: EstopEvents) {
-        if !self.plc_read {
-            self.plc_read = true;
-            self.dock = dock_asserted;
-            self.dock_seen = dock_asserted;
+        if !self.plc.plc_read {
+            self.plc.plc_read = true;
+            self.plc.dock = dock_asserted;
+            self.plc.dock_seen = dock_asserted;
         }
-        self.dock_raw = dock_asserted;
-        self.estop_open = estop_open;
-        self.estop_events = estop;
+        self.plc.dock_raw = dock_asserted;
+        self.plc.estop_open = estop_open;
+        self.plc.estop_events = estop;
     }
 
     /// A command from a person or the PLC (console, Modbus), checked now: `Ok` when the
@@ -1681,12 +1741,12 @@ impl<B: Bsp> Controller<B> {
     /// maintenance mode, everything but `Stop` from the PLC is refused
     /// ([`Refusal::MaintenanceMode`]).
     pub fn command_from(&mut self, source: Source, r: Request) -> Result<(), Refusal> {
-        if source == Source::Plc && self.maintenance_mode && r != Request::Stop {
+        if source == Source::Plc && self.plc.maintenance_mode && r != Request::Stop {
             return Err(Refusal::MaintenanceMode);
         }
         let state = self.seq.state();
         let estop = |me: &Self| {
-            if me.estop_open {
+            if me.plc.estop_open {
                 Err(Refusal::EstopOpen)
             } else {
                 Ok(())
@@ -1699,7 +1759,7 @@ impl<B: Bsp> Controller<B> {
                 if state != State::Idle {
                     return Err(Refusal::NotIdle);
                 }
-                if !self.calibrated {
+                if !self.cell.calibrated {
                     return Err(Refusal::Uncalibrated);
                 }
                 if self.wear_level() == WearLevel::Limit {
@@ -1735,19 +1795,20 @@ impl<B: Bsp> Controller<B> {
     pub fn handshake(&self) -> Handshake {
         let state = self.seq.state();
         let sw = self.switches;
-        let in_envelope = (self.force_mn - self.cfg.hold_expected_mn).abs() <= HOLD_TOLERANCE_MN;
+        let in_envelope =
+            (self.guard.force_mn - self.cfg.hold_expected_mn).abs() <= HOLD_TOLERANCE_MN;
         // As of the last step (cached: see step 7).
         let level = self.level;
         Handshake {
-            dock: self.dock,
-            estop: self.estop_open,
+            dock: self.plc.dock,
+            estop: self.plc.estop_open,
             ready: state == State::Idle
                 && sw.home
                 && sw.locked
-                && self.calibrated
+                && self.cell.calibrated
                 && level != WearLevel::Limit
-                && !self.estop_open
-                && !self.maintenance_mode,
+                && !self.plc.estop_open
+                && !self.plc.maintenance_mode,
             mated: matches!(
                 state,
                 State::Holding {
@@ -1766,9 +1827,9 @@ impl<B: Bsp> Controller<B> {
         Status {
             handshake: self.handshake(),
             state,
-            phase: self.phase,
-            force_mn: self.force_mn,
-            limit_mn: self.limit_mn,
+            phase: self.contact.phase,
+            force_mn: self.guard.force_mn,
+            limit_mn: self.guard.limit_mn,
             pos_um: self.prop.position_um(),
             cycles_completed: self.seq.cycles_completed(),
             fault: match state {
@@ -1776,8 +1837,8 @@ impl<B: Bsp> Controller<B> {
                 State::BackingOff { .. } => Some(FaultKind::Overload),
                 _ => None,
             },
-            warning: self.warning,
-            peak_force_mn: self.peak_force_mn,
+            warning: self.guard.warning,
+            peak_force_mn: self.guard.peak_force_mn,
             wear_nm: self.odo.wear_nm(),
             remaining_cycles: self.odo.remaining_cycles(),
             wear_level: self.wear_level(),
@@ -1812,7 +1873,7 @@ impl<B: Bsp> Controller<B> {
             && !self.axis_held()
             && !self.prop.is_enabled()
             && self.lock.cmd() == LockCmd::Off
-            && !self.bus_busy
+            && !self.store.bus_busy
     }
 
     /// Whether a maintenance action may write the flash now ([`Self::at_rest`]), and
@@ -1855,20 +1916,20 @@ impl<B: Bsp> Controller<B> {
     /// The console's maintenance mode (a technician logged in): READY drops and the
     /// PLC's motion requests (Modbus, the DOCK pin) are refused while it lasts.
     pub fn set_maintenance_mode(&mut self, on: bool) {
-        if on != self.maintenance_mode {
+        if on != self.plc.maintenance_mode {
             info!("maintenance mode {}", if on { "entered" } else { "ended" });
         }
-        self.maintenance_mode = on;
+        self.plc.maintenance_mode = on;
     }
 
     /// Whether a technician has the machine in maintenance mode.
     pub fn maintenance_mode(&self) -> bool {
-        self.maintenance_mode
+        self.plc.maintenance_mode
     }
 
     /// The board's word that a Modbus reply is on the line (its RS-485 driver enabled).
     pub fn set_bus_busy(&mut self, busy: bool) {
-        self.bus_busy = busy;
+        self.store.bus_busy = busy;
     }
 
     /// Queue a record for the next rest ([`Self::at_rest`]; written there by
@@ -1876,15 +1937,16 @@ impl<B: Bsp> Controller<B> {
     /// long — dropped, and counted ([`Self::records_dropped`]).
     pub fn queue_record(&mut self, kind: u8, data: &[u8]) -> bool {
         let Ok(data) = heapless::Vec::from_slice(data) else {
-            self.records_dropped = self.records_dropped.saturating_add(1);
+            self.store.records_dropped = self.store.records_dropped.saturating_add(1);
             return false;
         };
         if self
+            .store
             .record_queue
             .push_back(QueuedRecord { kind, data })
             .is_err()
         {
-            self.records_dropped = self.records_dropped.saturating_add(1);
+            self.store.records_dropped = self.store.records_dropped.saturating_add(1);
             error!("odometer: record queue full; a record was dropped");
             return false;
         }
@@ -1893,12 +1955,12 @@ impl<B: Bsp> Controller<B> {
 
     /// Records waiting for a rest.
     pub fn records_queued(&self) -> usize {
-        self.record_queue.len()
+        self.store.record_queue.len()
     }
 
     /// Records dropped because the queue was full.
     pub fn records_dropped(&self) -> u32 {
-        self.records_dropped
+        self.store.records_dropped
     }
 
     /// Install a new cone (technician action): new per-cone counters, lifetime totals and
@@ -1941,26 +2003,26 @@ impl<B: Bsp> Controller<B> {
                 .map(|m| m.wear_nm(self.baseline_or_nominal())),
             readings: self.readings.len() as u32,
         };
-        if let Some(l) = self.log.as_mut() {
+        if let Some(l) = self.store.log.as_mut() {
             // The summary first: a cut before the cone record leaves the old cone
             // installed, and its summary written again at the next replacement.
             if l.append(odometer::kind::RETIRED, &retired.to_bytes())
                 .is_err()
             {
-                self.storage_errors = self.storage_errors.saturating_add(1);
+                self.store.storage_errors = self.store.storage_errors.saturating_add(1);
                 return Err(MaintError::Storage);
             }
             let cone = odometer::cone_to_bytes(next.cone());
             let state = StateRecord::of(&next, false).to_bytes();
             if l.append(odometer::kind::CONE, &cone).is_err() {
-                self.storage_errors = self.storage_errors.saturating_add(1);
+                self.store.storage_errors = self.store.storage_errors.saturating_add(1);
                 return Err(MaintError::Storage);
             }
             // The cone record is the commitment; a lost snapshot is rebuilt from it
             // (restore() starts a cone whose id has no snapshot at zero).
             if l.append(odometer::kind::STATE, &state).is_err() {
-                self.storage_errors = self.storage_errors.saturating_add(1);
-                self.persist_pending = true;
+                self.store.storage_errors = self.store.storage_errors.saturating_add(1);
+                self.store.persist_pending = true;
             }
         }
         self.odo = next;
@@ -1989,7 +2051,7 @@ impl<B: Bsp> Controller<B> {
         let id = self.odo.cone().id;
         let readings = &mut self.readings;
         readings.clear();
-        if let Some(l) = self.log.as_mut() {
+        if let Some(l) = self.store.log.as_mut() {
             let _ =
                 l.for_each_newest_first(odometer::kind::MEASURE, odometer::READINGS_KEPT, |r| {
                     if let Some(m) = Measurement::from_bytes(r.data()) {
@@ -2005,9 +2067,9 @@ impl<B: Bsp> Controller<B> {
 
     /// The newest completed cycles from flash (once, at start).
     fn load_history(&mut self) {
-        let recent = &mut self.recent_cycles;
+        let recent = &mut self.store.recent_cycles;
         recent.clear();
-        if let Some(l) = self.log.as_mut() {
+        if let Some(l) = self.store.log.as_mut() {
             let _ = l.for_each_newest_first_while(odometer::kind::STATE, |r| {
                 if let Some(st) = StateRecord::from_bytes(r.data()).filter(|s| s.cycle_end) {
                     let _ = recent.push_front(HistoryEntry::of(&st));
@@ -2087,7 +2149,7 @@ impl<B: Bsp> Controller<B> {
             model_nm: self.odo.wear_nm(),
             baseline,
         };
-        let Some(l) = self.log.as_mut() else {
+        let Some(l) = self.store.log.as_mut() else {
             return Err(MaintError::Storage);
         };
         if baseline {
@@ -2096,13 +2158,13 @@ impl<B: Bsp> Controller<B> {
             if l.append(odometer::kind::CONE, &odometer::cone_to_bytes(&c))
                 .is_err()
             {
-                self.storage_errors = self.storage_errors.saturating_add(1);
+                self.store.storage_errors = self.store.storage_errors.saturating_add(1);
                 return Err(MaintError::Storage);
             }
             self.odo.set_baseline(bore_um);
         }
         if l.append(odometer::kind::MEASURE, &m.to_bytes()).is_err() {
-            self.storage_errors = self.storage_errors.saturating_add(1);
+            self.store.storage_errors = self.store.storage_errors.saturating_add(1);
             if !baseline {
                 return Err(MaintError::Storage);
             }
@@ -2121,10 +2183,10 @@ impl<B: Bsp> Controller<B> {
     /// measurements). Refused while anything moves (an erase may stall the CPU).
     pub fn store_record(&mut self, kind: u8, data: &[u8]) -> Result<(), MaintError> {
         self.flash_turn()?;
-        match self.log.as_mut().map(|l| l.append(kind, data)) {
+        match self.store.log.as_mut().map(|l| l.append(kind, data)) {
             Some(Ok(_)) => Ok(()),
             _ => {
-                self.storage_errors = self.storage_errors.saturating_add(1);
+                self.store.storage_errors = self.store.storage_errors.saturating_add(1);
                 Err(MaintError::Storage)
             }
         }
@@ -2133,7 +2195,7 @@ impl<B: Bsp> Controller<B> {
     /// The newest record of `kind`, if any (payload bytes copied into `buf`; returns
     /// the length).
     pub fn load_record(&mut self, kind: u8, buf: &mut [u8]) -> Option<usize> {
-        let r = self.log.as_mut()?.latest(kind).ok().flatten()?;
+        let r = self.store.log.as_mut()?.latest(kind).ok().flatten()?;
         let d = r.data();
         let dst = buf.get_mut(..d.len())?;
         dst.copy_from_slice(d);
@@ -2147,7 +2209,7 @@ impl<B: Bsp> Controller<B> {
         max: usize,
         out: impl FnMut(&crate::storage::Record),
     ) -> usize {
-        match self.log.as_mut() {
+        match self.store.log.as_mut() {
             Some(l) => l.for_each_newest_first(kind, max, out).unwrap_or(0),
             None => 0,
         }
@@ -2168,9 +2230,9 @@ impl<B: Bsp> Controller<B> {
                 MaintError::Moving | MaintError::NotAtRest => CalibrateError::Moving,
                 _ => CalibrateError::Storage,
             })?;
-        self.base_cal = cal;
-        self.cal = cal;
-        self.calibrated = true;
+        self.cell.base_cal = cal;
+        self.cell.cal = cal;
+        self.cell.calibrated = true;
         info!(
             "load cell calibrated: offset {} counts, {} mN/count (Q32.32)",
             cal.offset_counts, cal.mn_per_count_q32
@@ -2184,13 +2246,13 @@ impl<B: Bsp> Controller<B> {
         if !Calibration::tare_plausible(code) {
             return Err(CalibrateError::Implausible);
         }
-        self.store_calibration(self.base_cal.with_tare(code))
+        self.store_calibration(self.cell.base_cal.with_tare(code))
     }
 
     /// Technician span: a known `force_mn` hangs on the (tared) load cell.
     pub fn calibrate_span(&mut self, force_mn: i32) -> Result<Calibration, CalibrateError> {
         let code = self.quiet_mean_code()?;
-        let cal = Calibration::from_two_points(self.base_cal.offset_counts, 0, code, force_mn)
+        let cal = Calibration::from_two_points(self.cell.base_cal.offset_counts, 0, code, force_mn)
             .map_err(|_| CalibrateError::Implausible)?;
         self.store_calibration(cal)
     }
@@ -2201,7 +2263,7 @@ impl<B: Bsp> Controller<B> {
         // each cycle's record is written. A walk of the log here read every slot of
         // both sectors (milliseconds) with the controller held.
         let mut n = 0;
-        for e in self.recent_cycles.iter().rev().take(max) {
+        for e in self.store.recent_cycles.iter().rev().take(max) {
             out(*e);
             n += 1;
         }
@@ -2220,52 +2282,52 @@ impl<B: Bsp> Controller<B> {
 
     /// What the odometer log held at boot.
     pub fn open_report(&self) -> OpenReport {
-        self.open_report
+        self.store.open_report
     }
 
     /// Odometer writes that failed since boot.
     pub fn storage_errors(&self) -> u32 {
-        self.storage_errors
+        self.store.storage_errors
     }
 
     /// A counter snapshot is waiting to be written.
     pub fn persist_pending(&self) -> bool {
-        self.persist_pending
+        self.store.persist_pending
     }
 
     /// The odometer log (history reads; `None` if the flash was unreadable at boot).
     pub fn log_mut(&mut self) -> Option<&mut RecordLog<B::Flash>> {
-        self.log.as_mut()
+        self.store.log.as_mut()
     }
 
     /// The odometer flash (for tests and the simulator).
     pub fn flash(&self) -> Option<&B::Flash> {
-        self.log.as_ref().map(|l| l.flash())
+        self.store.log.as_ref().map(|l| l.flash())
     }
 
     /// Fault records, oldest first (the last 16).
     pub fn faults(&self) -> impl Iterator<Item = &FaultRecord> {
-        self.faults.iter()
+        self.diag.faults.iter()
     }
 
     /// Faults latched since boot.
     pub fn fault_count(&self) -> u32 {
-        self.fault_count
+        self.diag.fault_count
     }
 
     /// Overload trips since boot.
     pub fn overload_trips(&self) -> u32 {
-        self.overload_trips
+        self.guard.overload_trips
     }
 
     /// When the propulsion was last switched off by the controller, µs.
     pub fn disabled_at_us(&self) -> Option<u64> {
-        self.disabled_at_us
+        self.guard.disabled_at_us
     }
 
     /// Calibration in force (offset re-tared before each cycle).
     pub fn calibration(&self) -> Calibration {
-        self.cal
+        self.cell.cal
     }
 
     /// Configuration.
