@@ -14,6 +14,19 @@ fn rig() -> Rig {
 
 use host_tests::run_until;
 
+/// The machine is latched in `fault`; with the PLC's DOCK released, a clear brings it
+/// home to idle, and the next DOCK mates.
+fn recovers_from(r: &mut Rig, fault: docking_controller::sequencer::FaultKind) {
+    assert_eq!(r.ctrl.state(), State::Faulted { fault });
+    r.dock_line.set(true);
+    r.ctrl
+        .command(docking_controller::sequencer::Request::ClearFault)
+        .unwrap();
+    assert!(run_until(r, 8_000, |r| r.ctrl.state() == State::Idle));
+    r.dock_line.set(false);
+    assert!(run_until(r, 6_000, |r| r.ctrl.handshake().mated));
+}
+
 #[test]
 fn dock_asserted_across_a_reset_is_not_a_request() {
     // DOCK low (asserted) from before the controller booted.
@@ -136,7 +149,7 @@ fn short_estop_pulse_latches_a_fault_and_the_machine_recovers() {
 /// every edge stops, the fault latches, the clear works once the input stays closed.
 #[test]
 fn estop_release_bounce_is_latched_and_recoverable() {
-    use docking_controller::sequencer::{FaultKind, Request};
+    use docking_controller::sequencer::FaultKind;
     let mut r = rig();
     r.dock_line.set(false);
     assert!(run_until(&mut r, 6_000, |r| matches!(
@@ -153,17 +166,7 @@ fn estop_release_bounce_is_latched_and_recoverable() {
         r.tick();
         assert!(!r.axis.enabled(), "nothing moves after the E-STOP");
     }
-    assert_eq!(
-        r.ctrl.state(),
-        State::Faulted {
-            fault: FaultKind::EmergencyStop
-        }
-    );
-    r.dock_line.set(true);
-    r.ctrl.command(Request::ClearFault).unwrap();
-    assert!(run_until(&mut r, 8_000, |r| r.ctrl.state() == State::Idle));
-    r.dock_line.set(false);
-    assert!(run_until(&mut r, 6_000, |r| r.ctrl.handshake().mated));
+    recovers_from(&mut r, FaultKind::EmergencyStop);
 }
 
 /// A stop the controller never heard of (its event lost) held the driver off and the
@@ -172,7 +175,7 @@ fn estop_release_bounce_is_latched_and_recoverable() {
 #[test]
 fn a_stop_never_reported_is_a_fault_not_a_stall() {
     use docking_controller::hal::StopLatch;
-    use docking_controller::sequencer::{FaultKind, Request};
+    use docking_controller::sequencer::FaultKind;
     let mut r = rig();
     r.stop.stop_now(); // latched, no event, no E-STOP edge
     r.dock_line.set(false);
@@ -180,17 +183,7 @@ fn a_stop_never_reported_is_a_fault_not_a_stall() {
         r.ctrl.state(),
         State::Faulted { .. }
     )));
-    assert_eq!(
-        r.ctrl.state(),
-        State::Faulted {
-            fault: FaultKind::UnseenStop
-        }
-    );
-    r.dock_line.set(true);
-    r.ctrl.command(Request::ClearFault).unwrap();
-    assert!(run_until(&mut r, 8_000, |r| r.ctrl.state() == State::Idle));
-    r.dock_line.set(false);
-    assert!(run_until(&mut r, 6_000, |r| r.ctrl.handshake().mated));
+    recovers_from(&mut r, FaultKind::UnseenStop);
 }
 
 /// Pulled while mated holds the axis driven; an E-STOP then must turn it off and keep

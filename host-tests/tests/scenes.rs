@@ -225,17 +225,21 @@ fn a_heavier_machine_commissioned_for_its_forces_docks_without_a_trip() {
     );
 }
 
-#[test]
-fn a_heavier_machine_on_the_default_configuration_is_caught_by_the_guard() {
-    let p = heavy_machine();
-    let r = run(
+/// `nominal` with the 18 kg plant on the paper machine's configuration.
+fn heavy_machine_on_the_default_configuration() -> SceneReport {
+    run(
         "nominal",
         SceneOptions {
-            force_model: hil_sim::machine::ForceModel::plant(p).unwrap(),
+            force_model: hil_sim::machine::ForceModel::plant(heavy_machine()).unwrap(),
             ..SceneOptions::new(80)
         },
     )
-    .unwrap();
+    .unwrap()
+}
+
+#[test]
+fn a_heavier_machine_on_the_default_configuration_is_caught_by_the_guard() {
+    let r = heavy_machine_on_the_default_configuration();
     assert_eq!(
         r.faults.first().map(|f| f.kind),
         Some("overload"),
@@ -251,15 +255,7 @@ fn a_heavier_machine_on_the_default_configuration_is_caught_by_the_guard() {
 /// tripped the back-off after 5 µm, stranding the rod in the cone.
 #[test]
 fn backoff_under_sustained_load_finishes_and_clears_out_of_the_cone() {
-    let p = heavy_machine();
-    let r = run(
-        "nominal",
-        SceneOptions {
-            force_model: hil_sim::machine::ForceModel::plant(p).unwrap(),
-            ..SceneOptions::new(80)
-        },
-    )
-    .unwrap();
+    let r = heavy_machine_on_the_default_configuration();
     let kinds: Vec<_> = r.faults.iter().map(|f| f.kind).collect();
     assert_eq!(kinds, ["overload"], "one overload only: {}", r.to_json());
     let back = r.backed_off_um.unwrap();

@@ -48,14 +48,14 @@ const SECTOR_LEN: u32 = 128 * 1024;
 // Registers (RM0090 §3.9).
 const FLASH_ACR: *mut u32 = 0x4002_3C00 as *mut u32;
 const FLASH_KEYR: *mut u32 = 0x4002_3C04 as *mut u32;
-const FLASH_SR: *mut u32 = 0x4002_3C0C as *mut u32;
+pub(crate) const FLASH_SR: *mut u32 = 0x4002_3C0C as *mut u32;
 const FLASH_CR: *mut u32 = 0x4002_3C10 as *mut u32;
-const IWDG_KR: *mut u32 = 0x4000_3000 as *mut u32;
-const DWT_CYCCNT: *const u32 = 0xE000_1004 as *const u32;
+pub(crate) const IWDG_KR: *mut u32 = 0x4000_3000 as *mut u32;
+pub(crate) const DWT_CYCCNT: *const u32 = 0xE000_1004 as *const u32;
 
 const KEY1: u32 = 0x4567_0123;
 const KEY2: u32 = 0xCDEF_89AB;
-const SR_BSY: u32 = 1 << 16;
+pub(crate) const SR_BSY: u32 = 1 << 16;
 /// EOP and the sticky error flags (OPERR, WRPERR, PGAERR, PGPERR, PGSERR).
 const SR_ERRORS: u32 = 0xF2;
 const SR_CLEAR: u32 = SR_ERRORS | 1;
@@ -116,6 +116,28 @@ impl NorFlashError for OdoFlashError {
     }
 }
 
+/// Wait (inside an `unsafe` block of a function placed in SRAM) until the flash interface
+/// is no longer busy or `max_cycles` core cycles have passed, feeding the watchdog; the
+/// value is FLASH_SR at the end (BSY still set: timed out). A macro, not a function, so
+/// that nothing is ever called from flash while the flash is busy (the erase here, the
+/// option bytes in `options.rs`).
+macro_rules! wait_idle_feeding {
+    ($max_cycles:expr) => {{
+        use $crate::board::flash::{DWT_CYCCNT, FLASH_SR, IWDG_KR, SR_BSY};
+        let start = core::ptr::read_volatile(DWT_CYCCNT);
+        loop {
+            let sr = core::ptr::read_volatile(FLASH_SR);
+            if sr & SR_BSY == 0
+                || core::ptr::read_volatile(DWT_CYCCNT).wrapping_sub(start) > $max_cycles
+            {
+                break sr;
+            }
+            core::ptr::write_volatile(IWDG_KR, 0xAAAA);
+        }
+    }};
+}
+pub(super) use wait_idle_feeding;
+
 /// Start the erase described by `cr` (SER, SNB, PSIZE) and wait for its end, from SRAM,
 /// feeding the watchdog for at most `max_cycles` core cycles. Returns `FLASH_SR` at the
 /// end (`BSY` still set: timed out).
@@ -130,16 +152,7 @@ fn erase_from_ram(cr: u32, max_cycles: u32) -> u32 {
     unsafe {
         core::ptr::write_volatile(FLASH_CR, cr);
         core::ptr::write_volatile(FLASH_CR, cr | CR_STRT);
-        let start = core::ptr::read_volatile(DWT_CYCCNT);
-        loop {
-            let sr = core::ptr::read_volatile(FLASH_SR);
-            if sr & SR_BSY == 0
-                || core::ptr::read_volatile(DWT_CYCCNT).wrapping_sub(start) > max_cycles
-            {
-                return sr;
-            }
-            core::ptr::write_volatile(IWDG_KR, 0xAAAA);
-        }
+        wait_idle_feeding!(max_cycles)
     }
 }
 

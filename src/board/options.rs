@@ -26,7 +26,6 @@ const FLASH_SR: *mut u32 = 0x4002_3C0C as *mut u32;
 const FLASH_OPTKEYR: *mut u32 = 0x4002_3C08 as *mut u32;
 const FLASH_OPTCR: *mut u32 = 0x4002_3C14 as *mut u32;
 const IWDG_KR: *mut u32 = 0x4000_3000 as *mut u32;
-const DWT_CYCCNT: *const u32 = 0xE000_1004 as *const u32;
 const OPTKEY1: u32 = 0x0819_2A3B;
 const OPTKEY2: u32 = 0x4C5D_6E7F;
 const OPTLOCK: u32 = 1 << 0;
@@ -55,16 +54,7 @@ fn program_from_ram(optcr: u32, max_cycles: u32) -> u32 {
     // interface (at rest) and has masked interrupts.
     unsafe {
         core::ptr::write_volatile(FLASH_OPTCR, optcr | OPTSTRT);
-        let start = core::ptr::read_volatile(DWT_CYCCNT);
-        loop {
-            let sr = core::ptr::read_volatile(FLASH_SR);
-            if sr & BSY == 0
-                || core::ptr::read_volatile(DWT_CYCCNT).wrapping_sub(start) > max_cycles
-            {
-                return sr;
-            }
-            core::ptr::write_volatile(IWDG_KR, 0xAAAA);
-        }
+        super::flash::wait_idle_feeding!(max_cycles)
     }
 }
 
