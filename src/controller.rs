@@ -1216,7 +1216,7 @@ impl<B: Bsp> Controller<B> {
             self.guard.limit_mn = smp.limit_mn;
             match smp.verdict {
                 Verdict::Trip { .. } => {
-                    // The kernel stopped it at the st.sample; the propulsion driver learns it
+                    // The kernel stopped it at the sample; the propulsion driver learns it
                     // here, and the sequencer backs off under control.
                     let _ = self.prop.disable();
                     self.guard.disabled_at_us = Some(smp.t_us);
@@ -1260,7 +1260,7 @@ impl<B: Bsp> Controller<B> {
     fn stage_odometer(&mut self, st: &Step) {
         let Some(smp) = st.sample else { return };
         // Wear: load × sliding distance wherever the rod can touch the cone (by
-        // position, whatever the state: the st.sample at the cone mouth belongs to the
+        // position, whatever the state: the sample at the cone mouth belongs to the
         // stroke); outside it the chain is broken so sensor noise adds nothing.
         self.odo.record_force(self.guard.force_mn);
         let cone_depth_um = st.pos_um - self.cfg.machine.engage_um;
@@ -1405,7 +1405,7 @@ impl<B: Bsp> Controller<B> {
             }
         }
         if request == Some(Request::ClearFault) && matches!(st.state, State::Faulted { .. }) {
-            // The kernel forgets its st.sample history and restarts its timeout.
+            // The kernel forgets its sample history and restarts its timeout.
             self.clear_epoch = self.clear_epoch.wrapping_add(1);
             // The flash gets another STORAGE_ATTEMPTS tries.
             self.store.storage_blocked = false;
