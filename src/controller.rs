@@ -933,18 +933,7 @@ impl<B: Bsp> Controller<B> {
     /// rig after each step.
     pub fn background(&mut self) {
         if self.at_rest() {
-            while let Some(r) = self.store.record_queue.front() {
-                let ok = self
-                    .store
-                    .log
-                    .as_mut()
-                    .is_some_and(|l| l.append(r.kind, &r.data).is_ok());
-                if !ok {
-                    self.store.storage_errors = self.store.storage_errors.saturating_add(1);
-                    error!("odometer: a queued record was not written");
-                }
-                self.store.record_queue.pop_front();
-            }
+            self.write_queued_records();
             // A cycle that ended in a fault (or a recovery that touched the cone) left
             // load–distance no completed cycle will count: it is the cone's now.
             let w = self.odo.fold_pending();
@@ -1932,10 +1921,37 @@ impl<B: Bsp> Controller<B> {
         self.store.bus_busy = busy;
     }
 
-    /// Queue a record for the next rest ([`Self::at_rest`]; written there by
-    /// [`Self::background`], in order). `false`: the queue was full or the record too
+    /// Write the records queued for a rest, oldest first (call only at rest).
+    fn write_queued_records(&mut self) {
+        while let Some(r) = self.store.record_queue.front() {
+            let ok = self
+                .store
+                .log
+                .as_mut()
+                .is_some_and(|l| l.append(r.kind, &r.data).is_ok());
+            if !ok {
+                self.store.storage_errors = self.store.storage_errors.saturating_add(1);
+                error!("odometer: a queued record was not written");
+            }
+            self.store.record_queue.pop_front();
+        }
+    }
+
+    /// A record that may wait (an audit record): written now if the machine is at rest
+    /// (after any that wait, so the log keeps their order), else queued for the next
+    /// rest ([`Self::at_rest`]; [`Self::background`] writes it). `false`: not written
+    /// and not queued (the flash refused it, or the queue was full: counted).
+    pub fn write_or_queue_record(&mut self, kind: u8, data: &[u8]) -> bool {
+        if self.at_rest() {
+            self.write_queued_records();
+            return self.store_record(kind, data).is_ok();
+        }
+        self.queue_record(kind, data)
+    }
+
+    /// Queue a record for the next rest. `false`: the queue was full or the record too
     /// long — dropped, and counted ([`Self::records_dropped`]).
-    pub fn queue_record(&mut self, kind: u8, data: &[u8]) -> bool {
+    fn queue_record(&mut self, kind: u8, data: &[u8]) -> bool {
         let Ok(data) = heapless::Vec::from_slice(data) else {
             self.store.records_dropped = self.store.records_dropped.saturating_add(1);
             return false;

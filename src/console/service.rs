@@ -253,15 +253,14 @@ impl Console {
     /// (257 SHA-256 compressions, milliseconds) waits for [`Self::finish`].
     /// Returns the PIN hashes computed here (`pin set`).
     pub fn run_line<B: Bsp>(&mut self, ctrl: &mut Controller<B>, line: &str, now_ms: u64) -> u32 {
-        let hashes = self.execute(ctrl, line, now_ms);
-        ctrl.set_maintenance_mode(self.auth.is_active(now_ms));
-        hashes
+        self.execute(ctrl, line, now_ms)
     }
 
     /// Phase 3, without the controller: the work a command left for after the
     /// controller is released (a maintenance login's PIN check). Returns the PIN hashes
-    /// computed. The controller learns the new maintenance mode at the next
-    /// [`Self::run_line`], or from [`Self::maintenance_active`].
+    /// computed. The controller learns the new maintenance mode from
+    /// [`Self::maintenance_active`] (the board and [`Self::poll`] tell it after each
+    /// command).
     pub fn finish(&mut self, now_ms: u64) -> u32 {
         if core::mem::take(&mut self.deferred.history) {
             let entries = core::mem::take(&mut self.deferred.history_entries);
@@ -394,11 +393,7 @@ impl Console {
         // Written now at rest, else queued for the next rest (a clear-fault while the
         // axis is held, a reply on the Modbus line): never an erase out of turn.
         let rec = rec.get(..at).unwrap_or(&rec);
-        let written = if ctrl.at_rest() {
-            ctrl.store_record(kind::AUDIT, rec).is_ok()
-        } else {
-            ctrl.queue_record(kind::AUDIT, rec)
-        };
+        let written = ctrl.write_or_queue_record(kind::AUDIT, rec);
         if !written {
             error!("maintenance: audit record not written");
         }
