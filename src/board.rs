@@ -620,7 +620,7 @@ mod app {
         // no log at this priority). The level says which edge it was.
         // SAFETY: read of GPIOC IDR, a fixed MMIO address.
         let open = unsafe { core::ptr::read_volatile(GPIOC_IDR) } & (1 << 5) != 0;
-        ESTOP_EDGES.on_edge(n, open, u64::from(clock::now_us_low()));
+        ESTOP_EDGES.on_edge(n, open, clock::now_us_low());
     }
 
     /// Modbus characters in and out.

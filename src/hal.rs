@@ -77,3 +77,28 @@ pub trait StopLatch {
     /// is clear now.
     fn rearm(&mut self, seen: u32) -> bool;
 }
+
+/// Test doubles shared by the library's unit tests.
+#[cfg(test)]
+pub(crate) mod test_pin {
+    use core::cell::Cell;
+
+    /// An output pin whose level is a `Cell` the test reads — and may change behind the
+    /// driver's back, as the E-STOP's stores do.
+    pub(crate) struct CellPin<'a>(pub(crate) &'a Cell<bool>);
+
+    impl embedded_hal::digital::ErrorType for CellPin<'_> {
+        type Error = core::convert::Infallible;
+    }
+
+    impl embedded_hal::digital::OutputPin for CellPin<'_> {
+        fn set_high(&mut self) -> Result<(), Self::Error> {
+            self.0.set(true);
+            Ok(())
+        }
+        fn set_low(&mut self) -> Result<(), Self::Error> {
+            self.0.set(false);
+            Ok(())
+        }
+    }
+}

@@ -75,23 +75,8 @@ impl<IN1: OutputPin, IN2: OutputPin> LockActuator<IN1, IN2> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::hal::test_pin::CellPin as Pin;
     use core::cell::Cell;
-
-    /// A pin some other agent (the E-STOP interrupt) may pull low.
-    struct Pin<'a>(&'a Cell<bool>);
-    impl embedded_hal::digital::ErrorType for Pin<'_> {
-        type Error = core::convert::Infallible;
-    }
-    impl OutputPin for Pin<'_> {
-        fn set_high(&mut self) -> Result<(), Self::Error> {
-            self.0.set(true);
-            Ok(())
-        }
-        fn set_low(&mut self) -> Result<(), Self::Error> {
-            self.0.set(false);
-            Ok(())
-        }
-    }
 
     #[test]
     fn lock_command_is_reasserted_after_the_stop_latch_releases() {

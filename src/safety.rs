@@ -282,13 +282,13 @@ impl EstopEdges {
     }
 
     /// From the E-STOP's interrupt, after [`StopLatch::stop_now`] returned `stop`: the
-    /// input read `open` at `now_us`. The stop number is stored before the count.
-    pub fn on_edge(&self, stop: u32, open: bool, now_us: u64) {
-        let t = now_us as u32; // low 32 bits: durations by wrapping difference
+    /// input read `open` at `now_us` (µs since boot, low 32 bits: durations are wrapping
+    /// differences). The stop number is stored before the count.
+    pub fn on_edge(&self, stop: u32, open: bool, now_us: u32) {
         if open {
-            self.opened_us.store(t, Ordering::Relaxed);
+            self.opened_us.store(now_us, Ordering::Relaxed);
         } else {
-            self.closed_us.store(t, Ordering::Relaxed);
+            self.closed_us.store(now_us, Ordering::Relaxed);
         }
         self.stop.store(stop, Ordering::Release);
         self.edges.fetch_add(1, Ordering::Release);
@@ -500,20 +500,7 @@ mod tests {
 
     #[test]
     fn the_gate_keeps_the_driver_off_while_latched() {
-        struct En<'a>(&'a Cell<bool>);
-        impl embedded_hal::digital::ErrorType for En<'_> {
-            type Error = core::convert::Infallible;
-        }
-        impl OutputPin for En<'_> {
-            fn set_high(&mut self) -> Result<(), Self::Error> {
-                self.0.set(true);
-                Ok(())
-            }
-            fn set_low(&mut self) -> Result<(), Self::Error> {
-                self.0.set(false);
-                Ok(())
-            }
-        }
+        use crate::hal::test_pin::CellPin as En;
         let level = Cell::new(true);
         let mut latch = Latch::default();
         latch.stop_now();

@@ -662,7 +662,7 @@ impl Rig {
         // interrupt-accurate; the virtual board measures the real latency).
         let estop_open = self.estop_line.is_high();
         if estop_open != self.estop_was_open {
-            self.estop_edge(estop_open);
+            self.estop_edge(estop_open, now_us);
         }
         self.estop_was_open = estop_open;
         self.ctrl.set_plc(
@@ -700,21 +700,20 @@ impl Rig {
     }
 
     /// What the board's E-STOP interrupt does at an edge of the input (`open`: it
-    /// opened): stop (EN high, pulses halted, latched; the lock's bridge held low by the
-    /// latch) and count the edge.
-    fn estop_edge(&mut self, open: bool) {
+    /// opened) at `at_us`: stop (EN high, pulses halted, latched; the lock's bridge held
+    /// low by the latch) and count the edge, stamped as the board stamps it (TIM5's
+    /// 32-bit µs count).
+    fn estop_edge(&mut self, open: bool, at_us: u64) {
         let n = self.stop.stop_now();
-        self.estop_edges
-            .on_edge(n, open, self.clock.now_ns() / 1_000);
+        self.estop_edges.on_edge(n, open, at_us as u32);
     }
 
     /// An open pulse of `open_us` on a closed E-STOP input, shorter than a tick: the
     /// board's interrupt sees both its edges; the control step never samples it open.
     pub fn estop_pulse(&mut self, open_us: u64) {
-        self.estop_edge(true);
-        let closed_at_us = self.clock.now_ns() / 1_000 + open_us;
-        let n = self.stop.stop_now();
-        self.estop_edges.on_edge(n, false, closed_at_us);
+        let now_us = self.clock.now_ns() / 1_000;
+        self.estop_edge(true, now_us);
+        self.estop_edge(false, now_us + open_us);
     }
 
     /// The devices a scene disturbs.

@@ -39,6 +39,15 @@ mod shared {
         false
     }
 
+    /// Tick `r` `ticks` times; panics (saying `why`) if the propulsion or the lock is
+    /// driven at any of them.
+    pub fn run_without_motion(r: &mut Rig, ticks: usize, why: &str) {
+        for _ in 0..ticks {
+            r.tick();
+            assert!(!r.axis.enabled() && !r.lock.driven(), "{why}");
+        }
+    }
+
     /// The files of the kept fuzz corpus `fuzz-corpus/NAME/`, sorted; panics with fewer
     /// than 20.
     pub fn corpus_files(name: &str) -> Vec<PathBuf> {
@@ -57,4 +66,4 @@ mod shared {
 }
 
 #[cfg(not(target_os = "none"))]
-pub use shared::{corpus_files, run_cycles, run_until};
+pub use shared::{corpus_files, run_cycles, run_until, run_without_motion};

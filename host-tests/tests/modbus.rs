@@ -1395,13 +1395,7 @@ fn maintenance_mode_locks_out_plc_motion() {
     assert_eq!(Refusal::MaintenanceMode.code(), 9);
     // The DOCK pin: ignored.
     r.dock_line.set(false);
-    for _ in 0..200 {
-        r.tick();
-        assert!(
-            !r.axis.enabled() && !r.lock.driven(),
-            "moved in maintenance"
-        );
-    }
+    host_tests::run_without_motion(&mut r, 200, "moved in maintenance");
     assert_eq!(r.ctrl.state(), State::Idle);
     // A stop is never refused, whoever sends it.
     assert!(r

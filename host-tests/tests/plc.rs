@@ -32,13 +32,7 @@ fn dock_asserted_across_a_reset_is_not_a_request() {
     // DOCK low (asserted) from before the controller booted.
     let mut r = Rig::new(RigOptions::new(80));
     r.dock_line.set(false);
-    for _ in 0..800 {
-        r.tick();
-        assert!(
-            !r.axis.enabled() && !r.lock.driven(),
-            "moved without a request"
-        );
-    }
+    host_tests::run_without_motion(&mut r, 800, "moved without a request");
     assert_eq!(r.ctrl.state(), State::Idle);
     assert!(r.ctrl.handshake().dock, "the input is seen");
     // The PLC releases and asserts it again: that is a request.
