@@ -254,8 +254,6 @@ pub mod exception {
     pub const ILLEGAL_DATA_ADDRESS: u8 = 0x02;
     /// A quantity, byte count, length or value that is not allowed.
     pub const ILLEGAL_DATA_VALUE: u8 = 0x03;
-    /// Not used: a refused command is not a failed device (see [`ILLEGAL_FUNCTION`]).
-    pub const SERVER_DEVICE_FAILURE: u8 = 0x04;
 }
 
 // ---------------------------------------------------------------------------------

@@ -723,10 +723,9 @@ impl<F: NorFlash> RecordLog<F> {
     pub fn for_each_newest_first_while(
         &mut self,
         kind: u8,
-        f: impl FnMut(&Record) -> bool,
+        mut f: impl FnMut(&Record) -> bool,
     ) -> Result<usize, StorageError<F::Error>> {
         kind_index(kind)?;
-        let mut f = f;
         self.walk_newest_first(kind, usize::MAX, |_, rec| f(rec))
     }
 
