@@ -248,14 +248,6 @@ impl Console {
         (None, st)
     }
 
-    /// Phase 2, with the controller: run one line (its reply formatted into the output
-    /// ring). A maintenance login only fetches the stored PIN record here: its hash
-    /// (257 SHA-256 compressions, milliseconds) waits for [`Self::finish`].
-    /// Returns the PIN hashes computed here (`pin set`).
-    pub fn run_line<B: Bsp>(&mut self, ctrl: &mut Controller<B>, line: &str, now_ms: u64) -> u32 {
-        self.execute(ctrl, line, now_ms)
-    }
-
     /// Phase 3, without the controller: the work a command left for after the
     /// controller is released (a maintenance login's PIN check). Returns the PIN hashes
     /// computed. The controller learns the new maintenance mode from
@@ -399,8 +391,12 @@ impl Console {
         }
     }
 
-    /// Run one command line; returns the PIN hashes computed.
-    fn execute<B: Bsp>(&mut self, ctrl: &mut Controller<B>, line: &str, now_ms: u64) -> u32 {
+    /// Phase 2, with the controller: run one line (its reply formatted into the output
+    /// ring). A maintenance login only fetches the stored PIN record here: its hash
+    /// (257 SHA-256 compressions, milliseconds) waits for [`Self::finish`], and so does
+    /// the rendering of a `history` reply. Returns the PIN hashes computed here
+    /// (`pin set`).
+    pub fn run_line<B: Bsp>(&mut self, ctrl: &mut Controller<B>, line: &str, now_ms: u64) -> u32 {
         let cmd = match parse(line) {
             Ok(c) => c,
             Err(e) => {
