@@ -57,7 +57,7 @@ const KEY1: u32 = 0x4567_0123;
 const KEY2: u32 = 0xCDEF_89AB;
 pub(crate) const SR_BSY: u32 = 1 << 16;
 /// EOP and the sticky error flags (OPERR, WRPERR, PGAERR, PGPERR, PGSERR).
-const SR_ERRORS: u32 = 0xF2;
+pub(crate) const SR_ERRORS: u32 = 0xF2;
 const SR_CLEAR: u32 = SR_ERRORS | 1;
 const CR_PG: u32 = 1 << 0;
 const CR_SER: u32 = 1 << 1;

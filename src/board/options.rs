@@ -20,20 +20,17 @@
 //! Programming: unlock OPTCR (OPTKEYR), write the level, set OPTSTRT, wait for BSY to
 //! clear from SRAM (the flash interface is busy meanwhile) while feeding the watchdog,
 //! then judge by FLASH_SR's error bits **and** the level read back; OPTCR is locked
-//! again whatever happened.
+//! again once the interface is idle (a timed-out wait leaves that to the next reset).
 
-const FLASH_SR: *mut u32 = 0x4002_3C0C as *mut u32;
+use super::flash::{FLASH_SR, IWDG_KR, SR_BSY as BSY, SR_ERRORS};
+
 const FLASH_OPTKEYR: *mut u32 = 0x4002_3C08 as *mut u32;
 const FLASH_OPTCR: *mut u32 = 0x4002_3C14 as *mut u32;
-const IWDG_KR: *mut u32 = 0x4000_3000 as *mut u32;
 const OPTKEY1: u32 = 0x0819_2A3B;
 const OPTKEY2: u32 = 0x4C5D_6E7F;
 const OPTLOCK: u32 = 1 << 0;
 const OPTSTRT: u32 = 1 << 1;
 const BOR_LEV: u32 = 0b11 << 2;
-const BSY: u32 = 1 << 16;
-/// OPERR, WRPERR, PGAERR, PGPERR, PGSERR (write 1 to clear).
-const SR_ERRORS: u32 = 0xF2;
 /// Longest wait for the option bytes: as long as a sector erase may take, plus half.
 const PROGRAM_TIMEOUT_CYCLES: u32 = super::flash::ERASE_TIMEOUT_CYCLES;
 
