@@ -1796,10 +1796,10 @@ fn estop_bounce(
 }
 
 /// `maintenance-lockout`: the technician enters maintenance mode at the console; the
-/// PLC reads the mode (status bit 11, input register 10), asks to dock over Modbus (coil
-/// 0: exception 01, the wrong state) and with the DOCK pin for 2 s (nothing moves; READY, PD0, stays low
-/// throughout, on the pin's recorded edges); `maint exit`; the PLC docks over Modbus,
-/// undocks, home.
+/// PLC reads the mode (status bit 11, input register 10), asks to dock over Modbus
+/// (coil 0: exception 01, the wrong state) and with the DOCK pin for 2 s (nothing
+/// moves; READY, PD0, stays low throughout, on the pin's recorded edges); `maint
+/// exit`; the PLC docks over Modbus, undocks, home.
 fn maintenance_lockout(
     s: &mut Session,
     checks: &mut Vec<(String, bool, String)>,
