@@ -479,7 +479,19 @@ struct StoreState<F: NorFlash> {
     storage_fault_due: bool,
     /// The newest completed cycles as recorded in flash, oldest first.
     recent_cycles: Deque<HistoryEntry, HISTORY_KEPT>,
+    /// The newest record of each kind a client reads on request ([`CACHED_KINDS`]:
+    /// the PIN, the Modbus settings), loaded at boot and kept as they are written, so
+    /// that a console command or a Modbus request never walks the log (milliseconds of
+    /// flash reads) while it holds the controller.
+    /// `None`: not known (read from the log); `Some(None)`: there is none.
+    cached: [Option<Option<heapless::Vec<u8, CACHED_RECORD_MAX>>>; CACHED_KINDS.len()],
 }
+
+/// Record kinds kept in RAM ([`Controller::load_record`] answers them without a flash
+/// read): those the console and Modbus read per request.
+pub const CACHED_KINDS: [u8; 2] = [odometer::kind::PIN, odometer::kind::MODBUS];
+/// Longest cached record payload, bytes (a PIN record is 48).
+const CACHED_RECORD_MAX: usize = 48;
 
 /// What the console and the log report: faults, events, resets, crashes, the stack.
 struct DiagState {
@@ -880,6 +892,7 @@ impl<B: Bsp> Controller<B> {
                 storage_blocked: false,
                 storage_fault_due: false,
                 recent_cycles: Deque::new(),
+                cached: [None, None],
             },
             diag: DiagState {
                 resets,
@@ -894,6 +907,7 @@ impl<B: Bsp> Controller<B> {
         };
         me.load_readings();
         me.load_history();
+        me.load_cached_records();
         // The switches as they are now: the filter starts from them.
         if let (Ok(home), Ok(end), Ok(locked), Ok(released)) = (
             closed(&mut me.home),
@@ -1929,7 +1943,10 @@ impl<B: Bsp> Controller<B> {
                 .log
                 .as_mut()
                 .is_some_and(|l| l.append(r.kind, &r.data).is_ok());
-            if !ok {
+            if ok {
+                let (kind, data) = (r.kind, r.data.clone());
+                self.cache_record(kind, &data);
+            } else {
                 self.store.storage_errors = self.store.storage_errors.saturating_add(1);
                 error!("odometer: a queued record was not written");
             }
@@ -2200,7 +2217,10 @@ impl<B: Bsp> Controller<B> {
     pub fn store_record(&mut self, kind: u8, data: &[u8]) -> Result<(), MaintError> {
         self.flash_turn()?;
         match self.store.log.as_mut().map(|l| l.append(kind, data)) {
-            Some(Ok(_)) => Ok(()),
+            Some(Ok(_)) => {
+                self.cache_record(kind, data);
+                Ok(())
+            }
             _ => {
                 self.store.storage_errors = self.store.storage_errors.saturating_add(1);
                 Err(MaintError::Storage)
@@ -2210,12 +2230,49 @@ impl<B: Bsp> Controller<B> {
 
     /// The newest record of `kind`, if any (payload bytes copied into `buf`; returns
     /// the length).
+    ///
+    /// The kinds in [`CACHED_KINDS`] come from RAM (no flash read); the others walk the
+    /// log (milliseconds: boot, or a machine at rest).
     pub fn load_record(&mut self, kind: u8, buf: &mut [u8]) -> Option<usize> {
+        let cached = CACHED_KINDS
+            .iter()
+            .position(|&k| k == kind)
+            .and_then(|i| self.store.cached.get(i))
+            .and_then(Option::as_ref);
+        if let Some(known) = cached {
+            let d = known.as_ref()?;
+            let dst = buf.get_mut(..d.len())?;
+            dst.copy_from_slice(d);
+            return Some(d.len());
+        }
         let r = self.store.log.as_mut()?.latest(kind).ok().flatten()?;
         let d = r.data();
         let dst = buf.get_mut(..d.len())?;
         dst.copy_from_slice(d);
         Some(d.len())
+    }
+
+    /// Load the newest record of each of [`CACHED_KINDS`] (at boot).
+    fn load_cached_records(&mut self) {
+        for (kind, slot) in CACHED_KINDS.iter().zip(self.store.cached.iter_mut()) {
+            // An unreadable log, or a record too long to keep: not known (`None`).
+            *slot = match self.store.log.as_mut().map(|l| l.latest(*kind)) {
+                Some(Ok(None)) => Some(None),
+                Some(Ok(Some(r))) => heapless::Vec::from_slice(r.data()).ok().map(Some),
+                _ => None,
+            };
+        }
+    }
+
+    /// Keep `data` as the newest record of `kind` if that kind is cached.
+    fn cache_record(&mut self, kind: u8, data: &[u8]) {
+        let Some(i) = CACHED_KINDS.iter().position(|&k| k == kind) else {
+            return;
+        };
+        if let Some(slot) = self.store.cached.get_mut(i) {
+            // Longer than any cached kind's record: not known (read from the log).
+            *slot = heapless::Vec::from_slice(data).ok().map(Some);
+        }
     }
 
     /// Up to `max` records of `kind`, newest first.

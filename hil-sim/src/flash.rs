@@ -68,6 +68,7 @@ pub struct SimFlash {
     marginal_programs: u64,
     protected: bool,
     program_calls: u64,
+    read_calls: u64,
 }
 
 impl SimFlash {
@@ -85,6 +86,7 @@ impl SimFlash {
             marginal_programs: 0,
             protected: false,
             program_calls: 0,
+            read_calls: 0,
         }
     }
 
@@ -143,6 +145,12 @@ impl SimFlash {
     /// Program calls so far, refused ones included.
     pub fn program_calls(&self) -> u64 {
         self.program_calls
+    }
+
+    /// `read` calls so far (each costs real flash reads on the board: a log walk is
+    /// thousands of them).
+    pub fn read_calls(&self) -> u64 {
+        self.read_calls
     }
 
     /// Flip bits of stored bytes (radiation, retention loss): `mem[off] ^= mask`.
@@ -269,6 +277,7 @@ impl ReadNorFlash for SimFlash {
     const READ_SIZE: usize = 1;
 
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        self.read_calls += 1;
         self.check(offset, bytes.len(), 1)?;
         let o = offset as usize;
         bytes.copy_from_slice(&self.mem[o..o + bytes.len()]);

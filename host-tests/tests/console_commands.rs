@@ -464,3 +464,47 @@ fn bor_is_programmed_only_by_an_explicit_maintenance_step() {
     assert!(r.command("bor", 10).contains("level=3 (2.70 V)"));
     assert!(r.command("bor set", 10).contains("set already"));
 }
+
+/// A console command holds the controller on the board (idle's lock, which the control
+/// step waits for): it must not walk the flash log then. Every command looked up the
+/// PIN record in flash (a walk of the log) to decide its gate, and `modbus` the stored
+/// settings; both now come from RAM.
+#[test]
+fn console_commands_read_no_flash_under_the_controller() {
+    let mut r = rig();
+    run_cycles(&mut r, 2);
+    // A PIN and Modbus settings stored, so the lookups find something.
+    r.command("pin set 2468", 10);
+    r.command("maint 2468", 10);
+    r.command("modbus 7 19200", 10);
+    r.command("maint exit", 10);
+    for _ in 0..20 {
+        r.tick();
+    }
+    let reads = |r: &Rig| r.flash.with(|f| f.read_calls());
+    let before = reads(&r);
+    for cmd in [
+        "status",
+        "status --json",
+        "wear --json",
+        "faults",
+        "history 5",
+        "measurements",
+        "modbus",
+        "help",
+        "version",
+        "dock",
+        "maint 1111",
+        "pin set 1357",
+    ] {
+        let reply = r.command(cmd, 10);
+        assert!(!reply.is_empty(), "{cmd}: no reply");
+    }
+    assert_eq!(reads(&r) - before, 0, "flash reads while serving commands");
+    // And the cached records are the stored ones.
+    assert!(r
+        .command("modbus", 10)
+        .starts_with("modbus unit=7 baud=19200"));
+    r.command("maint 2468", 10);
+    assert!(r.command("status", 10).contains("maintenance=yes"));
+}
