@@ -127,14 +127,77 @@ struct Deferred {
     login_pin: String<LINE_MAX>,
     login_rec: [u8; PinRecord::LEN],
     login_has_rec: bool,
-    /// A `history` reply waits to be written (`history_json`: as JSON).
-    history: bool,
-    history_json: bool,
-    history_entries: HistoryEntries,
+    /// A report waits to be written (`report_json`: as JSON).
+    report: Report,
+    report_json: bool,
 }
 
 /// The entries of one `history` reply.
 type HistoryEntries = heapless::Vec<HistoryEntry, { super::parse::HISTORY_MAX as usize }>;
+
+/// A report's data, copied from the controller while the console holds it
+/// ([`Console::run_line`]) and written out after it is released ([`Console::finish`]):
+/// the control step never waits for formatting.
+// It lives in the console's static; `finish` moves it out once (as `history` did
+// before it).
+#[allow(clippy::large_enum_variant)]
+enum Report {
+    /// Nothing waits (all-zero: the console stays in `.bss`).
+    None,
+    Status(StatusView),
+    Wear(WearView),
+    Faults(FaultsView),
+    Measurements(MeasurementsView),
+    History(HistoryEntries),
+}
+
+/// `status`.
+struct StatusView {
+    s: crate::controller::Status,
+    calibrated: bool,
+    reset: Option<crate::diag::ResetCause>,
+    stack: Option<(u32, u32)>,
+    maint: bool,
+}
+
+/// `wear`.
+struct WearView {
+    cone: crate::odometer::Cone,
+    life: crate::odometer::Lifetime,
+    wear_nm: u32,
+    remaining: u32,
+    limit_nm: u64,
+    warn_nm: i64,
+    level: crate::odometer::WearLevel,
+    est: crate::estimate::Estimate,
+    base: u32,
+    measured: Option<i64>,
+    /// The cone's load–distance, thousandths of N·mm.
+    cone_nmm_milli: i64,
+    /// The cycle in progress (counted into the cone at its end), same unit.
+    in_cycle_nmm_milli: i64,
+    readings: usize,
+}
+
+/// `faults`.
+struct FaultsView {
+    active: Option<&'static str>,
+    count: u32,
+    overloads: u32,
+    recs: heapless::Vec<crate::controller::FaultRecord, 16>,
+    resets: crate::diag::ResetCounts,
+    queued: usize,
+    dropped: u32,
+    crash: Option<crate::diag::Crash>,
+}
+
+/// `measurements`.
+struct MeasurementsView {
+    base: u32,
+    assumed: bool,
+    cone: u16,
+    list: heapless::Vec<crate::odometer::Measurement, { crate::odometer::READINGS_KEPT }>,
+}
 
 impl Console {
     /// A console; `entropy` seeds the PIN salts (device ID, boot time… anything unique).
@@ -154,9 +217,8 @@ impl Console {
                 login_pin: String::new(),
                 login_rec: [0; PinRecord::LEN],
                 login_has_rec: false,
-                history: false,
-                history_json: false,
-                history_entries: heapless::Vec::new(),
+                report: Report::None,
+                report_json: false,
             },
         }
     }
@@ -254,9 +316,14 @@ impl Console {
     /// [`Self::maintenance_active`] (the board and [`Self::poll`] tell it after each
     /// command).
     pub fn finish(&mut self, now_ms: u64) -> u32 {
-        if core::mem::take(&mut self.deferred.history) {
-            let entries = core::mem::take(&mut self.deferred.history_entries);
-            self.render_history(&entries, self.deferred.history_json);
+        let json = self.deferred.report_json;
+        match core::mem::replace(&mut self.deferred.report, Report::None) {
+            Report::None => {}
+            Report::Status(v) => self.render_status(&v, json),
+            Report::Wear(v) => self.render_wear(&v, json),
+            Report::Faults(v) => self.render_faults(&v, json),
+            Report::Measurements(v) => self.render_measurements(&v, json),
+            Report::History(entries) => self.render_history(&entries, json),
         }
         if !core::mem::take(&mut self.deferred.login) {
             return 0;
@@ -435,10 +502,16 @@ impl Console {
                     self.reply(|o| write!(o, "docking-controller {v}\r\n"));
                 }
             }
-            Command::Status { json } => self.status(ctrl, json, maint),
-            Command::Wear { json } => self.wear(ctrl, json),
-            Command::History { n, json } => self.history(ctrl, n as usize, json),
-            Command::Faults { json } => self.faults(ctrl, json),
+            Command::Status { json } => self.defer(Report::Status(status_view(ctrl, maint)), json),
+            Command::Wear { json } => self.defer(Report::Wear(wear_view(ctrl)), json),
+            Command::History { n, json } => {
+                let mut entries = HistoryEntries::new();
+                ctrl.history(n as usize, |e| {
+                    let _ = entries.push(e);
+                });
+                self.defer(Report::History(entries), json)
+            }
+            Command::Faults { json } => self.defer(Report::Faults(faults_view(ctrl)), json),
             Command::ClearFault => self.request(
                 ctrl,
                 Request::ClearFault,
@@ -553,7 +626,9 @@ impl Console {
                 }
             }
             Command::Measure { bore_um, baseline } => self.measure(ctrl, bore_um, baseline, now_ms),
-            Command::Measurements { json } => self.measurements(ctrl, json),
+            Command::Measurements { json } => {
+                self.defer(Report::Measurements(measurements_view(ctrl)), json)
+            }
             Command::CalibrateTare => match ctrl.calibrate_tare() {
                 Ok(c) => {
                     self.audit(
@@ -668,11 +743,20 @@ impl Console {
         }
     }
 
-    fn status<B: Bsp>(&mut self, ctrl: &mut Controller<B>, json: bool, maint: bool) {
-        let s = ctrl.status();
-        let calibrated = ctrl.calibrated();
-        let reset = ctrl.last_reset();
-        let stack = ctrl.stack_usage();
+    /// Leave `report` for [`Self::finish`].
+    fn defer(&mut self, report: Report, json: bool) {
+        self.deferred.report = report;
+        self.deferred.report_json = json;
+    }
+
+    fn render_status(&mut self, v: &StatusView, json: bool) {
+        let StatusView {
+            s,
+            calibrated,
+            reset,
+            stack,
+            maint,
+        } = *v;
         let fault = s.fault.map(|f| f.name());
         if json {
             self.reply_json(|j| {
@@ -749,25 +833,23 @@ impl Console {
         }
     }
 
-    fn wear<B: Bsp>(&mut self, ctrl: &mut Controller<B>, json: bool) {
-        let odo = ctrl.odometer();
-        let cone = *odo.cone();
-        let life = *odo.lifetime();
-        let (wear_nm, remaining) = (odo.wear_nm(), odo.remaining_cycles());
-        let cfg = *odo.config();
-        let warn_nm = (cfg.limit_nm as u64 * cfg.warn_pct as u64 / 100) as i64;
-        // The level acted on (the estimate's band once measured), the estimate, the
-        // last reading.
-        let level = ctrl.wear_level();
-        let est = ctrl.wear_estimate();
-        let base = ctrl.baseline_or_nominal();
+    fn render_wear(&mut self, v: &WearView, json: bool) {
+        let WearView {
+            ref cone,
+            ref life,
+            wear_nm,
+            remaining,
+            limit_nm,
+            warn_nm,
+            level,
+            ref est,
+            base,
+            measured,
+            cone_nmm_milli,
+            in_cycle_nmm_milli,
+            readings,
+        } = *v;
         let assumed = cone.baseline().is_none();
-        let measured = ctrl.measurements().last().map(|m| m.wear_nm(base) as i64);
-        // The cone's load–distance (Q63.1 mN·µm) in thousandths of N·mm.
-        let cone_nmm_milli = (cone.w_q1 / 2_000).min(i64::MAX as u64) as i64;
-        // The cycle in progress (counted into the cone at its end), same unit.
-        let in_cycle_nmm_milli = (ctrl.journal().cone_w_q1.saturating_sub(cone.w_q1) / 2_000)
-            .min(i64::MAX as u64) as i64;
         if json {
             self.reply_json(|j| {
                 j.u64("cone", cone.id as u64)?
@@ -779,7 +861,7 @@ impl Console {
                     .fixed("wear_mm", wear_nm as i64, 6)?
                     .u64("remaining_cycles", remaining as u64)?
                     .str("level", level.name())?
-                    .fixed("limit_mm", cfg.limit_nm as i64, 6)?
+                    .fixed("limit_mm", limit_nm as i64, 6)?
                     .fixed("warn_mm", warn_nm, 6)?
                     .u64("lifetime_cycles", life.cycles as u64)?
                     .u64("cones_installed", life.cones_installed as u64)?
@@ -796,7 +878,7 @@ impl Console {
                     .u64("remaining_estimate_cycles", est.remaining_cycles as u64)?
                     .fixed("baseline_bore_mm", base as i64, 3)?
                     .bool("baseline_assumed", assumed)?
-                    .u64("readings", ctrl.measurements().len() as u64)?;
+                    .u64("readings", readings as u64)?;
                 Ok(())
             });
         } else {
@@ -812,7 +894,7 @@ impl Console {
                 kv_fixed(o, "load_distance_nmm", cone_nmm_milli, 3)?;
                 kv_fixed(o, "wear_mm", wear_nm as i64, 6)?;
                 write!(o, " remaining_cycles={remaining} level={}", level.name())?;
-                kv_fixed(o, "limit_mm", cfg.limit_nm as i64, 6)?;
+                kv_fixed(o, "limit_mm", limit_nm as i64, 6)?;
                 kv_fixed(o, "warn_mm", warn_nm, 6)?;
                 write!(
                     o,
@@ -833,23 +915,11 @@ impl Console {
                     o,
                     " baseline_assumed={} readings={}",
                     if assumed { "yes" } else { "no" },
-                    ctrl.measurements().len()
+                    readings
                 )?;
                 o.write_str("\r\n")
             });
         }
-    }
-
-    /// `history`, with the controller: the entries only (the walk stops at the N-th);
-    /// the reply is written by [`Self::finish`], without it.
-    fn history<B: Bsp>(&mut self, ctrl: &mut Controller<B>, n: usize, json: bool) {
-        let mut entries = HistoryEntries::new();
-        ctrl.history(n, |e| {
-            let _ = entries.push(e);
-        });
-        self.deferred.history = true;
-        self.deferred.history_json = json;
-        self.deferred.history_entries = entries;
     }
 
     fn render_history(&mut self, entries: &HistoryEntries, json: bool) {
@@ -891,16 +961,17 @@ impl Console {
         }
     }
 
-    fn faults<B: Bsp>(&mut self, ctrl: &mut Controller<B>, json: bool) {
-        let active = ctrl.status().fault.map(|f| f.name());
-        let count = ctrl.fault_count();
-        let overloads = ctrl.odometer().lifetime().overload_events;
-        let recs: heapless::Vec<crate::controller::FaultRecord, 16> =
-            ctrl.faults().copied().collect();
-        let resets = ctrl.reset_counts();
-        // Records waiting for a rest to be written, and those the full queue dropped.
-        let (queued, dropped) = (ctrl.records_queued(), ctrl.records_dropped());
-        let crash = ctrl.last_crash();
+    fn render_faults(&mut self, v: &FaultsView, json: bool) {
+        let FaultsView {
+            active,
+            count,
+            overloads,
+            ref recs,
+            ref resets,
+            queued,
+            dropped,
+            crash,
+        } = *v;
         if json {
             self.reply_json(|j| {
                 match active {
@@ -931,7 +1002,7 @@ impl Console {
                     None => j.null("last_crash")?,
                 };
                 j.array("faults", |a| {
-                    for f in &recs {
+                    for f in recs {
                         a.object(|x| {
                             x.str("kind", f.kind.name())?.u64("cycle", f.cycle as u64)?;
                             match f.phase {
@@ -957,7 +1028,7 @@ impl Console {
                     "active={} count_since_boot={count} overload_events_lifetime={overloads} records_queued={queued} records_dropped={dropped}\r\n",
                     active.unwrap_or("none")
                 )?;
-                for f in &recs {
+                for f in recs {
                     write!(o, "kind={} cycle={}", f.kind.name(), f.cycle)?;
                     kv_phase(o, f.phase)?;
                     kv_fixed(o, "t_s", f.t_ms as i64, 3)?;
@@ -1039,19 +1110,20 @@ impl Console {
         });
     }
 
-    fn measurements<B: Bsp>(&mut self, ctrl: &mut Controller<B>, json: bool) {
-        let base = ctrl.baseline_or_nominal();
-        let assumed = ctrl.odometer().cone().baseline().is_none();
-        let cone = ctrl.odometer().cone().id;
-        let list: heapless::Vec<_, { crate::odometer::READINGS_KEPT }> =
-            ctrl.measurements().iter().copied().collect();
+    fn render_measurements(&mut self, v: &MeasurementsView, json: bool) {
+        let MeasurementsView {
+            base,
+            assumed,
+            cone,
+            ref list,
+        } = *v;
         if json {
             self.reply_json(|j| {
                 j.u64("cone", cone as u64)?
                     .fixed("baseline_bore_mm", base as i64, 3)?
                     .bool("baseline_assumed", assumed)?;
                 j.array("readings", |a| {
-                    for m in &list {
+                    for m in list {
                         a.object(|x| {
                             x.u64("cone_cycle", m.cone_cycle as u64)?
                                 .u64("cycle", m.lifetime_cycle as u64)?
@@ -1075,7 +1147,7 @@ impl Console {
                     if assumed { "yes" } else { "no" },
                     list.len()
                 )?;
-                for m in &list {
+                for m in list {
                     write!(o, "cone_cycle={} cycle={}", m.cone_cycle, m.lifetime_cycle)?;
                     kv_fixed(o, "bore_mm", m.bore_um as i64, 3)?;
                     kv_fixed(o, "wear_mm", m.wear_nm(base) as i64, 6)?;
@@ -1085,6 +1157,69 @@ impl Console {
                 Ok(())
             });
         }
+    }
+}
+
+/// `status`'s data (with the controller).
+fn status_view<B: Bsp>(ctrl: &Controller<B>, maint: bool) -> StatusView {
+    StatusView {
+        s: ctrl.status(),
+        calibrated: ctrl.calibrated(),
+        reset: ctrl.last_reset(),
+        stack: ctrl.stack_usage(),
+        maint,
+    }
+}
+
+/// `wear`'s data (with the controller).
+fn wear_view<B: Bsp>(ctrl: &Controller<B>) -> WearView {
+    let odo = ctrl.odometer();
+    let cone = *odo.cone();
+    let cfg = *odo.config();
+    // The level acted on (the estimate's band once measured), the estimate, the last
+    // reading.
+    let base = ctrl.baseline_or_nominal();
+    WearView {
+        cone,
+        life: *odo.lifetime(),
+        wear_nm: odo.wear_nm(),
+        remaining: odo.remaining_cycles(),
+        limit_nm: cfg.limit_nm as u64,
+        warn_nm: (cfg.limit_nm as u64 * cfg.warn_pct as u64 / 100) as i64,
+        level: ctrl.wear_level(),
+        est: ctrl.wear_estimate(),
+        base,
+        measured: ctrl.measurements().last().map(|m| m.wear_nm(base) as i64),
+        // The cone's load–distance (Q63.1 mN·µm) in thousandths of N·mm.
+        cone_nmm_milli: (cone.w_q1 / 2_000).min(i64::MAX as u64) as i64,
+        in_cycle_nmm_milli: (ctrl.journal().cone_w_q1.saturating_sub(cone.w_q1) / 2_000)
+            .min(i64::MAX as u64) as i64,
+        readings: ctrl.measurements().len(),
+    }
+}
+
+/// `faults`' data (with the controller).
+fn faults_view<B: Bsp>(ctrl: &Controller<B>) -> FaultsView {
+    FaultsView {
+        active: ctrl.status().fault.map(|f| f.name()),
+        count: ctrl.fault_count(),
+        overloads: ctrl.odometer().lifetime().overload_events,
+        recs: ctrl.faults().copied().collect(),
+        resets: ctrl.reset_counts(),
+        // Records waiting for a rest to be written, and those the full queue dropped.
+        queued: ctrl.records_queued(),
+        dropped: ctrl.records_dropped(),
+        crash: ctrl.last_crash(),
+    }
+}
+
+/// `measurements`' data (with the controller).
+fn measurements_view<B: Bsp>(ctrl: &Controller<B>) -> MeasurementsView {
+    MeasurementsView {
+        base: ctrl.baseline_or_nominal(),
+        assumed: ctrl.odometer().cone().baseline().is_none(),
+        cone: ctrl.odometer().cone().id,
+        list: ctrl.measurements().iter().copied().collect(),
     }
 }
 
