@@ -690,6 +690,12 @@ mod app {
     ])]
     fn idle(mut cx: idle::Context) -> ! {
         cx.local.console.seed(*cx.local.entropy);
+        // The greeting: firmware, why it reset, the prompt (a terminal's first line).
+        let (reset, state) = cx.shared.ctrl.lock(|c| (c.last_reset(), c.state().name()));
+        cx.local.console.observe(state, clock::now_us() / 1_000);
+        cx.local
+            .console
+            .banner(reset.map_or("unknown", |r| r.name()));
         let _ = cx.local.server.set_settings(*cx.local.modbus_settings);
         // The unit's serial for Modbus device identification: the chip's unique ID.
         let serial_hex = unit_serial();
@@ -758,7 +764,7 @@ mod app {
             // log taken out, the board's reports in.
             let mut events: heapless::Vec<_, 8> = heapless::Vec::new();
             let sending = line.sending();
-            cx.shared.ctrl.lock(|ctrl| {
+            let state = cx.shared.ctrl.lock(|ctrl| {
                 if let Some((used, size)) = stack {
                     ctrl.set_stack_usage(used, size);
                 }
@@ -769,7 +775,9 @@ mod app {
                     let Some(ev) = ctrl.next_event() else { break };
                     let _ = events.push(ev);
                 }
+                ctrl.state().name()
             });
+            console.observe(state, now_ms);
             for ev in &events {
                 defmt::info!("t={=u64} ms {}", ev.t_ms, ev.event);
             }

@@ -622,6 +622,10 @@ impl Rig {
         };
         let mut kernel = SafetyKernel::new(adc, cfg.guard, opts.rate_sps, ctrl.calibration(), 0);
         kernel.configure(ctrl.kernel_config(), 0);
+        // The board's greeting at boot (a terminal on `hil-sim serve` sees it first).
+        let mut console = Console::new([0x5A; 32]);
+        console.observe(ctrl.state().name(), 0);
+        console.banner("power_on");
         Self {
             clock,
             axis,
@@ -635,7 +639,7 @@ impl Rig {
             conversions,
             flash,
             period_ns: 1_000_000_000 / opts.rate_sps.max(1) as u64,
-            console: Console::new([0x5A; 32]),
+            console,
             term: SimConsole::new(),
             console_enabled: false,
             dock_line: dock_request,
@@ -729,8 +733,13 @@ impl Rig {
 
     /// Type `line` on the terminal, run the machine until the reply is complete (or
     /// `max_ticks` pass), and return the reply text.
+    ///
+    /// A script's view: echo and prompt off (what `echo off` does), and whatever the
+    /// console printed before (the banner) left out of the reply.
     pub fn command(&mut self, line: &str, max_ticks: usize) -> String {
         self.console_enabled = true;
+        self.console.set_interactive(false);
+        let _ = self.term.take_output();
         self.term.send(line.as_bytes());
         self.term.send(b"\r\n");
         let mut out = Vec::new();

@@ -55,6 +55,28 @@ impl<W: Write> Terminal<W> {
         Self { tx: writer, rx }
     }
 
+    /// Everything the console sends until `want` appears in it (10 s at most).
+    fn read_until(&mut self, want: &str) -> String {
+        let deadline = Instant::now() + Duration::from_secs(10);
+        let mut got = Vec::new();
+        while !String::from_utf8_lossy(&got).contains(want) {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.rx.recv_timeout(left) {
+                Ok(b) => got.push(b),
+                Err(_) => panic!("no {want:?}; got {:?}", String::from_utf8_lossy(&got)),
+            }
+        }
+        String::from_utf8_lossy(&got).into_owned()
+    }
+
+    /// What a script does first: `echo off` (no echo, no prompt: one reply per line).
+    fn script_mode(&mut self) {
+        self.tx.write_all(b"echo off\r\n").unwrap();
+        self.tx.flush().unwrap();
+        self.read_until("ok: echo and prompt off");
+        self.read_until("\r\n");
+    }
+
     /// Type a command, return the reply's first line (without CR LF).
     fn ask(&mut self, cmd: &str) -> String {
         self.tx.write_all(cmd.as_bytes()).unwrap();
@@ -116,6 +138,19 @@ fn a_serial_client_reads_wear_through_a_real_pty() {
         .unwrap();
     let reader = port.try_clone().unwrap();
     let mut term = Terminal::new(reader, port);
+    // A person at the terminal: the banner, then the prompt; what is typed is echoed
+    // (backspace rubs out), the reply follows, then the prompt again.
+    let banner = term.read_until("> ");
+    assert!(banner.starts_with("# docking-controller "), "{banner:?}");
+    term.tx.write_all(b"versiom\x7fn\r").unwrap();
+    term.tx.flush().unwrap();
+    let shown = term.read_until("> ");
+    assert!(
+        shown.starts_with("versiom\x08 \x08n\r\ndocking-controller "),
+        "{shown:?}"
+    );
+    assert!(shown.ends_with("> "), "{shown:?}");
+    term.script_mode();
     check_wear(&mut term);
     let status = term.ask("status");
     assert!(status.starts_with("state="), "{status}");
@@ -131,6 +166,7 @@ fn a_script_reads_wear_over_loopback_tcp() {
     let stream = std::net::TcpStream::connect(&addr).unwrap();
     let reader = stream.try_clone().unwrap();
     let mut term = Terminal::new(reader, stream);
+    term.script_mode();
     check_wear(&mut term);
 }
 

@@ -265,8 +265,20 @@ fn line_errors_display_short_printable_ascii() {
 
 #[test]
 fn parse_read_commands_with_and_without_json() {
-    assert_eq!(ok("help"), Command::Help { json: false });
-    assert_eq!(ok("help --json"), Command::Help { json: true });
+    assert_eq!(
+        ok("help"),
+        Command::Help {
+            topic: None,
+            json: false
+        }
+    );
+    assert_eq!(
+        ok("help --json"),
+        Command::Help {
+            topic: None,
+            json: true
+        }
+    );
     assert_eq!(ok("version"), Command::Version { json: false });
     assert_eq!(ok("version --json"), Command::Version { json: true });
     assert_eq!(ok("status"), Command::Status { json: false });

@@ -164,6 +164,28 @@ impl<const N: usize> LineReader<N> {
         self.returned = false;
     }
 
+    /// The line typed so far (empty once a line was returned, or while an overlong
+    /// one is being discarded): what an interactive terminal shows after its prompt.
+    pub fn pending(&self) -> &[u8] {
+        if self.returned || self.overflow {
+            &[]
+        } else {
+            &self.buf
+        }
+    }
+
+    /// Characters (not bytes: a UTF-8 sequence is one) in [`Self::pending`].
+    pub fn pending_chars(&self) -> usize {
+        self.pending().iter().filter(|&&b| b & 0xC0 != 0x80).count()
+    }
+
+    /// Start a new line holding `text` (a recalled line; cut to `N` bytes).
+    pub fn replace_pending(&mut self, text: &[u8]) {
+        self.reset();
+        let n = text.len().min(N);
+        let _ = self.buf.extend_from_slice(text.get(..n).unwrap_or(&[]));
+    }
+
     /// A byte was lost here (the UART reported an error, or its ring was full): the
     /// line being assembled is spoiled.
     pub fn lost(&mut self) {

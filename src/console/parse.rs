@@ -5,7 +5,8 @@
 //! and case-sensitive (material names are matched case-insensitively). Grammar:
 //!
 //! ```text
-//! help [--json]
+//! help [<command>] [--json]             all commands, or one (e.g. `help cone`)
+//! echo [on|off]                         the terminal's echo and prompt (on at reset)
 //! version [--json]
 //! status [--json]
 //! wear [--json]
@@ -74,13 +75,138 @@ pub const PIN_MIN_LEN: usize = 4;
 /// Longest maintenance PIN, digits.
 pub const PIN_MAX_LEN: usize = 12;
 
+/// One command as `help` shows it: the table the parser's word check and `help` share.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CommandHelp {
+    /// The first word (what `help <command>` takes).
+    pub word: &'static str,
+    /// The syntax.
+    pub usage: &'static str,
+    /// What it does, one line.
+    pub what: &'static str,
+}
+
+const fn c(word: &'static str, usage: &'static str, what: &'static str) -> CommandHelp {
+    CommandHelp { word, usage, what }
+}
+
+/// Every console command, in `help`'s order.
+pub const COMMANDS: [CommandHelp; 23] = [
+    c(
+        "help",
+        "help [<command>] [--json]",
+        "this list, or one command's",
+    ),
+    c(
+        "echo",
+        "echo [on|off]",
+        "terminal echo and prompt (off: the bare line protocol for scripts, until reset)",
+    ),
+    c("version", "version [--json]", "firmware name and version"),
+    c(
+        "status",
+        "status [--json]",
+        "state, phase, force, position, fault, PLC lines",
+    ),
+    c(
+        "wear",
+        "wear [--json]",
+        "the cone's wear odometer and the lifetime counters",
+    ),
+    c(
+        "history",
+        "history [N] [--json]",
+        "the newest N completed cycles (1..100, default 10)",
+    ),
+    c(
+        "faults",
+        "faults [--json]",
+        "active fault, recent faults, resets, last crash",
+    ),
+    c(
+        "measurements",
+        "measurements [--json]",
+        "the current cone's bore readings",
+    ),
+    c(
+        "clear-fault",
+        "clear-fault",
+        "clear a latched fault and recover to home (maint)",
+    ),
+    c("home", "home", "home the axis and lock the panel (maint)"),
+    c("dock", "dock", "dock and stay mated until undock (maint)"),
+    c(
+        "undock",
+        "undock",
+        "undock, or abort a docking under way (maint)",
+    ),
+    c(
+        "stop",
+        "stop",
+        "stop all motion now, latched; never refused",
+    ),
+    c(
+        "rate",
+        "rate <10|80>",
+        "the HX711's rate, from the next boot (maint)",
+    ),
+    c(
+        "modbus",
+        "modbus [<unit> <baud>]",
+        "show or store the Modbus line's settings (maint to store)",
+    ),
+    c(
+        "bor",
+        "bor [set]",
+        "show, or program at rest, the brown-out reset level (maint to set)",
+    ),
+    c(
+        "cone",
+        "cone replace <material> <serial> [--bore <d0_mm>]",
+        "a new cone: its counters start at zero (maint)",
+    ),
+    c(
+        "measure",
+        "measure [--baseline] <bore_diameter_mm>",
+        "record a bore reading, or the new cone's baseline (maint)",
+    ),
+    c(
+        "calibrate",
+        "calibrate tare",
+        "zero the load cell with nothing on it (maint)",
+    ),
+    c(
+        "calibrate",
+        "calibrate span <force_n>",
+        "set the span with a known load on the cell (maint)",
+    ),
+    c(
+        "maint",
+        "maint <pin>",
+        "enter maintenance mode (ends after 10 min idle)",
+    ),
+    c("maint", "maint exit", "leave maintenance mode"),
+    c(
+        "pin",
+        "pin set <new_pin>",
+        "set the maintenance PIN (4-12 digits; maint once one exists)",
+    ),
+];
+
 /// A parsed console command; string fields borrow the line.
 #[derive(Clone, Copy, PartialEq, Eq)]
 pub enum Command<'a> {
-    /// `help [--json]`.
+    /// `help [<command>] [--json]`.
     Help {
+        /// One command's word (`help dock`), else all of them.
+        topic: Option<&'a str>,
         /// Reply in JSON.
         json: bool,
+    },
+    /// `echo [on|off]`: show, or set, the terminal's echo and prompt.
+    Echo {
+        /// `on`/`off`; `None` shows the setting.
+        on: Option<bool>,
     },
     /// `version [--json]`.
     Version {
@@ -184,6 +310,7 @@ impl Command<'_> {
     pub const fn name(&self) -> &'static str {
         match self {
             Self::Help { .. } => "help",
+            Self::Echo { .. } => "echo",
             Self::Version { .. } => "version",
             Self::Status { .. } => "status",
             Self::Wear { .. } => "wear",
@@ -237,7 +364,7 @@ impl Command<'_> {
     /// True when the reply was asked for in JSON (`--json`).
     pub const fn json(&self) -> bool {
         match self {
-            Self::Help { json }
+            Self::Help { json, .. }
             | Self::Version { json }
             | Self::Status { json }
             | Self::Wear { json }
@@ -253,7 +380,12 @@ impl Command<'_> {
 impl fmt::Debug for Command<'_> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Self::Help { json } => f.debug_struct("Help").field("json", json).finish(),
+            Self::Help { topic, json } => f
+                .debug_struct("Help")
+                .field("topic", topic)
+                .field("json", json)
+                .finish(),
+            Self::Echo { on } => f.debug_struct("Echo").field("on", on).finish(),
             Self::Version { json } => f.debug_struct("Version").field("json", json).finish(),
             Self::Status { json } => f.debug_struct("Status").field("json", json).finish(),
             Self::Wear { json } => f.debug_struct("Wear").field("json", json).finish(),
@@ -369,6 +501,11 @@ fn hint(arg: &str) -> &'static str {
         "calibrate subcommand" => "tare | span",
         "pin subcommand" => "set",
         "bor subcommand" => "set",
+        "rate_sps" => "10 | 80",
+        "unit" => "1..247",
+        "baud" => "9600 | 19200 | 38400 | 57600 | 115200",
+        "echo setting" => "on | off",
+        "command" => "a command word, e.g. 'help dock'",
         _ => "see 'help'",
     }
 }
@@ -456,35 +593,36 @@ impl<'a> Args<'a> {
 pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
     let mut tokens = line.split([' ', '\t']).filter(|t| !t.is_empty());
     let word = tokens.next().ok_or(ParseError::Empty)?;
-    let known = matches!(
-        word,
-        "help"
-            | "version"
-            | "status"
-            | "wear"
-            | "history"
-            | "faults"
-            | "measurements"
-            | "clear-fault"
-            | "home"
-            | "dock"
-            | "undock"
-            | "stop"
-            | "rate"
-            | "modbus"
-            | "bor"
-            | "cone"
-            | "measure"
-            | "calibrate"
-            | "maint"
-            | "pin"
-    );
+    let known = COMMANDS.iter().any(|c| c.word == word);
     if !known {
         return Err(ParseError::UnknownCommand(Snippet::new(word)));
     }
     let a = Args::collect(tokens)?;
     match word {
-        "help" => Ok(Command::Help { json: a.report()? }),
+        "help" => {
+            if a.unknown_option {
+                return Err(ParseError::UnknownOption);
+            }
+            let topic = match a.pos.as_slice() {
+                [] => None,
+                [t] if COMMANDS.iter().any(|c| c.word == *t) => Some(*t),
+                [_] => return Err(ParseError::BadArgument("command")),
+                _ => return Err(ParseError::ExtraArgument),
+            };
+            Ok(Command::Help {
+                topic,
+                json: a.json,
+            })
+        }
+        "echo" => {
+            a.action(1)?;
+            match a.pos.first().copied() {
+                None => Ok(Command::Echo { on: None }),
+                Some("on") => Ok(Command::Echo { on: Some(true) }),
+                Some("off") => Ok(Command::Echo { on: Some(false) }),
+                Some(_) => Err(ParseError::BadArgument("echo setting")),
+            }
+        }
         "version" => Ok(Command::Version { json: a.report()? }),
         "status" => Ok(Command::Status { json: a.report()? }),
         "wear" => Ok(Command::Wear { json: a.report()? }),

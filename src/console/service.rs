@@ -29,7 +29,7 @@ use sha2::{Digest, Sha256};
 use super::auth::{make_pin_record, MaintenanceAuth, PinRecord};
 use super::json::JsonObject;
 use super::line::{LineEvent, LineReader, MAX_BYTES_PER_POLL};
-use super::parse::{parse, Command};
+use super::parse::{parse, Command, COMMANDS};
 use crate::controller::{Bsp, Controller, HistoryEntry};
 use crate::hal::ConsoleIo;
 use crate::odometer::kind;
@@ -118,6 +118,44 @@ pub struct Console {
     /// Work left for [`Console::finish`]: all-zero when empty, so the console (8 KiB of
     /// output ring) stays in `.bss` rather than being copied from flash as `.data`.
     deferred: Deferred,
+    /// The terminal (all fields zero at reset, for `.bss` too).
+    term: TermState,
+}
+
+/// What an interactive terminal sees: echo, line editing, the prompt (see
+/// [`Console::read_line`]).
+struct TermState {
+    /// `echo off`: no echo, no prompt, no editing keys (the bare line protocol).
+    quiet: bool,
+    /// Escape sequence: 0 none, 1 after ESC, 2 in a CSI (`ESC [`), 3 after `ESC O`.
+    esc: u8,
+    /// The previous byte was CR (the LF of a CR LF echoes nothing).
+    after_cr: bool,
+    /// The previous line run (Up recalls it); never one holding a PIN.
+    recall: String<LINE_MAX>,
+    /// The machine's state for the prompt, as last seen (`None`: not yet).
+    state: Option<&'static str>,
+    /// Maintenance mode, as last seen (the prompt ends `#` instead of `>`).
+    maint: bool,
+}
+
+/// Ctrl-C: abandon the line.
+const CTRL_C: u8 = 0x03;
+/// Backspace, and DEL (what most terminals send for the backspace key).
+const BS: u8 = 0x08;
+const DEL: u8 = 0x7F;
+const CR: u8 = 0x0D;
+const LF: u8 = 0x0A;
+const TAB: u8 = 0x09;
+/// Ctrl-U: erase the line.
+const CTRL_U: u8 = 0x15;
+const ESC: u8 = 0x1B;
+/// What erases one character on a terminal.
+const RUB_OUT: &[u8] = b"\x08 \x08";
+
+/// A line whose rest is a PIN: echoed as `*`, never recalled.
+fn is_secret(line: &[u8]) -> bool {
+    line.starts_with(b"maint ") || line.starts_with(b"pin set ")
 }
 
 /// What a command leaves for after the controller is released.
@@ -220,6 +258,138 @@ impl Console {
                 report: Report::None,
                 report_json: false,
             },
+            term: TermState {
+                quiet: false,
+                esc: 0,
+                after_cr: false,
+                recall: String::new(),
+                state: None,
+                maint: false,
+            },
+        }
+    }
+
+    /// The boot banner: one line with a fixed prefix (`# `, so a script can skip it)
+    /// naming the firmware and why it reset, then the prompt.
+    pub fn banner(&mut self, reset: &str) {
+        let v = env!("CARGO_PKG_VERSION");
+        self.reply(|o| write!(o, "# docking-controller {v} reset={reset}; type 'help'\r\n"));
+        self.prompt();
+    }
+
+    /// What the prompt shows: the machine's state, and maintenance mode at `now_ms`
+    /// (the board tells the console each turn; a command's run tells it too).
+    pub fn observe(&mut self, state: &'static str, now_ms: u64) {
+        self.term.state = Some(state);
+        self.term.maint = self.auth.is_active(now_ms);
+    }
+
+    /// Whether echo, prompt and line editing are on (`echo off` turns them off).
+    pub fn interactive(&self) -> bool {
+        !self.term.quiet
+    }
+
+    /// Turn echo, prompt and line editing on or off (a script's `echo off`).
+    pub fn set_interactive(&mut self, on: bool) {
+        self.term.quiet = !on;
+    }
+
+    /// Bytes shown as typed (best effort: a full output ring drops them).
+    fn echo(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            let _ = self.out.buf.push_back(b);
+        }
+    }
+
+    /// `idle> `, or `idle# ` in maintenance mode (interactive only).
+    fn prompt(&mut self) {
+        if self.term.quiet {
+            return;
+        }
+        let st = self.term.state.unwrap_or("ready");
+        let sign = if self.term.maint { '#' } else { '>' };
+        let _ = write!(self.out, "{st}{sign} ");
+    }
+
+    /// Erase the characters of the line being typed from the screen.
+    fn erase_shown(&mut self) {
+        for _ in 0..self.reader.pending_chars() {
+            self.echo(RUB_OUT);
+        }
+    }
+
+    /// An interactive terminal's keys, before the line reader sees a byte: arrows
+    /// (Up recalls the previous line, Down clears, the rest do nothing), Ctrl-C, Ctrl-U,
+    /// backspace's rub-out. Returns the byte for the reader, `None` when taken here.
+    fn edit_key(&mut self, byte: u8) -> Option<u8> {
+        match self.term.esc {
+            1 => {
+                self.term.esc = match byte {
+                    b'[' => 2,
+                    b'O' => 3,
+                    _ => 0,
+                };
+                return None;
+            }
+            2 if (0x20..=0x3F).contains(&byte) => return None,
+            2 | 3 => {
+                self.term.esc = 0;
+                match byte {
+                    b'A' => {
+                        self.erase_shown();
+                        let recall = self.term.recall.clone();
+                        self.reader.replace_pending(recall.as_bytes());
+                        self.echo(recall.as_bytes());
+                    }
+                    b'B' => {
+                        self.erase_shown();
+                        self.reader.reset();
+                    }
+                    _ => {}
+                }
+                return None;
+            }
+            _ => {}
+        }
+        match byte {
+            ESC => {
+                self.term.esc = 1;
+                None
+            }
+            CTRL_C => {
+                self.echo(b"^C\r\n");
+                self.reader.reset();
+                self.prompt();
+                None
+            }
+            CTRL_U => {
+                self.erase_shown();
+                self.reader.reset();
+                None
+            }
+            BS | DEL => {
+                if self.reader.pending_chars() > 0 {
+                    self.echo(RUB_OUT);
+                }
+                Some(byte)
+            }
+            CR | LF | TAB => Some(byte),
+            // Other control keys do nothing on a terminal.
+            0x01..=0x1F => None,
+            _ => Some(byte),
+        }
+    }
+
+    /// Echo what `byte` did to the line (interactive): the character (`*` in a PIN),
+    /// a bell when the line is full; the end of a line echoes CR LF once.
+    fn echo_typed(&mut self, byte: u8, shown_before: usize, secret: bool) {
+        match byte {
+            BS | DEL => {}
+            CR | LF => {}
+            _ if self.reader.pending().len() > shown_before => {
+                self.echo(&[if secret { b'*' } else { byte }]);
+            }
+            _ => self.echo(b"\x07"),
         }
     }
 
@@ -263,6 +433,7 @@ impl Console {
         io: &mut impl ConsoleIo,
         now_ms: u64,
     ) -> ConsolePoll {
+        self.observe(ctrl.state().name(), now_ms);
         let (line, mut st) = self.read_line(io);
         if let Some(line) = line {
             st.pin_hashes = self.run_line(ctrl, &line, now_ms) + self.finish(now_ms);
@@ -294,14 +465,42 @@ impl Console {
                 }
             };
             st.bytes_in += 1;
+            let interactive = !self.term.quiet;
+            let byte = match interactive {
+                true => match self.edit_key(byte) {
+                    Some(b) => b,
+                    None => continue,
+                },
+                false => byte,
+            };
+            let shown = self.reader.pending().len();
+            let secret = is_secret(self.reader.pending());
+            // The end of a line: CR, LF, or the first of CR LF.
+            let ends = (byte == CR || byte == LF) && !(byte == LF && self.term.after_cr);
+            self.term.after_cr = byte == CR;
+            if interactive && ends {
+                self.echo(b"\r\n");
+            }
             match self.reader.push(byte) {
-                None => {}
+                None => {
+                    if interactive {
+                        if ends {
+                            self.prompt(); // a blank line
+                        } else {
+                            self.echo_typed(byte, shown, secret);
+                        }
+                    }
+                }
                 Some(LineEvent::Error(e)) => {
-                    self.reply(|o| write!(o, "error: {}\r\n", e.message()))
+                    self.reply(|o| write!(o, "error: {}\r\n", e.message()));
+                    self.prompt();
                 }
                 Some(LineEvent::Line(l)) => {
                     let mut line: String<LINE_MAX> = String::new();
                     let _ = line.push_str(l);
+                    if !is_secret(line.as_bytes()) {
+                        self.term.recall = line.clone();
+                    }
                     st.commands = 1;
                     return (Some(line), st);
                 }
@@ -325,6 +524,14 @@ impl Console {
             Report::Measurements(v) => self.render_measurements(&v, json),
             Report::History(entries) => self.render_history(&entries, json),
         }
+        let hashed = self.finish_login(now_ms);
+        self.term.maint = self.auth.is_active(now_ms);
+        self.prompt();
+        hashed
+    }
+
+    /// A maintenance login's PIN check, if one waits; the PIN hashes computed.
+    fn finish_login(&mut self, now_ms: u64) -> u32 {
         if !core::mem::take(&mut self.deferred.login) {
             return 0;
         }
@@ -464,6 +671,12 @@ impl Console {
     /// the rendering of a `history` reply. Returns the PIN hashes computed here
     /// (`pin set`).
     pub fn run_line<B: Bsp>(&mut self, ctrl: &mut Controller<B>, line: &str, now_ms: u64) -> u32 {
+        let hashes = self.run_command(ctrl, line, now_ms);
+        self.term.state = Some(ctrl.state().name());
+        hashes
+    }
+
+    fn run_command<B: Bsp>(&mut self, ctrl: &mut Controller<B>, line: &str, now_ms: u64) -> u32 {
         let cmd = match parse(line) {
             Ok(c) => c,
             Err(e) => {
@@ -490,7 +703,19 @@ impl Console {
             return 0;
         }
         match cmd {
-            Command::Help { json } => self.help(json),
+            Command::Help { topic, json } => self.help(topic, json),
+            Command::Echo { on: None } => {
+                let on = if self.term.quiet { "off" } else { "on" };
+                self.reply(|o| write!(o, "echo={on}\r\n"));
+            }
+            Command::Echo { on: Some(on) } => {
+                self.term.quiet = !on;
+                if on {
+                    self.ok(&"echo, prompt and line editing on");
+                } else {
+                    self.ok(&"echo and prompt off until reset (`echo on` turns them back on)");
+                }
+            }
             Command::Version { json } => {
                 let v = env!("CARGO_PKG_VERSION");
                 if json {
@@ -696,48 +921,44 @@ impl Console {
         0
     }
 
-    fn help(&mut self, json: bool) {
-        const CMDS: [&str; 22] = [
-            "help [--json]",
-            "version [--json]",
-            "status [--json]",
-            "wear [--json]",
-            "history [N] [--json]",
-            "faults [--json]",
-            "measurements [--json]",
-            "clear-fault",
-            "home",
-            "dock",
-            "undock",
-            "stop",
-            "rate <10|80>",
-            "modbus [<unit> <baud>]",
-            "bor [set]",
-            "cone replace <material> <serial> [--bore <d0_mm>]",
-            "measure [--baseline] <bore_diameter_mm>",
-            "calibrate tare",
-            "calibrate span <force_n>",
-            "maint <pin>",
-            "maint exit",
-            "pin set <new_pin>",
-        ];
+    /// `help`: every command (aligned: usage, then what it does), or those of one
+    /// word (`help calibrate`: both of its forms).
+    fn help(&mut self, topic: Option<&str>, json: bool) {
+        let shown = |c: &&super::parse::CommandHelp| topic.is_none_or(|t| c.word == t);
         if json {
             self.reply_json(|j| {
                 j.array("commands", |a| {
-                    for c in CMDS {
-                        a.str(c)?;
+                    for c in COMMANDS.iter().filter(shown) {
+                        a.str(c.usage)?;
+                    }
+                    Ok(())
+                })?;
+                j.array("help", |a| {
+                    for c in COMMANDS.iter().filter(shown) {
+                        a.object(|x| {
+                            x.str("command", c.word)?
+                                .str("usage", c.usage)?
+                                .str("what", c.what)?;
+                            Ok(())
+                        })?;
                     }
                     Ok(())
                 })?;
                 Ok(())
             });
         } else {
+            let width = COMMANDS
+                .iter()
+                .filter(shown)
+                .map(|c| c.usage.len())
+                .max()
+                .unwrap_or(0);
             self.reply(|o| {
-                for c in CMDS {
-                    write!(o, "{c}\r\n")?;
+                for c in COMMANDS.iter().filter(shown) {
+                    write!(o, "{:<width$}  {}\r\n", c.usage, c.what)?;
                 }
                 o.write_str(
-                    "(state-changing commands need `maint <pin>` and a machine at rest)\r\n",
+                    "(maint: needs `maint <pin>`, and all but undock a machine at rest)\r\n",
                 )
             });
         }
