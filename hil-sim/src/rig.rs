@@ -739,6 +739,7 @@ impl Rig {
     pub fn command(&mut self, line: &str, max_ticks: usize) -> String {
         self.console_enabled = true;
         self.console.set_interactive(false);
+        self.console.flush_output(&mut self.term);
         let _ = self.term.take_output();
         self.term.send(line.as_bytes());
         self.term.send(b"\r\n");

@@ -372,9 +372,8 @@ fn modbus_settings_are_stored_checked_and_shown() {
     let flash = r.flash.clone();
     let mut r = Rig::with_flash(RigOptions::new(80), flash);
     r.console_enabled = true;
-    assert!(r
-        .command("modbus", 100)
-        .starts_with("modbus unit=7 baud=38400"));
+    let m = r.command("modbus", 100);
+    assert!(m.starts_with("modbus unit=7 baud=38400"), "{m:?}");
 }
 
 /// Defect (issue 17, item 5): `store_record` asked only `is_quiet()`, which included

@@ -645,7 +645,9 @@ fn parse_json_flag_rules() {
     assert_eq!(err("status --jsno"), ParseError::UnknownOption);
     assert_eq!(err("history 5 --verbose"), ParseError::UnknownOption);
     assert_eq!(err("status now"), ParseError::ExtraArgument);
-    assert_eq!(err("help me"), ParseError::ExtraArgument);
+    // `help <command>` takes one command word.
+    assert_eq!(err("help me"), ParseError::BadArgument("command"));
+    assert_eq!(err("help status wear"), ParseError::ExtraArgument);
 }
 
 #[test]
