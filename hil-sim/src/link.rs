@@ -6,6 +6,7 @@
 use std::io::{self, Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::os::fd::{FromRawFd, OwnedFd};
+use std::time::{Duration, Instant};
 
 use crate::serve::Link;
 
@@ -79,8 +80,23 @@ pub enum Bridge {
         listener: TcpListener,
         /// The connected client.
         client: Option<TcpStream>,
+        /// The client closed its sending side (`nc -N` after its last line) at this
+        /// instant: it is served until the console has been quiet for
+        /// [`LINGER`], then let go.
+        closing: Option<Instant>,
+        /// What a second client is told before it is let go ([`BUSY`] on a console;
+        /// nothing on a Modbus link, where text would be noise on the bus).
+        busy: &'static [u8],
     },
 }
+
+/// How long a client that half-closed is kept once the console is quiet: its last
+/// command's reply is still coming.
+pub const LINGER: Duration = Duration::from_millis(500);
+
+/// What a second client is told before it is let go (one terminal at a time, like a
+/// serial port).
+pub const BUSY: &[u8] = b"busy: another terminal is connected; try again when it leaves\r\n";
 
 impl Bridge {
     /// Read up to `max` bytes from the link (empty: nothing waiting).
@@ -88,21 +104,39 @@ impl Bridge {
         let mut buf = vec![0u8; max];
         let n = match self {
             Bridge::Pty(p) => p.master.read(&mut buf).unwrap_or(0),
-            Bridge::Tcp { listener, client } => {
-                if client.is_none() {
-                    if let Ok((s, _)) = listener.accept() {
+            Bridge::Tcp {
+                listener,
+                client,
+                closing,
+                busy,
+            } => {
+                if let Ok((mut s, _)) = listener.accept() {
+                    if client.is_none() {
                         let _ = s.set_nonblocking(true);
                         let _ = s.set_nodelay(true);
                         *client = Some(s);
+                        *closing = None;
+                    } else {
+                        let _ = s.write_all(busy);
+                        let _ = s.shutdown(std::net::Shutdown::Both);
                     }
                 }
-                match client.as_mut().map(|c| c.read(&mut buf)) {
-                    Some(Ok(0)) => {
-                        *client = None; // the client left; wait for the next one
-                        0
+                if closing.is_some() {
+                    0 // it sends nothing more
+                } else {
+                    match client.as_mut().map(|c| c.read(&mut buf)) {
+                        Some(Ok(0)) => {
+                            // Half-closed (or gone): its reply may still be coming.
+                            *closing = Some(Instant::now());
+                            0
+                        }
+                        Some(Ok(n)) => n,
+                        Some(Err(e)) if e.kind() != std::io::ErrorKind::WouldBlock => {
+                            *client = None; // reset by the peer
+                            0
+                        }
+                        _ => 0,
                     }
-                    Some(Ok(n)) => n,
-                    _ => 0,
                 }
             }
         };
@@ -118,10 +152,38 @@ impl Bridge {
         let _ = match self {
             Bridge::Pty(p) => p.master.write_all(bytes),
             Bridge::Tcp {
-                client: Some(c), ..
-            } => c.write_all(bytes),
+                client: Some(c),
+                closing,
+                ..
+            } => {
+                if let Some(t) = closing.as_mut() {
+                    *t = Instant::now(); // still answering: the linger starts again
+                }
+                write_blocking(c, bytes)
+            }
             Bridge::Tcp { client: None, .. } => Ok(()),
         };
+    }
+
+    /// Let a half-closed client go once the console has been quiet (`quiet`: no
+    /// input waiting, nothing sent this round) for [`LINGER`]: the next client then
+    /// gets the console.
+    pub fn reap(&mut self, quiet: bool) {
+        if let Bridge::Tcp {
+            client, closing, ..
+        } = self
+        {
+            if let Some(t) = *closing {
+                if !quiet {
+                    *closing = Some(Instant::now());
+                } else if t.elapsed() >= LINGER {
+                    if let Some(c) = client.take() {
+                        let _ = c.shutdown(std::net::Shutdown::Both);
+                    }
+                    *closing = None;
+                }
+            }
+        }
     }
 }
 
@@ -141,6 +203,8 @@ impl Bridge {
                 Ok(Bridge::Tcp {
                     listener: l,
                     client: None,
+                    closing: None,
+                    busy: BUSY,
                 })
             }
         }
@@ -155,6 +219,23 @@ impl Bridge {
                 .map_or_else(|e| e.to_string(), |a| a.to_string()),
         }
     }
+}
+
+/// Write all of `bytes` to a non-blocking stream (a full socket buffer is waited
+/// out, a second at most: a reply is never cut in the middle).
+fn write_blocking(c: &mut TcpStream, mut bytes: &[u8]) -> std::io::Result<()> {
+    let deadline = Instant::now() + Duration::from_secs(1);
+    while !bytes.is_empty() {
+        match c.write(bytes) {
+            Ok(0) => return Err(std::io::ErrorKind::WriteZero.into()),
+            Ok(n) => bytes = bytes.get(n..).unwrap_or(&[]),
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock && Instant::now() < deadline => {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
 }
 
 /// Bind a non-blocking listener on a loopback address; returns it and its bound address.

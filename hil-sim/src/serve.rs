@@ -149,6 +149,9 @@ pub fn plc_line(h: &Handshake) -> String {
 /// Control steps after a PLC input change before `plc` answers (DOCK's debounce).
 const SETTLE_STEPS: u64 = 2;
 
+/// Machine time the demo cycling waits after a console command, ns.
+const DEMO_PAUSE_NS: u64 = 5_000_000_000;
+
 /// Open the Modbus link; its address is printed as `modbus ADDRESS`.
 fn open_modbus(link: &Link, out: &mut dyn Write) -> Result<Bridge, String> {
     let bridge = match link {
@@ -158,6 +161,8 @@ fn open_modbus(link: &Link, out: &mut dyn Write) -> Result<Bridge, String> {
             Bridge::Tcp {
                 listener,
                 client: None,
+                closing: None,
+                busy: b"",
             }
         }
     };
@@ -221,6 +226,7 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
     let mut steps: u64 = 0;
     let mut changed_at: Option<u64> = None;
     let start = Instant::now();
+    let mut last_command_ns: Option<u64> = None;
     loop {
         let wall = start.elapsed().as_secs_f64();
         if opts.duration_s.is_some_and(|d| wall >= d) {
@@ -261,7 +267,17 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
             }
             let st = rig.ctrl.status();
             driver.on_tick(&mut rig, &st);
-            if auto_cycles && st.state == State::Idle && !rig.ctrl.persist_pending() {
+            // The demo cycling waits while a technician is at the console: in
+            // maintenance mode (a console `dock` stays docked until `undock`), and for
+            // a while after any command (a `pin set` finds the machine at rest).
+            let now_ns = rig.clock.now_ns();
+            if rig.last_console.commands > 0 {
+                last_command_ns = Some(now_ns);
+            }
+            let technician = rig.console.maintenance_active(now_ns / 1_000_000)
+                || last_command_ns.is_some_and(|t| now_ns < t + DEMO_PAUSE_NS);
+            if auto_cycles && !technician && st.state == State::Idle && !rig.ctrl.persist_pending()
+            {
                 rig.ctrl.request(Request::StartCycle);
             }
             if let Some((link, line)) = modbus.as_mut() {
@@ -274,7 +290,9 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
             let bytes = bridge.read(room);
             rig.term.send(&bytes);
         }
-        bridge.write(&rig.term.take_output());
+        let output = rig.term.take_output();
+        bridge.write(&output);
+        bridge.reap(output.is_empty() && rig.term.rx_pending() == 0);
         if let Some((link, line)) = modbus.as_mut() {
             let room = line.room();
             if room > 0 {

@@ -191,3 +191,73 @@ fn serve_refuses_bad_arguments() {
         );
     }
 }
+
+/// `printf 'status\r\n' | nc -N 127.0.0.1 PORT`: the client half-closes after its line;
+/// the reply was dropped with it.
+#[test]
+fn a_client_that_half_closes_still_gets_its_reply() {
+    let (_server, addr) = serve(&["--tcp", "127.0.0.1:0", "--speed", "20"]);
+    let mut s = std::net::TcpStream::connect(&addr).unwrap();
+    s.write_all(b"echo off\r\nversion\r\n").unwrap();
+    s.shutdown(std::net::Shutdown::Write).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    let mut got = String::new();
+    s.read_to_string(&mut got).unwrap();
+    assert!(got.contains("\r\ndocking-controller "), "{got:?}");
+    // Served to the end, then let go: the connection closed (read_to_string returned).
+}
+
+#[test]
+fn a_second_client_is_told_the_console_is_busy() {
+    let (_server, addr) = serve(&["--tcp", "127.0.0.1:0", "--speed", "20"]);
+    let first = std::net::TcpStream::connect(&addr).unwrap();
+    let reader = first.try_clone().unwrap();
+    let mut term = Terminal::new(reader, first);
+    term.script_mode();
+    let mut second = std::net::TcpStream::connect(&addr).unwrap();
+    second
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .unwrap();
+    let mut got = String::new();
+    second.read_to_string(&mut got).unwrap();
+    assert!(
+        got.starts_with("busy: another terminal is connected"),
+        "{got:?}"
+    );
+    // The first one is still served.
+    assert!(term.ask("version").starts_with("docking-controller "));
+}
+
+/// A console `dock` answered "mated until undock", then the demo cycling undocked it.
+#[test]
+fn a_console_dock_is_not_undone_by_the_demo_cycling() {
+    let (_server, addr) = serve(&["--tcp", "127.0.0.1:0", "--speed", "20"]);
+    let stream = std::net::TcpStream::connect(&addr).unwrap();
+    let reader = stream.try_clone().unwrap();
+    let mut term = Terminal::new(reader, stream);
+    term.script_mode();
+    // Stored at rest: between two demo cycles.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !term.ask("pin set 2468").starts_with("ok") {
+        assert!(Instant::now() < deadline, "PIN never stored");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(term.ask("maint 2468").starts_with("ok"));
+    // The demo's cycle under way finishes; no new one starts.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !term.ask("status").starts_with("state=idle") {
+        assert!(Instant::now() < deadline, "never idle");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(term.ask("dock").starts_with("ok: docking"));
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !term.ask("status").starts_with("state=holding") {
+        assert!(Instant::now() < deadline, "never mated");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // 30 s of machine time later (speed 20): still mated.
+    std::thread::sleep(Duration::from_millis(1500));
+    let st = term.ask("status");
+    assert!(st.starts_with("state=holding"), "{st}");
+    assert!(term.ask("undock").starts_with("ok: undocking"));
+}
