@@ -77,7 +77,13 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
             report
         }
     };
-    print(out, &o, || report.to_json(), || report.to_text());
+    let verdict = report.verdict(opts.cycles);
+    print(
+        out,
+        &o,
+        || report.to_json(),
+        || format!("{}\n{}", report.to_text(), verdict.to_text()),
+    );
     Ok(())
 }
 

@@ -221,6 +221,35 @@ pub struct SceneReport {
     pub recovered_after_clear: Option<bool>,
 }
 
+/// A scene's verdict: what it was expected to show, and what it did not.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Verdict {
+    /// Each expectation, in words.
+    pub expected: Vec<String>,
+    /// Those this run did not meet.
+    pub failed: Vec<String>,
+}
+
+impl Verdict {
+    /// Every expectation met.
+    pub fn passed(&self) -> bool {
+        self.failed.is_empty()
+    }
+
+    /// `verdict: PASS (expected: …)` or `verdict: FAIL: … (expected: …)`.
+    pub fn to_text(&self) -> String {
+        if self.passed() {
+            format!("verdict: PASS (expected: {})", self.expected.join("; "))
+        } else {
+            format!(
+                "verdict: FAIL: not {} (expected: {})",
+                self.failed.join("; not "),
+                self.expected.join("; ")
+            )
+        }
+    }
+}
+
 /// What an in-service scene ([`PLC_SCENES`]) saw on the handshake.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PlcReport {
@@ -272,6 +301,44 @@ pub struct PlcReport {
 }
 
 impl PlcReport {
+    /// The yes/no checks a scene filled in (`None`: not this scene's), each true when
+    /// the machine did what it should.
+    pub fn flags(&self) -> [(&'static str, Option<bool>); 11] {
+        [
+            (
+                "mated_low_before_extraction",
+                self.mated_low_before_extraction,
+            ),
+            ("lock_off_after_estop", self.lock_off_after_estop),
+            ("clear_refused_while_open", self.clear_refused_while_open),
+            (
+                "clear_accepted_when_closed",
+                self.clear_accepted_when_closed,
+            ),
+            ("axis_held", self.axis_held),
+            ("docked_after_estops", self.docked_after_estops),
+            ("ready_low_in_maintenance", self.ready_low_in_maintenance),
+            ("maintenance_shown", self.maintenance_shown),
+            ("modbus_dock_refused", self.modbus_dock_refused),
+            ("dock_pin_ignored", self.dock_pin_ignored),
+            ("docked_after_maintenance", self.docked_after_maintenance),
+        ]
+    }
+
+    /// `key=value` pairs (what the JSON holds, without the ones that do not apply).
+    pub fn to_text(&self) -> String {
+        let json = self.to_json();
+        let inner = json.trim_start_matches('{').trim_end_matches('}');
+        inner
+            .split(',')
+            .filter_map(|kv| {
+                let (k, v) = kv.split_once(':')?;
+                (v != "null").then(|| format!("{}={}", k.trim_matches('"'), v))
+            })
+            .collect::<Vec<_>>()
+            .join(" ")
+    }
+
     fn to_json(&self) -> String {
         let ob = |x: Option<bool>| x.map_or("null".to_string(), |b| b.to_string());
         let on = |x: Option<u32>| x.map_or("null".to_string(), |n| n.to_string());
@@ -1425,6 +1492,103 @@ impl SceneReport {
         )
     }
 
+    /// What the scene is meant to show, and whether this run showed it.
+    /// `cycles_requested`: the run's `--cycles`.
+    pub fn verdict(&self, cycles_requested: u32) -> Verdict {
+        // The fault each fault scene exists to provoke (none: a clean run).
+        let fault = match self.scene.as_str() {
+            "overload" | "heavy-default" => Some("overload"),
+            "disconnect" => Some("sensor_disconnected"),
+            "saturation" => Some("sensor_saturated"),
+            "stuck" => Some("sensor_stuck"),
+            "bad-tare" => Some("implausible_tare"),
+            "stall" => Some("axis_stall"),
+            "lock-stuck" => Some("lock_not_released"),
+            "vehicle-pull" => Some("hold_force"),
+            "estop" | "estop-bounce" => Some("emergency_stop"),
+            _ => None,
+        };
+        // Scenes that clear the fault and dock again.
+        let recovers = matches!(
+            self.scene.as_str(),
+            "estop" | "estop-bounce" | "heavy-default"
+        );
+        let mut v = Verdict::default();
+        let mut check = |ok: bool, what: String| {
+            v.expected.push(what.clone());
+            if !ok {
+                v.failed.push(what);
+            }
+        };
+        check(!self.watchdog_bit, "the watchdog never fires".into());
+        match fault {
+            None => {
+                check(self.faults.is_empty(), "no fault".into());
+                check(
+                    self.cycles_completed == cycles_requested,
+                    format!("{cycles_requested} cycle(s) completed"),
+                );
+            }
+            Some(f) => {
+                let kinds_ok = !self.faults.is_empty() && self.faults.iter().all(|x| x.kind == f);
+                check(kinds_ok, format!("{f} latched (and no other fault)"));
+                if recovers {
+                    check(
+                        self.cycles_completed >= 1,
+                        "a docking completes after the clear".into(),
+                    );
+                }
+            }
+        }
+        let final_state = if fault.is_some() && !recovers {
+            "faulted"
+        } else {
+            "idle"
+        };
+        check(
+            self.final_state == final_state,
+            format!("ends {final_state}"),
+        );
+        if self.scene == "vehicle-pull" {
+            check(
+                self.plc.as_ref().and_then(|p| p.axis_held) == Some(true),
+                "the axis holds the vehicle".into(),
+            );
+        } else {
+            check(self.motors_disabled, "every motor off at the end".into());
+        }
+        if fault == Some("overload") {
+            check(
+                self.backed_off_um.is_some_and(|b| b >= 1_900.0),
+                "the back-off (2 mm) done".into(),
+            );
+        }
+        if self.scene == "overload" {
+            let period_s = 1.0 / self.rate_sps.max(1) as f64;
+            check(
+                self.stop_latency_s.is_some_and(|l| l <= period_s),
+                "stopped within one sample".into(),
+            );
+        }
+        if let Some(p) = &self.plc {
+            let failed: Vec<&str> = p
+                .flags()
+                .into_iter()
+                .filter(|&(_, b)| b == Some(false))
+                .map(|(k, _)| k)
+                .collect();
+            check(
+                failed.is_empty(),
+                if failed.is_empty() {
+                    "every PLC check holds".into()
+                } else {
+                    format!("every PLC check holds (failed: {})", failed.join(", "))
+                },
+            );
+        }
+        v
+    }
+
     /// A short human summary.
     pub fn to_text(&self) -> String {
         let mut s = format!(
@@ -1455,7 +1619,7 @@ impl SceneReport {
             );
         }
         if let Some(p) = &self.plc {
-            s += &format!("  plc: {}\n", p.to_json());
+            s += &format!("  plc: {}\n", p.to_text());
         }
         s += &format!(
             "  motors disabled: {}; {} control steps, {:.1} s simulated in {:.3} s",

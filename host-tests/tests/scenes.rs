@@ -343,3 +343,41 @@ fn maintenance_lockout_refuses_remote_motion_until_maint_exit() {
     assert!(r.faults.is_empty(), "{}", r.to_json());
     assert_eq!(r.cycles_completed, 1);
 }
+
+/// Every scene's text output ends with a verdict a person can judge; each passes as
+/// designed (a fault scene that faults as intended passes), and one that does not do
+/// what it should fails, naming what it missed.
+#[test]
+fn every_scene_ends_with_a_verdict_and_passes() {
+    for name in hil_sim::scene::SCENES {
+        let r = scene(name, 1, 80, 1);
+        let v = r.verdict(1);
+        assert!(v.passed(), "{name}: {}", v.to_text());
+        assert!(
+            v.to_text().starts_with("verdict: PASS (expected: "),
+            "{name}"
+        );
+        let text = r.to_text();
+        assert!(
+            !text.contains('{') && !text.contains("Some("),
+            "{name}: {text}"
+        );
+    }
+    // The nominal run that faulted, and the overload run that never backed off.
+    let mut r = scene("nominal", 1, 80, 1);
+    r.faults = scene("overload", 1, 80, 1).faults;
+    let v = r.verdict(1);
+    assert!(!v.passed());
+    assert!(
+        v.to_text().starts_with("verdict: FAIL: not no fault"),
+        "{}",
+        v.to_text()
+    );
+    let mut r = scene("overload", 1, 80, 1);
+    r.backed_off_um = Some(5.0);
+    assert!(
+        r.verdict(1).failed == ["the back-off (2 mm) done"],
+        "{}",
+        r.verdict(1).to_text()
+    );
+}
