@@ -472,11 +472,83 @@ fn commission(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
     Ok(())
 }
 
+/// Each command's help (`hil-sim COMMAND --help`): what it does, then one option a line.
+pub const COMMAND_HELP: [(&str, &str); 9] = [
+    ("profile", "hil-sim profile [OPTIONS]: the nominal force against insertion depth (Eq. 7, or the plant model)
+  --rate HZ                 sample rate of the printed profile
+  --stroke insert|extract   which stroke (default insert)
+  --plot FILE.svg           also draw it
+  --model eq7|plant         the force model (default eq7)
+  --mass-kg M --mu1 X --mu2 X --gamma-deg G --theta0-deg T --v-model MM_PER_S --t3-s S
+                            the plant model's parameters (--model plant)"),
+    ("scene", "hil-sim scene NAME [OPTIONS]: one scenario against the real controller; ends with a verdict
+  NAME                      nominal overload spike disconnect saturation stuck bad-tare stall lock-stuck
+                            dock-hold vehicle-pull estop estop-bounce heavy-default maintenance-lockout
+  --cycles N                dockings to run (default 1)
+  --rate 10|80              the HX711's rate, SPS (default 80)
+  --seed S                  the noise seed (default 1)
+  --json                    one JSON object instead of text
+  --plot FILE.svg           force against depth, with the guard's envelope
+  --model eq7|plant         the force model (plant options as for profile)
+  --config default|matching the guard tuned by default or for the plant machine"),
+    ("bench", "hil-sim bench [OPTIONS]: control-step speed on this host
+  --cycles N                dockings to time
+  --rate SPS                sample rate"),
+    ("life", "hil-sim life --cycles N [OPTIONS]: a cone's life: the model's wear and the estimate from readings
+  --cycles N                cycles to run (required)
+  --material NAME           zqsn5-2 | qsn6-6-3 | cf-peek
+  --at m1,m2,...            checkpoints to report (cycle numbers)
+  --rate SPS                sample rate
+  --readings FILE.csv       a technician's bore readings (cycle,bore_mm lines)
+  --json                    one JSON object instead of text
+  --plot FILE.svg           wear against cycles"),
+    ("endurance", "hil-sim endurance --cycles N [OPTIONS]: flash erases over a long life
+  --cycles N                cycles to run
+  --material NAME           zqsn5-2 | qsn6-6-3 | cf-peek
+  --rate SPS                sample rate"),
+    ("accuracy", "hil-sim accuracy [OPTIONS]: the odometer's error against the exact integral
+  --json                    one JSON object instead of text
+  --plot FILE.svg           the error per phase"),
+    ("commission", "hil-sim commission --model plant [OPTIONS]: Rust source of a machine's tuning (for DOCKING_TUNING)
+  --model plant             required
+  (plant options as for profile)"),
+    ("serve", "hil-sim serve [OPTIONS]: the simulator live, its console on a pty or TCP
+  --pty | --tcp 127.0.0.1:PORT         the console's link (first stdout line: its address)
+  --modbus-pty | --modbus-tcp 127.0.0.1:PORT
+                            the Modbus RTU line (stdout line: modbus ADDRESS); no demo cycles
+  --plc                     the PLC drives (stdin: dock on|off, estop open|close, plc); no demo cycles
+  --scene NAME              disturbances of a scene
+  --speed X                 machine time per wall time (default 1)
+  --rate SPS                sample rate
+  --for SECONDS             stop after this long"),
+    ("odometer-reference", "hil-sim odometer-reference [--cycles N]: the odometer's integer workload (compared with QEMU in CI)
+  --cycles N                cycles (default 300)"),
+];
+
+/// `hil-sim --help`: the commands, one a line.
+fn overview() -> String {
+    let mut s =
+        String::from("usage: hil-sim COMMAND [OPTIONS]   (hil-sim COMMAND --help: its options)\n");
+    for (_, h) in COMMAND_HELP {
+        let first = h.lines().next().unwrap_or("");
+        s += "  ";
+        s += first.strip_prefix("hil-sim ").unwrap_or(first);
+        s += "\n";
+    }
+    s
+}
+
 /// Run the command line `args` (without the program name), writing to `out`.
 pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
     let Some((cmd, rest)) = args.split_first() else {
         return err(USAGE);
     };
+    if rest.iter().any(|a| a == "--help" || a == "-h") {
+        if let Some((_, h)) = COMMAND_HELP.iter().find(|(c, _)| c == cmd) {
+            let _ = writeln!(out, "{h}");
+            return Ok(());
+        }
+    }
     match cmd.as_str() {
         "profile" => profile(rest, out),
         "scene" => scene(rest, out),
@@ -499,7 +571,7 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
             Ok(())
         }
         "help" | "--help" | "-h" => {
-            let _ = writeln!(out, "{USAGE}");
+            let _ = write!(out, "{}", overview());
             Ok(())
         }
         other => err(format!("unknown command '{other}'; {USAGE}")),

@@ -100,3 +100,51 @@ fn another_machine_runs_from_the_command_line_with_its_configuration() {
         usage_error(bad);
     }
 }
+
+/// `hil-sim COMMAND --help` on every command: its synopsis and one option a line,
+/// naming every option the command's synopsis in USAGE takes.
+#[test]
+fn every_command_has_help_naming_its_options() {
+    use hil_sim::cli::{run, COMMAND_HELP, USAGE};
+    // USAGE's synopses, split at " | " before a command word (options have "|" too).
+    let mut parts: Vec<String> = Vec::new();
+    for piece in USAGE.trim_start_matches("usage: hil-sim ").split(" | ") {
+        let word = piece.split_whitespace().next().unwrap_or("");
+        match parts.last_mut() {
+            Some(last) if !COMMAND_HELP.iter().any(|(c, _)| *c == word) => {
+                last.push_str(" | ");
+                last.push_str(piece);
+            }
+            _ => parts.push(piece.to_string()),
+        }
+    }
+    assert!(parts.len() >= 8, "{parts:?}");
+    for part in &parts {
+        let cmd = part.split_whitespace().next().unwrap();
+        let mut out = Vec::new();
+        run(&[cmd.to_string(), "--help".to_string()], &mut out).unwrap();
+        let help = String::from_utf8(out).unwrap();
+        assert!(
+            help.starts_with(&format!("hil-sim {cmd} ")),
+            "{cmd}: {help}"
+        );
+        for opt in part
+            .split(['[', ']', ' ', '|', '('])
+            .filter(|t| t.starts_with("--"))
+        {
+            assert!(
+                help.contains(opt),
+                "{cmd} --help does not name {opt}: {help}"
+            );
+        }
+    }
+    let mut out = Vec::new();
+    run(&["--help".to_string()], &mut out).unwrap();
+    let all = String::from_utf8(out).unwrap();
+    for (cmd, _) in COMMAND_HELP {
+        assert!(
+            all.contains(&format!("\n  {cmd} ")),
+            "{cmd} missing from --help"
+        );
+    }
+}
