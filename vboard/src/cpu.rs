@@ -608,6 +608,7 @@ fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
     rebuild_hflags(uc);
     set(uc, RegisterARM::PC, vector | 1);
     let s = uc.get_data_mut();
+    s.note_pends();
     s.nvic.activate(e);
     s.exceptions += 1;
     s.current_exc = e as usize;
@@ -646,6 +647,7 @@ fn exception_return(uc: &mut Unicorn<'_, Soc>) {
             rebuild_hflags(uc);
             set(uc, RegisterARM::PC, vector | 1);
             let s = uc.get_data_mut();
+            s.note_pends();
             s.nvic.activate(n);
             s.exceptions += 1;
             s.current_exc = n as usize;

@@ -4,6 +4,13 @@
 //! * **Control period**: the NVIC model notes every entry of the control task's
 //!   interrupt (TIM2, IRQ 28: [`crate::periph::nvic::EntryLog`]); the intervals between
 //!   consecutive entries are the periods the control step actually got.
+//! * **Control entry latency**: the NVIC model also notes when that interrupt became
+//!   pending (not pending → pending: TIM2's update raising its line, a line still
+//!   asserted at exception return, a software pend through ISPR or STIR); from each pend
+//!   to the entry that serves it is how long the control step waited — for lower-priority
+//!   work holding its resource (an RTIC lock raises BASEPRI), for higher-priority tasks,
+//!   for interrupts masked. The pend is the NVIC's: up to one translated block after the
+//!   timer's update while the core runs (interrupts are taken at block boundaries).
 //! * **Watchdog feeds**: the IWDG model notes every reload (`KR` = 0xAAAA,
 //!   [`crate::periph::iwdg::Iwdg::reload_times`]); a gap longer than three sample periods
 //!   is a missed feed.
@@ -15,7 +22,9 @@
 //! * A reset ends a segment: the interval from the last event before it to the reset
 //!   counts (a watchdog reset after a starved step is a missed feed), the one from the
 //!   reset to the first event after it does not (that is the boot). The scene's end
-//!   closes the last segment the same way.
+//!   closes the last segment the same way. A pend before a reset is never paired with an
+//!   entry after it (the reset cleared it); a pend still waiting at the scene's end is
+//!   not counted (the control period's tail shows a step that stopped).
 //! * **E-STOP**: for every edge of the E-STOP input while anything moved, the time from
 //!   the edge to EN high (if the driver was on) and to both lock bridge inputs low (if
 //!   the lock was driven), on the pins; the longer of the two.
@@ -105,6 +114,42 @@ pub fn judged_intervals(
     out
 }
 
+/// Each entry of an interrupt paired with the pend it served: `(pend, entry)` ps, for
+/// `pends` and `entries` in time order. An entry serves the latest pend before it (at
+/// equal times the pend comes first; a pend the software cleared is superseded by the
+/// next); `boundaries` (resets, in time order) end a segment, and a pend is never paired
+/// across one (events at a boundary's time belong to the segment it ends). An entry with
+/// no pend in its segment is left out.
+pub fn pend_entry_pairs(pends: &[u64], entries: &[u64], boundaries: &[u64]) -> Vec<(u64, u64)> {
+    let mut out = Vec::new();
+    let (mut i, mut j) = (0, 0);
+    for seg_end in boundaries.iter().copied().chain(std::iter::once(u64::MAX)) {
+        let mut pend: Option<u64> = None;
+        loop {
+            let p = pends.get(i).copied().filter(|&t| t <= seg_end);
+            let e = entries.get(j).copied().filter(|&t| t <= seg_end);
+            match (p, e) {
+                (Some(tp), Some(te)) if tp <= te => {
+                    pend = Some(tp);
+                    i += 1;
+                }
+                (Some(tp), None) => {
+                    pend = Some(tp);
+                    i += 1;
+                }
+                (_, Some(te)) => {
+                    if let Some(tp) = pend.take() {
+                        out.push((tp, te));
+                    }
+                    j += 1;
+                }
+                (None, None) => break,
+            }
+        }
+    }
+    out
+}
+
 /// The control step's timing and the watchdog's feeding over the time anything moved.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ControlTiming {
@@ -115,6 +160,12 @@ pub struct ControlTiming {
     pub period_max_ms: Option<f64>,
     /// Intervals longer than the sample period + 1 ms.
     pub late: u64,
+    /// Longest time from the control task's interrupt becoming pending to its entry,
+    /// among those whose `[pend, entry]` overlaps the time anything moved, µs (`None`:
+    /// no such pair).
+    pub entry_latency_max_us: Option<f64>,
+    /// The same over the whole run (boot, rest, flash erases at rest included), µs.
+    pub entry_latency_max_us_all: Option<f64>,
     /// Longest gap between watchdog reloads, ms.
     pub feed_gap_max_ms: Option<f64>,
     /// Gaps between watchdog reloads longer than three sample periods.
@@ -122,11 +173,12 @@ pub struct ControlTiming {
 }
 
 impl ControlTiming {
-    /// Judge the control task's `entries` and the watchdog's `reloads` (ps) over
-    /// `windows`, with resets at `resets` and the scene ending at `end_ps`, for a sample
-    /// period of `period_ps`.
+    /// Judge the control task's `entries`, its `pends` (when its interrupt became
+    /// pending) and the watchdog's `reloads` (ps) over `windows`, with resets at
+    /// `resets` and the scene ending at `end_ps`, for a sample period of `period_ps`.
     pub fn measure(
         entries: &[u64],
+        pends: &[u64],
         reloads: &[u64],
         resets: &[u64],
         end_ps: u64,
@@ -136,10 +188,22 @@ impl ControlTiming {
         let steps = judged_intervals(entries, resets, end_ps, windows);
         let feeds = judged_intervals(reloads, resets, end_ps, windows);
         let ms = |ps: u64| ps as f64 / PS_PER_MS as f64;
+        let us = |ps: u64| ps as f64 * 1e-6;
+        let pairs = pend_entry_pairs(pends, entries, resets);
+        let latency = |moving: bool| {
+            pairs
+                .iter()
+                .filter(|&&(p, e)| !moving || overlaps(windows, p, e))
+                .map(|&(p, e)| e - p)
+                .max()
+                .map(us)
+        };
         Self {
             moving_s: windows.iter().map(|(a, b)| b - a).sum::<u64>() as f64 * 1e-12,
             period_max_ms: steps.iter().max().map(|&p| ms(p)),
             late: steps.iter().filter(|&&p| p > period_ps + PS_PER_MS).count() as u64,
+            entry_latency_max_us: latency(true),
+            entry_latency_max_us_all: latency(false),
             feed_gap_max_ms: feeds.iter().max().map(|&p| ms(p)),
             feeds_missed: feeds.iter().filter(|&&g| g > 3 * period_ps).count() as u64,
         }
@@ -228,7 +292,7 @@ mod tests {
         let end = t + period + 100 * MS;
         // Feeds with the steps, but one of 40 ms while moving.
         let reloads = [t + period, t + period + 40 * MS, t + period + 50 * MS];
-        let m = ControlTiming::measure(&entries, &reloads, &[], end, &windows, period);
+        let m = ControlTiming::measure(&entries, &[], &reloads, &[], end, &windows, period);
         // The 30 ms gap was at rest; the tail (85 ms to the end) counts: the step stopped.
         assert_eq!(m.period_max_ms, Some(85.0));
         assert_eq!(m.late, 2, "15 ms and the 85 ms tail: {m:?}");
@@ -246,6 +310,76 @@ mod tests {
         let got = judged_intervals(&entries, &[105 * MS], 700 * MS, &windows);
         assert!(got.iter().all(|&g| g <= 10 * MS), "{got:?}");
         assert!(got.contains(&(5 * MS)), "to the reset: {got:?}");
+    }
+
+    const US: u64 = 1_000_000;
+
+    #[test]
+    fn an_entry_serves_the_latest_pend_before_it_and_never_one_across_a_reset() {
+        // p 10 → e 12; p 20, p 21 (the first cleared) → e 25; p 30 → reset 31 → e 40
+        // (the boot's: no pend since the reset); p 50 = e 50 (pend first at equal times);
+        // p 60 at the reset 60 belongs before it, e 61 has no pend after the reset.
+        let pends = [10, 20, 21, 30, 50, 60].map(|t| t * US);
+        let entries = [12, 25, 40, 50, 61].map(|t| t * US);
+        let pairs = pend_entry_pairs(&pends, &entries, &[31 * US, 60 * US]);
+        assert_eq!(
+            pairs,
+            vec![(10 * US, 12 * US), (21 * US, 25 * US), (50 * US, 50 * US)]
+        );
+        // No reset: the pend at 30 is served at 40, the one at 60 at 61.
+        let pairs = pend_entry_pairs(&pends, &entries, &[]);
+        assert!(pairs.contains(&(30 * US, 40 * US)), "{pairs:?}");
+        assert!(pairs.contains(&(60 * US, 61 * US)), "{pairs:?}");
+        // A pend with no entry after it is not a pair.
+        assert_eq!(pend_entry_pairs(&[5 * US], &[US], &[]), vec![]);
+    }
+
+    #[test]
+    fn entry_latency_is_judged_while_moving_and_over_the_whole_run() {
+        let period = 12_500_000_000;
+        // A 300 µs wait at rest (an idle lock), then a moving window from 100 ms: waits of
+        // 20 µs, 80 µs (pend 10 µs before the window opens: overlaps, counts), 50 µs.
+        let pends = [0, 50 * MS, 100 * MS - 10 * US, 120 * MS, 200 * MS];
+        let entries = [
+            20 * US,
+            50 * MS + 300 * US,
+            100 * MS + 70 * US,
+            120 * MS + 50 * US,
+            // A reset at 150 ms: the pend at 200 ms is the boot's next, entered 1 ms later
+            // but outside the window (ends at 150 ms).
+            201 * MS,
+        ];
+        let windows = [(100 * MS, 150 * MS)];
+        let m = ControlTiming::measure(
+            &entries,
+            &pends,
+            &[],
+            &[150 * MS],
+            250 * MS,
+            &windows,
+            period,
+        );
+        assert_eq!(m.entry_latency_max_us, Some(80.0), "{m:?}");
+        assert_eq!(m.entry_latency_max_us_all, Some(1_000.0), "{m:?}");
+        // Nothing moved: no figure while moving, the whole run's still.
+        let m = ControlTiming::measure(&entries, &pends, &[], &[], 250 * MS, &[], period);
+        assert_eq!(m.entry_latency_max_us, None);
+        assert_eq!(m.entry_latency_max_us_all, Some(1_000.0));
+        // A pend before the reset entered after it is not a latency (the reset cleared
+        // it; the entry after the reset is the boot's).
+        let m = ControlTiming::measure(
+            &[160 * MS],
+            &[140 * MS],
+            &[],
+            &[150 * MS],
+            250 * MS,
+            &[(0, 250 * MS)],
+            period,
+        );
+        assert_eq!(
+            (m.entry_latency_max_us, m.entry_latency_max_us_all),
+            (None, None)
+        );
     }
 
     #[test]

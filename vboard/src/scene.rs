@@ -27,7 +27,9 @@
 //! input high, on the pins; see [`crate::realtime`]), the longest interval between
 //! entries of the control task's interrupt (TIM2) on the NVIC model
 //! (`control_period_max_ms`), how many exceeded the sample period + 1 ms
-//! (`control_late`), and the gaps between watchdog reloads (`KR` = 0xAAAA) on the IWDG
+//! (`control_late`), the longest wait of that interrupt from pending to entered
+//! (`control_entry_latency_max_us`; over the whole run, rest and boot included:
+//! `control_entry_latency_max_us_all`), and the gaps between watchdog reloads (`KR` = 0xAAAA) on the IWDG
 //! model longer than 3 sample periods (`watchdog_feeds_missed`); and for every E-STOP
 //! edge while something moved, the edge to EN high and the lock off
 //! (`estop_off_max_us`).
@@ -500,15 +502,17 @@ impl Session {
         PS_PER_S / u64::from(self.opts.rate_sps.max(1))
     }
 
-    /// The control step's period (the control task's entries on the NVIC model) and the
-    /// watchdog's feeding (reloads on the IWDG model) so far, over the time anything
-    /// moved ([`crate::realtime`]).
+    /// The control step's period (the control task's entries on the NVIC model), its
+    /// entry latency (pend → entry on the NVIC model) and the watchdog's feeding
+    /// (reloads on the IWDG model) so far, over the time anything moved
+    /// ([`crate::realtime`]).
     pub fn control_timing(&self) -> ControlTiming {
         let soc = self.board.soc();
         let end = self.now();
         let resets: Vec<u64> = self.board.resets.iter().map(|&(t, _)| t).collect();
         ControlTiming::measure(
             &soc.entry_log.times(CONTROL_EXCEPTION),
+            &soc.entry_log.pend_times(CONTROL_EXCEPTION),
             &soc.iwdg.reload_times,
             &resets,
             end,
@@ -992,7 +996,7 @@ impl Report {
             })
             .collect();
         format!(
-            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{},\"moving_s\":{},\"control_period_max_ms\":{},\"control_late\":{},\"watchdog_feed_gap_max_ms\":{},\"watchdog_feeds_missed\":{},\"estop_edges_moving\":{},\"estop_off_max_us\":{},\"estop_edges_not_stopped\":{}}}",
+            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{},\"moving_s\":{},\"control_period_max_ms\":{},\"control_entry_latency_max_us\":{},\"control_entry_latency_max_us_all\":{},\"control_late\":{},\"watchdog_feed_gap_max_ms\":{},\"watchdog_feeds_missed\":{},\"estop_edges_moving\":{},\"estop_off_max_us\":{},\"estop_edges_not_stopped\":{}}}",
             self.reset_count,
             strs(&causes),
             num(self.instructions_per_control_step),
@@ -1038,6 +1042,8 @@ impl Report {
             us_or_null(self.step.min_high_ns),
             num(self.timing.moving_s),
             self.timing.period_max_ms.map_or("null".into(), num),
+            self.timing.entry_latency_max_us.map_or("null".into(), num),
+            self.timing.entry_latency_max_us_all.map_or("null".into(), num),
             self.timing.late,
             self.timing.feed_gap_max_ms.map_or("null".into(), num),
             self.timing.feeds_missed,
@@ -1078,17 +1084,25 @@ impl Report {
             );
         }
         let t = &self.timing;
+        let us = |x: Option<f64>| x.map_or("-".to_string(), |v| format!("{v:.2} µs"));
         if t.moving_s > 0.0 {
             let ms = |x: Option<f64>| x.map_or("-".to_string(), |v| format!("{v:.2} ms"));
             s += &format!(
-                "\n  over the {:.1} s anything moved: longest control period {} ({} late, > {:.1} ms); longest watchdog feed gap {} ({} missed, > {:.1} ms)",
+                "\n  over the {:.1} s anything moved: longest control period {} ({} late, > {:.1} ms); longest control entry latency (TIM2 pending → entered) {}; longest watchdog feed gap {} ({} missed, > {:.1} ms)",
                 t.moving_s,
                 ms(t.period_max_ms),
                 t.late,
                 self.period_ms() + 1.0,
+                us(t.entry_latency_max_us),
                 ms(t.feed_gap_max_ms),
                 t.feeds_missed,
                 3.0 * self.period_ms()
+            );
+        }
+        if t.entry_latency_max_us_all.is_some() {
+            s += &format!(
+                "\n  longest control entry latency over the whole run (rest and boot included): {}",
+                us(t.entry_latency_max_us_all)
             );
         }
         if !self.estop_reactions_us.is_empty() {

@@ -239,7 +239,8 @@ pub struct Soc {
     pub meter: Option<FnMeter>,
     /// Entries of each exception.
     pub exc_entries: Vec<u64>,
-    /// Entry times of the watched exceptions (the control task's, for its period).
+    /// Entry times of the watched exceptions and when they became pending (the control
+    /// task's, for its period and its entry latency).
     pub entry_log: crate::periph::nvic::EntryLog,
     /// The exception running now (0: thread mode).
     pub current_exc: usize,
@@ -703,6 +704,21 @@ impl Soc {
         }
         for (i, l) in [6u32, 7, 8, 9, 10, 23, 40].into_iter().enumerate() {
             self.nvic.set_line(l, exti[i]);
+        }
+        self.note_pends();
+    }
+
+    /// Hand the exceptions that became pending since the last call to the entry log,
+    /// with the time now. Every path that sets a pending bit (a model's event, a register
+    /// write, an exception return) ends in [`Soc::update_lines`], which calls this at the
+    /// same instant; exception entry calls it too, so a pend is never noted after its
+    /// entry.
+    #[inline]
+    pub fn note_pends(&mut self) {
+        let rose = self.nvic.take_rises();
+        if rose != 0 {
+            let now = self.now();
+            self.entry_log.note_pends(rose, now);
         }
     }
 

@@ -8,6 +8,7 @@
 //! |---|---|---|
 //! | `control_period_max_ms` | TIM2 entries on the NVIC model, while anything moves | ≤ sample period + 1 ms (13.5 ms at 80 SPS) |
 //! | `control_late` | intervals over the period + 1 ms | 0 (the same target, counted) |
+//! | `control_entry_latency_max_us` | TIM2 pending → entered on the NVIC model, while anything moves (`_all`: the whole run) | none (measured: how long locks and higher-priority tasks hold the step) |
 //! | `watchdog_feeds_missed` | IWDG reload gaps > 3 periods, while anything moves | 0 |
 //! | `backed_off_um` | the carriage's retreat after the first overload trip | 2 mm (1.9–2.1 mm) in every run that tripped |
 //! | `stop_latency_pins_us` | DOUT falling → EN high, overload | ≤ 100 µs |
@@ -74,6 +75,16 @@ impl Row {
     /// Longest control period while moving, ms.
     pub fn control_period_max_ms(&self) -> Option<f64> {
         self.r()?.timing.period_max_ms
+    }
+
+    /// Longest control entry latency (TIM2 pending → entered) while moving, µs.
+    pub fn control_entry_latency_max_us(&self) -> Option<f64> {
+        self.r()?.timing.entry_latency_max_us
+    }
+
+    /// Longest control entry latency over the whole run, µs.
+    pub fn control_entry_latency_max_us_all(&self) -> Option<f64> {
+        self.r()?.timing.entry_latency_max_us_all
     }
 
     /// E-STOP edge → EN high and lock off, the longest while moving, µs: the pins as the
@@ -166,9 +177,11 @@ impl Row {
         let f = |x: Option<f64>, d: usize| x.map_or("-".to_string(), |v| format!("{v:.d$}"));
         let misses = self.misses();
         format!(
-            "{head} {:>9} {:>5} {:>7} {:>8} {:>9} {:>9}  {}",
+            "{head} {:>9} {:>5} {:>8} {:>8} {:>7} {:>8} {:>9} {:>9}  {}",
             f(r.timing.period_max_ms, 2),
             r.timing.late,
+            f(r.timing.entry_latency_max_us, 1),
+            f(r.timing.entry_latency_max_us_all, 1),
             r.timing.feeds_missed,
             f(r.scene.backed_off_um, 0),
             f(r.stop_latency_pins_us, 1),
@@ -191,12 +204,14 @@ impl Row {
             .collect();
         let r = self.r();
         format!(
-            "{{\"scene\":\"{}\",\"seed\":{},\"model\":\"{}\",\"cpi\":{},\"control_period_max_ms\":{},\"control_late\":{},\"watchdog_feeds_missed\":{},\"backed_off_um\":{},\"stop_latency_pins_us\":{},\"estop_off_max_us\":{},\"faults\":[{}],\"misses\":[{}]}}",
+            "{{\"scene\":\"{}\",\"seed\":{},\"model\":\"{}\",\"cpi\":{},\"control_period_max_ms\":{},\"control_entry_latency_max_us\":{},\"control_entry_latency_max_us_all\":{},\"control_late\":{},\"watchdog_feeds_missed\":{},\"backed_off_um\":{},\"stop_latency_pins_us\":{},\"estop_off_max_us\":{},\"faults\":[{}],\"misses\":[{}]}}",
             self.scene,
             self.seed,
             self.model,
             o(r.map(|r| r.cpi)),
             o(self.control_period_max_ms()),
+            o(self.control_entry_latency_max_us()),
+            o(self.control_entry_latency_max_us_all()),
             r.map_or("null".to_string(), |r| r.timing.late.to_string()),
             r.map_or("null".to_string(), |r| r.timing.feeds_missed.to_string()),
             o(r.and_then(|r| r.scene.backed_off_um)),
@@ -225,6 +240,10 @@ pub struct Worst {
     pub control_period_max_ms: Option<f64>,
     /// Most late control periods in a run.
     pub control_late: u64,
+    /// Longest control entry latency (TIM2 pending → entered) while moving, µs.
+    pub control_entry_latency_max_us: Option<f64>,
+    /// Longest control entry latency over a whole run, µs.
+    pub control_entry_latency_max_us_all: Option<f64>,
     /// Most missed watchdog feeds in a run.
     pub watchdog_feeds_missed: u64,
     /// Shortest and longest back-off of the runs that tripped, µm.
@@ -254,6 +273,14 @@ impl Worst {
             let Some(r) = row.r() else { continue };
             w.control_period_max_ms = max_opt(w.control_period_max_ms, r.timing.period_max_ms);
             w.control_late = w.control_late.max(r.timing.late);
+            w.control_entry_latency_max_us = max_opt(
+                w.control_entry_latency_max_us,
+                r.timing.entry_latency_max_us,
+            );
+            w.control_entry_latency_max_us_all = max_opt(
+                w.control_entry_latency_max_us_all,
+                r.timing.entry_latency_max_us_all,
+            );
             w.watchdog_feeds_missed = w.watchdog_feeds_missed.max(r.timing.feeds_missed);
             if let Some(b) = r.scene.backed_off_um {
                 w.backed_off_um = Some(
@@ -271,11 +298,13 @@ impl Worst {
     pub fn to_text(&self, what: &str) -> String {
         let f = |x: Option<f64>, d: usize| x.map_or("-".to_string(), |v| format!("{v:.d$}"));
         format!(
-            "worst {what}: {} run(s), {} missing a target; control period {} ms ({} late), {} watchdog feed(s) missed, backed off {} µm, overload stop latency {} µs, E-STOP edge → EN high {} µs",
+            "worst {what}: {} run(s), {} missing a target; control period {} ms ({} late), control entry latency {} µs ({} µs over the whole run), {} watchdog feed(s) missed, backed off {} µm, overload stop latency {} µs, E-STOP edge → EN high {} µs",
             self.runs,
             self.missing,
             f(self.control_period_max_ms, 2),
             self.control_late,
+            f(self.control_entry_latency_max_us, 1),
+            f(self.control_entry_latency_max_us_all, 1),
             self.watchdog_feeds_missed,
             self.backed_off_um
                 .map_or("-".to_string(), |(lo, hi)| if lo == hi {
@@ -292,10 +321,12 @@ impl Worst {
     pub fn to_json(&self) -> String {
         let o = |x: Option<f64>| x.map_or("null".to_string(), num);
         format!(
-            "{{\"runs\":{},\"missing\":{},\"control_period_max_ms\":{},\"control_late\":{},\"watchdog_feeds_missed\":{},\"backed_off_um_min\":{},\"backed_off_um_max\":{},\"stop_latency_pins_us\":{},\"estop_off_max_us\":{}}}",
+            "{{\"runs\":{},\"missing\":{},\"control_period_max_ms\":{},\"control_entry_latency_max_us\":{},\"control_entry_latency_max_us_all\":{},\"control_late\":{},\"watchdog_feeds_missed\":{},\"backed_off_um_min\":{},\"backed_off_um_max\":{},\"stop_latency_pins_us\":{},\"estop_off_max_us\":{}}}",
             self.runs,
             self.missing,
             o(self.control_period_max_ms),
+            o(self.control_entry_latency_max_us),
+            o(self.control_entry_latency_max_us_all),
             self.control_late,
             self.watchdog_feeds_missed,
             o(self.backed_off_um.map(|b| b.0)),
@@ -340,12 +371,14 @@ impl Sweep {
     /// A table for a terminal: one row a run, the worst figures per model and overall.
     pub fn to_text(&self) -> String {
         let mut s = format!(
-            "{:<12} {:>4} {:<8} {:>9} {:>5} {:>7} {:>8} {:>9} {:>9}  {}\n",
+            "{:<12} {:>4} {:<8} {:>9} {:>5} {:>8} {:>8} {:>7} {:>8} {:>9} {:>9}  {}\n",
             "scene",
             "seed",
             "model",
             "period ms",
             "late",
+            "entry µs",
+            "all µs",
             "missed",
             "back µm",
             "stop µs",

@@ -111,6 +111,18 @@ fn control_period_and_watchdog_feeds_are_measured_while_moving() {
     assert_eq!(j["control_late"], 0);
     assert_eq!(j["watchdog_feeds_missed"], 0);
     assert!(r.to_text().contains("longest control period"));
+    // The step's entry latency (TIM2 pending → entered): measured while moving, never
+    // more than over the whole run, and well inside a period.
+    let l = t
+        .entry_latency_max_us
+        .expect("pend → entry pairs while moving");
+    let all = t.entry_latency_max_us_all.expect("pend → entry pairs");
+    assert!(l <= all && all < 12_500.0, "{t:?}");
+    let json_l = j["control_entry_latency_max_us"]
+        .as_f64()
+        .expect("a number");
+    assert!((json_l - l).abs() < 1e-5, "{json_l} / {l}");
+    assert!(j["control_entry_latency_max_us_all"].as_f64().is_some());
 }
 
 #[test]

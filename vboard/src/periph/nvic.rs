@@ -84,11 +84,18 @@ pub struct Masks {
 /// analyser would show of a GPIO toggled at each handler's first instruction, without
 /// the GPIO. The board notes every entry ([`EntryLog::note`]); only the watched ones are
 /// kept. It lives in the SoC, not in [`Nvic`], so a reset does not clear it.
+///
+/// It also keeps when they became pending (not pending → pending, by any path: an
+/// interrupt line rising, a line still asserted at exception return, ISPR, STIR, ICSR):
+/// [`Nvic`] collects the exceptions that became pending ([`Nvic::take_rises`]), the board
+/// hands them over with the time ([`EntryLog::note_pends`]) before it takes any of them.
 #[derive(Clone, Debug, Default)]
 pub struct EntryLog {
     watched: u128,
     /// (exception number, entry time ps), in time order.
     pub entries: Vec<(u32, u64)>,
+    /// (exception number, time it became pending ps), in time order.
+    pub pends: Vec<(u32, u64)>,
 }
 
 impl EntryLog {
@@ -107,9 +114,30 @@ impl EntryLog {
         }
     }
 
+    /// The exceptions of the set `rose` (bit `e` = exception `e`) became pending at
+    /// `t_ps`; the watched ones are kept.
+    #[inline]
+    pub fn note_pends(&mut self, rose: u128, t_ps: u64) {
+        let mut w = rose & self.watched;
+        while w != 0 {
+            let e = w.trailing_zeros();
+            w &= w - 1;
+            self.pends.push((e, t_ps));
+        }
+    }
+
     /// The entry times of exception `e`, ps.
     pub fn times(&self, e: u32) -> Vec<u64> {
         self.entries
+            .iter()
+            .filter(|&&(x, _)| x == e)
+            .map(|&(_, t)| t)
+            .collect()
+    }
+
+    /// The times exception `e` became pending, ps.
+    pub fn pend_times(&self, e: u32) -> Vec<u64> {
+        self.pends
             .iter()
             .filter(|&&(x, _)| x == e)
             .map(|&(_, t)| t)
@@ -121,6 +149,9 @@ impl EntryLog {
 #[derive(Clone, Debug)]
 pub struct Nvic {
     pending: u128,
+    /// Exceptions that became pending (from not pending) since the board last took the
+    /// set ([`Nvic::take_rises`]).
+    rose: u128,
     active: u128,
     enabled: u128,
     /// Programmable priorities (byte per exception; system ones from SHPR).
@@ -155,6 +186,7 @@ impl Default for Nvic {
     fn default() -> Self {
         Self {
             pending: 0,
+            rose: 0,
             active: 0,
             enabled: 0,
             prio: [0; SLOTS as usize],
@@ -293,10 +325,25 @@ impl Nvic {
         self.preempting(i16::MAX).is_some()
     }
 
+    /// Mark the set `m` pending, noting which were not pending before. Every path that
+    /// sets a pending bit goes through here.
+    #[inline]
+    fn set_pending(&mut self, m: u128) {
+        self.rose |= m & !self.pending;
+        self.pending |= m;
+    }
+
+    /// The exceptions that became pending since the last call (bit `e` = exception
+    /// `e`); the set is emptied.
+    #[inline]
+    pub fn take_rises(&mut self) -> u128 {
+        std::mem::take(&mut self.rose)
+    }
+
     /// Mark `e` pending.
     pub fn pend(&mut self, e: u32) {
         if e < SLOTS {
-            self.pending |= bit(e);
+            self.set_pending(bit(e));
         }
     }
 
@@ -324,7 +371,7 @@ impl Nvic {
             self.stack.remove(i);
         }
         if self.lines & bit(e) != 0 {
-            self.pending |= bit(e);
+            self.set_pending(bit(e));
         }
     }
 
@@ -343,7 +390,7 @@ impl Nvic {
         if high {
             self.lines |= bit(e);
             if self.active & bit(e) == 0 {
-                self.pending |= bit(e);
+                self.set_pending(bit(e));
             }
         } else {
             self.lines &= !bit(e);
@@ -485,11 +532,11 @@ impl Nvic {
             0x008 => self.actlr = merge(self.actlr, off, size, value) & 0x307,
             0x100..=0x11C => self.enabled |= Self::irq_mask((o - 0x100) / 4, value),
             0x180..=0x19C => self.enabled &= !Self::irq_mask((o - 0x180) / 4, value),
-            0x200..=0x21C => self.pending |= Self::irq_mask((o - 0x200) / 4, value),
+            0x200..=0x21C => self.set_pending(Self::irq_mask((o - 0x200) / 4, value)),
             0x280..=0x29C => {
                 self.pending &= !Self::irq_mask((o - 0x280) / 4, value);
                 // A still-asserted line pends again at once.
-                self.pending |= self.lines & !self.active;
+                self.set_pending(self.lines & !self.active);
             }
             0x300..=0x31C => {}
             0x400..=0x450 => {
@@ -608,6 +655,50 @@ mod tests {
             n.is_pending(exc::IRQ0 + 38),
             "line still asserted: pending again"
         );
+    }
+
+    #[test]
+    fn every_path_that_sets_a_pending_bit_notes_the_rise_once() {
+        let tim2 = exc::IRQ0 + 28;
+        let mut n = Nvic::default();
+        assert_eq!(n.take_rises(), 0);
+        // The timer's line: a rise, then nothing while it stays pending.
+        n.set_line(28, true);
+        assert_eq!(n.take_rises(), bit(tim2));
+        n.set_line(28, true);
+        n.pend(tim2);
+        assert_eq!(n.take_rises(), 0, "already pending");
+        // Entered: no longer pending; the line stays asserted, but an active exception
+        // is not pended by it — until it returns.
+        n.activate(tim2);
+        n.set_line(28, true);
+        assert_eq!(n.take_rises(), 0);
+        n.deactivate(tim2);
+        assert_eq!(n.take_rises(), bit(tim2), "still asserted at return");
+        // ICPR with the line asserted: cleared and pended again at once (a new pend).
+        n.write(0x280, 4, 1 << 28).unwrap();
+        assert_eq!(n.take_rises(), bit(tim2));
+        n.set_line(28, false);
+        n.write(0x280, 4, 1 << 28).unwrap();
+        assert_eq!(n.take_rises(), 0);
+        assert!(!n.is_pending(tim2));
+        // Software: ISPR, STIR, ICSR.PENDSVSET.
+        n.write(0x200, 4, 1 << 28).unwrap();
+        assert_eq!(n.take_rises(), bit(tim2), "ISPR");
+        n.write(0x280, 4, 1 << 28).unwrap();
+        n.write(0xF00, 4, 28).unwrap();
+        assert_eq!(n.take_rises(), bit(tim2), "STIR");
+        n.write(0xD04, 4, 1 << 28).unwrap();
+        assert_eq!(n.take_rises(), bit(exc::PENDSV), "ICSR");
+        // The log keeps only the watched ones.
+        let mut log = EntryLog::default();
+        log.watch(tim2);
+        log.note_pends(bit(tim2) | bit(exc::PENDSV), 7);
+        log.note(exc::PENDSV, 8);
+        log.note(tim2, 9);
+        assert_eq!(log.pend_times(tim2), vec![7]);
+        assert_eq!(log.pends.len(), 1);
+        assert_eq!(log.times(tim2), vec![9]);
     }
 
     #[test]
