@@ -757,6 +757,10 @@ mod app {
                     .ctrl
                     .lock(|ctrl| console.run_line(ctrl, &cmd_line, now_ms));
                 console.finish(now_ms);
+                if console.store_due() {
+                    // A record the hash just made (`pin set`), with the controller.
+                    cx.shared.ctrl.lock(|ctrl| console.store(ctrl, now_ms));
+                }
             }
             console.flush_output(term);
             let maint = console.maintenance_active(now_ms);

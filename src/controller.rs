@@ -306,6 +306,10 @@ struct QueuedRecord {
     data: heapless::Vec<u8, QUEUED_RECORD_MAX>,
 }
 
+/// What the cached wear estimate was computed from: cone id, equivalent cycles (Q32),
+/// readings, baseline bore (µm).
+type WearKey = (u16, u64, usize, u32);
+
 /// Events kept for readers.
 const EVENT_QUEUE: usize = 32;
 /// Fault records kept.
@@ -374,9 +378,13 @@ pub struct Controller<B: Bsp> {
     readings: heapless::Vec<Measurement, { odometer::READINGS_KEPT }>,
     /// The wear estimate's fit to them.
     fit: Fit,
-    /// [`Controller::wear_level`] as of `level_key` (cone id, cone cycles, readings).
+    /// [`Controller::wear_level`] and [`Controller::wear_estimate`] as of `level_key`
+    /// ([`Controller::wear_key`]): the estimate costs ~22 k instructions (27–52 k on
+    /// the board), too much for every `status` or Modbus read while the console or the
+    /// PLC holds the controller.
     level: WearLevel,
-    level_key: Option<(u16, u32, usize)>,
+    estimate: Estimate,
+    level_key: Option<WearKey>,
     /// Stage 2, guard: the force, the limit and what the kernel's verdicts left.
     guard: GuardState,
     /// The load cell's calibration and tare (stage 3 keeps its zero-load samples).
@@ -842,6 +850,7 @@ impl<B: Bsp> Controller<B> {
             readings: heapless::Vec::new(),
             fit: Fit::prior(),
             level: WearLevel::Ok,
+            estimate: Estimate::default(),
             level_key: None,
             guard: GuardState {
                 force_mn: 0,
@@ -1507,12 +1516,24 @@ impl<B: Bsp> Controller<B> {
         }
         // 7. The wear level the handshake reports, when what it depends on changed (the
         // estimate's evaluation costs ~22 k instructions: once per cycle, not per step).
-        let cone = self.odo.cone();
-        let key = (cone.id, cone.cycles, self.readings.len());
+        let key = self.wear_key();
         if self.level_key != Some(key) {
+            let est = self.compute_estimate();
+            self.level = self.compute_level(&est);
+            self.estimate = est;
             self.level_key = Some(key);
-            self.level = self.wear_level();
         }
+    }
+
+    /// What the wear estimate and level depend on: the cone, its equivalent cycles,
+    /// its readings, its baseline.
+    fn wear_key(&self) -> WearKey {
+        (
+            self.odo.cone().id,
+            self.odo.equivalent_cycles_q32(),
+            self.readings.len(),
+            self.baseline_or_nominal(),
+        )
     }
 
     /// Switch debouncing: a switch's change counts once two consecutive steps read it,
@@ -2125,7 +2146,17 @@ impl<B: Bsp> Controller<B> {
     }
 
     /// The wear estimate now: the model, taught by the cone's readings.
+    ///
+    /// Kept from the last control step while nothing it depends on changed (a read
+    /// costs nothing then); computed afresh otherwise.
     pub fn wear_estimate(&self) -> Estimate {
+        if self.level_key == Some(self.wear_key()) {
+            return self.estimate;
+        }
+        self.compute_estimate()
+    }
+
+    fn compute_estimate(&self) -> Estimate {
         let cone = self.odo.cone();
         self.fit.at(
             self.odo.equivalent_cycles_q32(),
@@ -2140,12 +2171,19 @@ impl<B: Bsp> Controller<B> {
     /// the model's word (nor on the estimate's, which weighs one reading against the
     /// rest: a reading past the limit stands until the cone is measured again).
     pub fn wear_level(&self) -> WearLevel {
+        if self.level_key == Some(self.wear_key()) {
+            return self.level;
+        }
+        self.compute_level(&self.compute_estimate())
+    }
+
+    fn compute_level(&self, est: &Estimate) -> WearLevel {
         let model = self.odo.level();
         let Some(last) = self.readings.last() else {
             return model;
         };
         let measured = u32::try_from(last.wear_nm(self.baseline_or_nominal())).unwrap_or(0);
-        let high = self.wear_estimate().high_nm.max(measured);
+        let high = est.high_nm.max(measured);
         let w = &self.cfg.wear;
         let warn_nm = (w.limit_nm as u64 * w.warn_pct as u64 / 100) as u32;
         let est = if high >= w.limit_nm {

@@ -102,7 +102,7 @@ pub struct Fit {
 }
 
 /// The estimate at one `E`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Estimate {
     /// Estimated wear depth, nm.
     pub wear_nm: u32,

@@ -1,6 +1,7 @@
 //! The technician console end to end: commands typed on the simulated serial link,
 //! executed by the real console service against the real controller.
 
+use docking_controller::odometer::kind;
 use hil_sim::rig::{Rig, RigOptions};
 use hil_sim::scene::{run, SceneOptions};
 use serde_json::Value;
@@ -506,4 +507,29 @@ fn console_commands_read_no_flash_under_the_controller() {
         .starts_with("modbus unit=7 baud=19200"));
     r.command("maint 2468", 10);
     assert!(r.command("status", 10).contains("maintenance=yes"));
+}
+
+/// Defect (found by the virtual board's control-entry latency): `pin set` hashed the
+/// new PIN (257 SHA-256 compressions, ~650 k instructions) while holding the
+/// controller, delaying the control step by 5–18 ms. The hash now runs in `finish`,
+/// without it, and the record is stored in a fourth phase, `store`.
+#[test]
+fn pin_set_hashes_without_the_controller() {
+    let mut r = rig();
+    let now_ms = r.clock.now_ns() / 1_000_000;
+    let mut buf = [0u8; 64];
+    // With the controller: no hash, nothing stored yet.
+    let hashes = r.console.run_line(&mut r.ctrl, "pin set 2468", now_ms);
+    assert_eq!(hashes, 0);
+    assert!(r.ctrl.load_record(kind::PIN, &mut buf).is_none());
+    // Without it: the hash.
+    assert_eq!(r.console.finish(now_ms), 1);
+    assert!(r.console.store_due());
+    // With it again: the store.
+    r.console.store(&mut r.ctrl, now_ms);
+    assert!(!r.console.store_due());
+    assert!(r.ctrl.load_record(kind::PIN, &mut buf).is_some());
+    assert!(r
+        .command("maint 2468", 10)
+        .starts_with("ok: maintenance mode"));
 }

@@ -165,6 +165,11 @@ struct Deferred {
     login_pin: String<LINE_MAX>,
     login_rec: [u8; PinRecord::LEN],
     login_has_rec: bool,
+    /// A `pin set` waits for its hash (`login_pin` holds the new PIN), then for the
+    /// controller again to store the record ([`Console::store`]).
+    pin_set: bool,
+    pin_rec: [u8; PinRecord::LEN],
+    pin_rec_ready: bool,
     /// A report waits to be written (`report_json`: as JSON).
     report: Report,
     report_json: bool,
@@ -255,6 +260,9 @@ impl Console {
                 login_pin: String::new(),
                 login_rec: [0; PinRecord::LEN],
                 login_has_rec: false,
+                pin_set: false,
+                pin_rec: [0; PinRecord::LEN],
+                pin_rec_ready: false,
                 report: Report::None,
                 report_json: false,
             },
@@ -437,6 +445,9 @@ impl Console {
         let (line, mut st) = self.read_line(io);
         if let Some(line) = line {
             st.pin_hashes = self.run_line(ctrl, &line, now_ms) + self.finish(now_ms);
+            if self.store_due() {
+                self.store(ctrl, now_ms);
+            }
         }
         ctrl.set_maintenance_mode(self.auth.is_active(now_ms));
         self.flush(io);
@@ -524,10 +535,51 @@ impl Console {
             Report::Measurements(v) => self.render_measurements(&v, json),
             Report::History(entries) => self.render_history(&entries, json),
         }
-        let hashed = self.finish_login(now_ms);
+        let hashed = self.finish_login(now_ms) + self.finish_pin_set(now_ms);
         self.term.maint = self.auth.is_active(now_ms);
-        self.prompt();
+        if !self.store_due() {
+            self.prompt();
+        }
         hashed
+    }
+
+    /// A `pin set`'s new record: salted and hashed here, without the controller.
+    fn finish_pin_set(&mut self, now_ms: u64) -> u32 {
+        if !core::mem::take(&mut self.deferred.pin_set) {
+            return 0;
+        }
+        let pin = core::mem::take(&mut self.deferred.login_pin);
+        let salt = self.new_salt(now_ms);
+        match make_pin_record(&pin, salt) {
+            Ok(rec) => {
+                self.deferred.pin_rec = rec.to_bytes();
+                self.deferred.pin_rec_ready = true;
+            }
+            Err(e) => self.err(&e),
+        }
+        1
+    }
+
+    /// Whether a command's record waits for [`Self::store`] (with the controller).
+    pub fn store_due(&self) -> bool {
+        self.deferred.pin_rec_ready
+    }
+
+    /// Phase 4, with the controller again: store what [`Self::finish`] prepared (a new
+    /// PIN record: written at rest only, else refused), then the prompt.
+    pub fn store<B: Bsp>(&mut self, ctrl: &mut Controller<B>, now_ms: u64) {
+        if core::mem::take(&mut self.deferred.pin_rec_ready) {
+            let rec = self.deferred.pin_rec;
+            match ctrl.store_record(kind::PIN, &rec) {
+                Ok(()) => {
+                    self.audit(ctrl, action::PIN_SET, now_ms, &[]);
+                    self.ok(&"PIN set");
+                }
+                Err(e) => self.err(&e),
+            }
+        }
+        self.term.state = Some(ctrl.state().name());
+        self.prompt();
     }
 
     /// A maintenance login's PIN check, if one waits; the PIN hashes computed.
@@ -665,11 +717,12 @@ impl Console {
         }
     }
 
-    /// Phase 2, with the controller: run one line (its reply formatted into the output
-    /// ring). A maintenance login only fetches the stored PIN record here: its hash
-    /// (257 SHA-256 compressions, milliseconds) waits for [`Self::finish`], and so does
-    /// the rendering of a `history` reply. Returns the PIN hashes computed here
-    /// (`pin set`).
+    /// Phase 2, with the controller: run one line. A report's data is copied here and
+    /// written out by [`Self::finish`]; a maintenance login only fetches the stored PIN
+    /// record here and a `pin set` only takes the PIN: their hash (257 SHA-256
+    /// compressions, milliseconds) waits for [`Self::finish`], without the controller,
+    /// and a new PIN record is stored by [`Self::store`]. Returns the PIN hashes
+    /// computed here (none).
     pub fn run_line<B: Bsp>(&mut self, ctrl: &mut Controller<B>, line: &str, now_ms: u64) -> u32 {
         let hashes = self.run_command(ctrl, line, now_ms);
         self.term.state = Some(ctrl.state().name());
@@ -904,18 +957,12 @@ impl Console {
                 self.ok(&"maintenance mode ended");
             }
             Command::PinSet { pin } => {
-                let salt = self.new_salt(now_ms);
-                match make_pin_record(pin, salt) {
-                    Ok(rec) => match ctrl.store_record(kind::PIN, &rec.to_bytes()) {
-                        Ok(()) => {
-                            self.audit(ctrl, action::PIN_SET, now_ms, &[]);
-                            self.ok(&"PIN set");
-                        }
-                        Err(e) => self.err(&e),
-                    },
-                    Err(e) => self.err(&e),
-                }
-                return 1;
+                // The hash (milliseconds of SHA-256) in `finish`, the record's store in
+                // `store`: the controller is not held across the hash.
+                let d = &mut self.deferred;
+                d.pin_set = true;
+                d.login_pin.clear();
+                let _ = d.login_pin.push_str(pin);
             }
         }
         0
