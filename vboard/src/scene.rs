@@ -53,6 +53,26 @@ use crate::rtt::LogLine;
 use crate::time::PS_PER_S;
 use crate::world::World;
 
+/// The reply to `line` in what the console sent after it: the echo of the line
+/// (echo is on at every reset), a banner (`# …`, after a reset) and the prompt left
+/// out, so the scenes read the same text as over `echo off`.
+fn script_reply(raw: &str, line: &str) -> String {
+    let secret = |l: &str| l.starts_with("maint ") || l.starts_with("pin set ");
+    let mut out = String::new();
+    let mut first = true;
+    for seg in raw.split_inclusive("\r\n") {
+        let text = seg.trim_end_matches("\r\n");
+        let is_echo = first && (text == line || (secret(line) && secret(text)));
+        first = false;
+        let is_prompt = !seg.ends_with("\r\n") && (text.ends_with("> ") || text.ends_with("# "));
+        if is_echo || is_prompt || text.starts_with("# docking-controller ") {
+            continue;
+        }
+        out.push_str(seg);
+    }
+    out
+}
+
 /// Picoseconds per millisecond.
 pub const PS_PER_MS: u64 = 1_000_000_000;
 
@@ -429,7 +449,17 @@ impl Session {
         self.run_until(deadline, |s| {
             let out = &s.board.soc().console_out;
             let n = out.len();
-            let done = n > start && out.last().is_some_and(|&(_, b)| b == b'\n');
+            // A reply ends with CR LF, followed (echo on) by the prompt `STATE> `.
+            let tail: Vec<u8> = out[start.min(n)..]
+                .iter()
+                .rev()
+                .take(2)
+                .map(|&(_, b)| b)
+                .collect();
+            let done = n > start
+                && (tail.first() == Some(&b'\n')
+                    || (tail == [b' ', b'>'] || tail == [b' ', b'#'])
+                        && out[start..].iter().any(|&(_, b)| b == b'\n'));
             if !done || s.board.soc().usart2.far_pending() > 0 {
                 return false;
             }
@@ -445,7 +475,8 @@ impl Session {
             .iter()
             .map(|&(_, b)| b)
             .collect();
-        let reply = String::from_utf8_lossy(&out).into_owned();
+        let raw = String::from_utf8_lossy(&out).into_owned();
+        let reply = script_reply(&raw, line);
         if std::env::var_os("VBOARD_TRACE_CONSOLE").is_some() {
             eprintln!("[{:.6} s] > {line}\n{reply}", self.now() as f64 * 1e-12);
         }
@@ -2067,8 +2098,37 @@ pub fn estimate_cost(opts: &Options, n: usize) -> Result<EstimateCost, String> {
         }
         fit.push((k, m.last));
     }
+    // The estimate is evaluated when what it depends on changes (a reading, a cycle)
+    // and kept: `wear` reads it for nothing. One more reading evaluates it.
     s.board.meter(at_at);
-    let _ = s.console("wear", 5 * PS_PER_S).map_err(halt)?;
+    let bore = 26_000 + 10 * (n as u32 + 1);
+    let _ = s
+        .console(
+            &format!("measure {}.{:03}", bore / 1000, bore % 1000),
+            5 * PS_PER_S,
+        )
+        .map_err(halt)?;
     let at = s.board.soc().meter.as_ref().map_or(0, |m| m.last);
     Ok(EstimateCost { fit, at })
+}
+
+#[cfg(test)]
+mod script_reply_tests {
+    use super::script_reply;
+
+    #[test]
+    fn the_echo_the_banner_and_the_prompt_are_left_out() {
+        let raw = "status\r\nstate=idle phase=none\r\nidle> ";
+        assert_eq!(script_reply(raw, "status"), "state=idle phase=none\r\n");
+        // Echo off: the reply as it came.
+        assert_eq!(script_reply("ok: x\r\n", "dock"), "ok: x\r\n");
+        // A PIN is echoed as stars.
+        assert_eq!(
+            script_reply("maint ****\r\nok: maintenance mode\r\nidle# ", "maint 2468"),
+            "ok: maintenance mode\r\n"
+        );
+        // After a reset: the banner and the boot prompt.
+        let raw = "# docking-controller 0.1.0 reset=watchdog; type 'help'\r\npower_up> ";
+        assert_eq!(script_reply(raw, "status"), "");
+    }
 }
