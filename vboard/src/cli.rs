@@ -34,11 +34,44 @@ impl From<UsageError> for Failure {
     }
 }
 
+/// `--firmware FILE`, if given: a file that is not there is a usage error (exit 2),
+/// like every other bad argument.
+fn firmware(o: &Opts) -> Result<Option<String>, Failure> {
+    match o.get("firmware") {
+        None => Ok(None),
+        Some(f) if std::path::Path::new(f).is_file() => Ok(Some(f.to_string())),
+        Some(f) => usage(format!("--firmware {f}: no such file")),
+    }
+}
+
+/// `vboard COMMAND --help`: that command's synopsis.
+fn command_help(cmd: &str) -> Option<String> {
+    if cmd == "sweep" {
+        return Some(SWEEP_USAGE.trim_start().to_string());
+    }
+    // USAGE's synopses, split at " | " before a command word (options have "|" too).
+    let mut parts: Vec<String> = Vec::new();
+    for piece in USAGE.trim_start_matches("usage: vboard ").split(" | ") {
+        let word = piece.split_whitespace().next().unwrap_or("");
+        match parts.last_mut() {
+            Some(last) if !["scene", "serve", "estimate-cost"].contains(&word) => {
+                last.push_str(" | ");
+                last.push_str(piece);
+            }
+            _ => parts.push(piece.to_string()),
+        }
+    }
+    parts
+        .into_iter()
+        .find(|p| p.split_whitespace().next() == Some(cmd))
+        .map(|p| format!("vboard {p}"))
+}
+
 /// Session options from the common flags.
 fn session(o: &Opts) -> Result<Options, Failure> {
     let mut s = Options::new();
-    if let Some(f) = o.get("firmware") {
-        s.firmware = f.to_string();
+    if let Some(f) = firmware(o)? {
+        s.firmware = f;
     }
     s.rate_sps = o.num("rate", 80u32, 1, u32::MAX)?;
     if !matches!(s.rate_sps, 10 | 80) {
@@ -264,8 +297,8 @@ fn sweep_cmd(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
 fn estimate_cost(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     let o = Opts::parse(args, &["firmware", "readings"], &[])?;
     let mut opts = Options::new();
-    if let Some(f) = o.get("firmware") {
-        opts.firmware = f.to_string();
+    if let Some(f) = firmware(&o)? {
+        opts.firmware = f;
     }
     let n = o.num("readings", 30usize, 1, 40)?;
     let r = crate::scene::estimate_cost(&opts, n).map_err(Failure::Run)?;
@@ -278,6 +311,12 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     let Some((cmd, rest)) = args.split_first() else {
         return usage(USAGE);
     };
+    if rest.iter().any(|a| a == "--help" || a == "-h") {
+        if let Some(h) = command_help(cmd) {
+            let _ = writeln!(out, "{h}");
+            return Ok(());
+        }
+    }
     match cmd.as_str() {
         "scene" => scene(rest, out),
         "serve" => serve(rest, out),
@@ -288,5 +327,41 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
             Ok(())
         }
         other => usage(format!("unknown command '{other}'; {USAGE}")),
+    }
+}
+
+#[cfg(test)]
+mod help_tests {
+    use super::{run, Failure};
+
+    fn run_args(args: &[&str]) -> (Result<(), Failure>, String) {
+        let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+        let mut out = Vec::new();
+        let r = run(&args, &mut out);
+        (r, String::from_utf8(out).unwrap())
+    }
+
+    #[test]
+    fn every_command_answers_help_with_its_synopsis() {
+        for cmd in ["scene", "serve", "estimate-cost", "sweep"] {
+            let (r, out) = run_args(&[cmd, "--help"]);
+            assert!(r.is_ok(), "{cmd}");
+            assert!(out.starts_with(&format!("vboard {cmd} ")), "{cmd}: {out}");
+            assert!(out.contains("--firmware ELF"), "{cmd}: {out}");
+        }
+        let (_, out) = run_args(&["serve", "--help"]);
+        assert!(out.contains("[--pty | --tcp 127.0.0.1:PORT]"), "{out}");
+    }
+
+    #[test]
+    fn a_missing_firmware_file_is_a_usage_error() {
+        for cmd in ["scene nominal", "estimate-cost", "sweep"] {
+            let mut args: Vec<&str> = cmd.split(' ').collect();
+            args.extend(["--firmware", "/no/such/image.elf"]);
+            match run_args(&args).0 {
+                Err(Failure::Usage(e)) => assert!(e.contains("/no/such/image.elf"), "{e}"),
+                other => panic!("{cmd}: {:?}", other.err().map(|_| "not a usage error")),
+            }
+        }
     }
 }
