@@ -87,6 +87,8 @@ pub enum Bridge {
         /// What a second client is told before it is let go ([`BUSY`] on a console;
         /// nothing on a Modbus link, where text would be noise on the bus).
         busy: &'static [u8],
+        /// A client was let go since [`Bridge::departed`] was last asked.
+        departed: bool,
     },
 }
 
@@ -109,6 +111,7 @@ impl Bridge {
                 client,
                 closing,
                 busy,
+                departed,
             } => {
                 if let Ok((mut s, _)) = listener.accept() {
                     if client.is_none() {
@@ -133,6 +136,7 @@ impl Bridge {
                         Some(Ok(n)) => n,
                         Some(Err(e)) if e.kind() != std::io::ErrorKind::WouldBlock => {
                             *client = None; // reset by the peer
+                            *departed = true;
                             0
                         }
                         _ => 0,
@@ -170,7 +174,10 @@ impl Bridge {
     /// gets the console.
     pub fn reap(&mut self, quiet: bool) {
         if let Bridge::Tcp {
-            client, closing, ..
+            client,
+            closing,
+            departed,
+            ..
         } = self
         {
             if let Some(t) = *closing {
@@ -181,8 +188,17 @@ impl Bridge {
                         let _ = c.shutdown(std::net::Shutdown::Both);
                     }
                     *closing = None;
+                    *departed = true;
                 }
             }
+        }
+    }
+
+    /// Whether a client left since the last call (a pty's reader never "leaves").
+    pub fn departed(&mut self) -> bool {
+        match self {
+            Bridge::Tcp { departed, .. } => core::mem::take(departed),
+            Bridge::Pty(_) => false,
         }
     }
 }
@@ -205,6 +221,7 @@ impl Bridge {
                     client: None,
                     closing: None,
                     busy: BUSY,
+                    departed: false,
                 })
             }
         }

@@ -9,7 +9,8 @@
 //! [`ModbusSettings::char_us`], 573 µs at the default 19 200 baud):
 //!
 //! * a byte's stamp is one character time after the previous byte's stamp, or after the
-//!   virtual time at which it was read from the link, whichever is later: bytes read
+//!   virtual time at which it was read from the link (the wall clock's machine time,
+//!   read every millisecond: not the last tick's), whichever is later: bytes read
 //!   together go back to back, as a gateway sends a packet, and a request read after a
 //!   pause starts after a silence;
 //! * [`RtuLine::service`], called after every rig tick, hands the server the bytes
@@ -29,6 +30,13 @@
 //! answers nothing (as a real bus would). A request whose bytes reach the link in
 //! pieces far apart in time gets a silence over t1.5 inside and is discarded, as on a
 //! real line.
+//!
+//! **Replies take the wire's time**: [`RtuLine::send`] queues a reply's characters one
+//! character time apart from when it was made (after any still on the wire), and
+//! [`RtuLine::transmit`] hands out those whose end has passed: a 141-byte reply takes
+//! 81 ms at 19 200 baud, not a tick. **A client that leaves** takes its line with it:
+//! [`RtuLine::drop_client`] discards what it left waiting and any reply still on the
+//! wire, so the next client never gets them.
 //!
 //! Back-pressure: at most [`RX_WINDOW`] bytes wait for their stamps; the link is read
 //! only for the room left ([`RtuLine::room`]), so a flood drains at the line rate
@@ -55,6 +63,8 @@ pub struct RtuLine {
     waiting: VecDeque<(u8, u64)>,
     /// The last byte's stamp (waiting or delivered).
     last_stamp_us: Option<u64>,
+    /// Reply characters on the wire with the time each one's stop bit ends (µs).
+    tx: VecDeque<(u8, u64)>,
 }
 
 impl RtuLine {
@@ -66,7 +76,43 @@ impl RtuLine {
             server,
             waiting: VecDeque::new(),
             last_stamp_us: None,
+            tx: VecDeque::new(),
         }
+    }
+
+    /// Put `reply` on the wire at `now_us`: its characters one character time apart,
+    /// after any still being sent.
+    pub fn send(&mut self, reply: &[u8], now_us: u64) {
+        let mut t = self.tx.back().map_or(now_us, |&(_, t)| t.max(now_us));
+        for &b in reply {
+            t += self.char_us;
+            self.tx.push_back((b, t));
+        }
+    }
+
+    /// The reply characters whose stop bit has ended by `now_us` (to write to the link).
+    pub fn transmit(&mut self, now_us: u64) -> Vec<u8> {
+        let mut out = Vec::new();
+        while let Some(&(b, t)) = self.tx.front() {
+            if t > now_us {
+                break;
+            }
+            out.push(b);
+            self.tx.pop_front();
+        }
+        out
+    }
+
+    /// Reply characters still on the wire.
+    pub fn sending(&self) -> usize {
+        self.tx.len()
+    }
+
+    /// The client left: what it sent that the server has not taken, and the reply still
+    /// on the wire, are gone with it.
+    pub fn drop_client(&mut self) {
+        self.waiting.clear();
+        self.tx.clear();
     }
 
     /// How many more bytes may be read from the link now (0: leave them there).
@@ -193,6 +239,37 @@ mod tests {
         line.receive(&req, now);
         let (reply, _) = run(&mut rig, &mut line, 20);
         assert_eq!(reply, frame(&[1, 0x04, 2, 0, 2]));
+    }
+
+    #[test]
+    fn a_reply_takes_the_wire_time_of_its_length() {
+        let mut line = RtuLine::new(ModbusSettings::DEFAULT);
+        let reply = vec![0x55u8; 141];
+        line.send(&reply, 1_000);
+        // 141 characters of 573 µs: 80.8 ms on a 19 200-baud line.
+        assert!(line.transmit(1_000 + 573 - 1).is_empty());
+        assert_eq!(line.transmit(1_000 + 573), [0x55]);
+        assert_eq!(line.transmit(1_000 + 40_000).len(), 68);
+        assert_eq!(line.sending(), 141 - 69);
+        assert_eq!(line.transmit(1_000 + 141 * 573).len(), 141 - 69);
+        // A second reply queued while the first is on the wire follows it.
+        line.send(&[1, 2], 0);
+        line.send(&[3], 0);
+        assert_eq!(line.transmit(3 * 573), [1, 2, 3]);
+    }
+
+    #[test]
+    fn what_a_departed_client_left_does_not_reach_the_next_one() {
+        let mut rig = Rig::new(RigOptions::new(80));
+        let mut line = RtuLine::new(ModbusSettings::DEFAULT);
+        let req = frame(&[1, 0x04, 0, 67, 0, 1]);
+        line.receive(&req, 0);
+        line.send(&[9; 20], 0);
+        line.drop_client();
+        assert_eq!(line.waiting(), 0);
+        assert_eq!(line.sending(), 0);
+        assert!(line.service(50_000, &mut rig.ctrl, UNIT_SERIAL).is_empty());
+        assert!(line.transmit(1_000_000).is_empty());
     }
 
     #[test]

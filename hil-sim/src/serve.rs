@@ -163,6 +163,7 @@ fn open_modbus(link: &Link, out: &mut dyn Write) -> Result<Bridge, String> {
                 client: None,
                 closing: None,
                 busy: b"",
+                departed: false,
             }
         }
     };
@@ -281,8 +282,13 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
                 rig.ctrl.request(Request::StartCycle);
             }
             if let Some((link, line)) = modbus.as_mut() {
+                // The reply goes onto the wire character by character (DE high while
+                // it is sent: no flash erase meanwhile, as on the board).
                 let now_us = rig.clock.now_ns() / 1_000;
-                link.write(&line.service(now_us, &mut rig.ctrl, UNIT_SERIAL));
+                let reply = line.service(now_us, &mut rig.ctrl, UNIT_SERIAL);
+                line.send(&reply, now_us);
+                link.write(&line.transmit(now_us));
+                rig.ctrl.set_bus_busy(line.sending() > 0);
             }
         }
         let room = RX_RING.saturating_sub(rig.term.rx_pending());
@@ -297,10 +303,20 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
             let room = line.room();
             if room > 0 {
                 let bytes = link.read(room);
-                line.receive(&bytes, rig.clock.now_ns() / 1_000);
+                // Stamped at the machine time of the wall clock now, not of the last
+                // tick: a pause between two pieces of a request is seen as it was.
+                let wall_us = (start.elapsed().as_secs_f64() * opts.speed * 1e6) as u64;
+                line.receive(&bytes, wall_us);
+            }
+            link.reap(line.sending() == 0 && line.waiting() == 0);
+            if link.departed() {
+                line.drop_client();
             }
         }
-        std::thread::sleep(Duration::from_millis(2));
+        // The links are read every millisecond (wall) with a Modbus line (its t1.5 is
+        // 0.86 ms at 19 200 baud), every 2 ms otherwise.
+        let nap_ms = if modbus.is_some() { 1 } else { 2 };
+        std::thread::sleep(Duration::from_millis(nap_ms));
     }
 }
 

@@ -51,10 +51,15 @@ fn line_reader(r: impl Read + Send + 'static) -> mpsc::Receiver<String> {
 
 impl Server {
     fn start(args: &[&str]) -> Self {
+        Self::start_at(args, "20")
+    }
+
+    /// At `speed` × real time.
+    fn start_at(args: &[&str], speed: &str) -> Self {
         let mut child = Command::new(env!("CARGO_BIN_EXE_hil-sim"))
             .arg("serve")
             .args(args)
-            .args(["--speed", "20", "--for", "120"])
+            .args(["--speed", speed, "--for", "120"])
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
@@ -101,7 +106,15 @@ impl Server {
 
 /// Start the simulator with a console and a Modbus link on loopback TCP; connect.
 fn start_with_modbus() -> (Server, Plc) {
-    let server = Server::start(&["--tcp", "127.0.0.1:0", "--modbus-tcp", "127.0.0.1:0"]);
+    start_with_modbus_at("20")
+}
+
+/// The same at `speed` × real time.
+fn start_with_modbus_at(speed: &str) -> (Server, Plc) {
+    let server = Server::start_at(
+        &["--tcp", "127.0.0.1:0", "--modbus-tcp", "127.0.0.1:0"],
+        speed,
+    );
     let console = server.line();
     assert!(console.starts_with("127.0.0.1:"), "{console}");
     let second = server.line();
@@ -467,4 +480,48 @@ fn serve_refuses_bad_modbus_arguments() {
         assert_eq!(err.lines().count(), 1, "{args:?}: {err}");
         assert!(out.stdout.is_empty(), "{args:?}: nothing opened");
     }
+}
+
+/// The line as the bus has it: a request whose halves arrive with a pause between them
+/// (longer than t1.5, 0.86 ms at 19 200 baud) is discarded; the same request whole is
+/// answered. Bytes were stamped at the last tick's time, so at real time a 5 ms pause
+/// (shorter than the 12.5 ms tick) went unseen and the split request was answered.
+#[test]
+fn a_request_split_by_a_pause_is_discarded_as_on_the_wire() {
+    let (_server, mut plc) = start_with_modbus_at("1");
+    let req = with_crc(&[UNIT, 0x04, 0, ir::MAP_VERSION as u8, 0, 1]);
+    let complete = |b: &[u8]| b.len() >= 7;
+    // The server is up: a whole request is answered.
+    plc.transact(&req, complete);
+    plc.stream.write_all(&req[..4]).unwrap();
+    std::thread::sleep(Duration::from_millis(5));
+    plc.stream.write_all(&req[4..]).unwrap();
+    let got = plc.read_reply(Duration::from_millis(800), complete);
+    assert!(got.is_err(), "a split request was answered: {got:02X?}");
+    assert_eq!(plc.transact(&req, complete).len(), 7);
+}
+
+/// A client that left: the request it sent and the reply to it are not handed to the
+/// next client.
+#[test]
+fn what_a_departed_modbus_client_left_does_not_reach_the_next() {
+    let (server, mut plc) = start_with_modbus();
+    let req = with_crc(&[UNIT, 0x04, 0, ir::MAP_VERSION as u8, 0, 1]);
+    let complete = |b: &[u8]| b.len() >= 7;
+    plc.transact(&req, complete);
+    let addr = plc.stream.peer_addr().unwrap();
+    // Ask, and leave before the reply.
+    plc.stream.write_all(&req).unwrap();
+    drop(plc);
+    std::thread::sleep(Duration::from_millis(1_000));
+    let stream = TcpStream::connect(addr).unwrap();
+    let mut next = Plc { stream };
+    let stale = next.read_reply(Duration::from_millis(800), complete);
+    assert_eq!(
+        stale,
+        Err(Vec::new()),
+        "the next client got a reply it did not ask for"
+    );
+    assert_eq!(next.transact(&req, complete).len(), 7);
+    drop(server);
 }
