@@ -280,11 +280,34 @@ impl LifeReport {
                 self.life_cycles, self.not_reached
             );
         }
+        // Which life: the cycle the controller locked the cone out at, or the model's
+        // extrapolation; and the estimate's, from the last reading, beside it by name.
+        let life = if self.limit_reached {
+            format!(
+                "worn out at cycle {} (the controller locked the cone out)",
+                self.life_cycles
+            )
+        } else {
+            format!(
+                "the model's life {} cycles (extrapolated)",
+                self.life_cycles
+            )
+        };
+        let estimate = self
+            .points
+            .iter()
+            .rev()
+            .find_map(|p| p.estimate.map(|e| (p.cycle, e.remaining_cycles)))
+            .filter(|_| !self.limit_reached)
+            .map_or(String::new(), |(c, r)| {
+                format!(
+                    "; the estimate's life {} cycles (from the readings, at cycle {c})",
+                    u64::from(c) + u64::from(r)
+                )
+            });
         s += &format!(
-            "# {}: life {} cycles ({}), {} cycles run, {} fault(s), erases per sector max {}, {:.0} s simulated in {:.2} s",
+            "# {}: {life}{estimate}; {} cycles run, {} fault(s), erases per sector max {}, {:.0} s simulated in {:.2} s",
             self.material.name(),
-            self.life_cycles,
-            if self.limit_reached { "limit reached" } else { "extrapolated" },
             self.cycles_run,
             self.faults,
             self.erases_per_sector_max,

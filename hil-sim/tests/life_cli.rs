@@ -55,7 +55,26 @@ fn life_text_is_a_table() {
     let mut lines = out.lines();
     assert_eq!(lines.next(), Some("cycle,wear_mm,remaining_cycles"));
     assert!(lines.next().unwrap().starts_with("1,0.00"));
-    assert!(out.lines().last().unwrap().starts_with("# zqsn5-2: life "));
+    assert!(out
+        .lines()
+        .last()
+        .unwrap()
+        .starts_with("# zqsn5-2: the model's life "));
+}
+
+/// `life` names each life it reports: the model's and, with readings, the estimate's.
+#[test]
+fn life_names_the_model_and_the_estimate() {
+    let readings = concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/readings-1.3x.csv");
+    let (code, out, err) = run(&["life", "--cycles", "2000", "--readings", readings]);
+    assert_eq!(code, 0, "{err}");
+    let last = out.lines().last().unwrap();
+    assert!(
+        last.starts_with("# zqsn5-2: the model's life ")
+            && last.contains(" cycles (extrapolated); the estimate's life ")
+            && last.contains(" cycles (from the readings, at cycle 2000)"),
+        "{last}"
+    );
 }
 
 #[test]
