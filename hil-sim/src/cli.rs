@@ -1,7 +1,7 @@
 //! The `hil-sim` command line. Output on stdout; errors are one line on stderr with
 //! exit code 2.
 
-use std::io::Write;
+use std::io::{IsTerminal, Write};
 
 use crate::profile_cmd::{self, Stroke};
 
@@ -208,7 +208,14 @@ fn endurance(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
     let o = Opts::parse(args, &["cycles", "material", "rate"], &[])?;
     let cycles = o.num("cycles", 100_000u32, 1, 10_000_000)?;
     let material = material(&o)?;
-    let r = crate::life::endurance(cycles, hx_rate(&o)?, material).map_err(UsageError)?;
+    // A progress bar on stderr when a person watches it (a terminal); nothing when
+    // stderr goes to a file or a pipe.
+    let mut bar = Progress::new("endurance", std::io::stderr().is_terminal());
+    let r = crate::life::endurance_with_progress(cycles, hx_rate(&o)?, material, &mut |d, t| {
+        bar.show(d, t)
+    })
+    .map_err(UsageError)?;
+    bar.finish();
     let _ = writeln!(
         out,
         "endurance: {} cycles, {} cone(s), erases per sector {:?} (max {}; STM32F4 endurance 10000), {:.1} s",
@@ -536,6 +543,71 @@ fn overview() -> String {
         s += "\n";
     }
     s
+}
+
+/// A one-line progress bar on stderr (`endurance  [#####.....]  52 %  5 200 000 / 10 000 000
+/// cycles, 3 min left`), redrawn at most every 200 ms; nothing when `on` is false.
+pub struct Progress {
+    what: &'static str,
+    on: bool,
+    started: std::time::Instant,
+    drawn: Option<std::time::Instant>,
+}
+
+impl Progress {
+    /// A bar for `what`, drawn when `on`.
+    pub fn new(what: &'static str, on: bool) -> Self {
+        Self {
+            what,
+            on,
+            started: std::time::Instant::now(),
+            drawn: None,
+        }
+    }
+
+    /// The line for `done` of `total`, `elapsed_s` in.
+    pub fn line(&self, done: u32, total: u32, elapsed_s: f64) -> String {
+        let frac = if total == 0 {
+            1.0
+        } else {
+            f64::from(done.min(total)) / f64::from(total)
+        };
+        let filled = (frac * 30.0).round() as usize;
+        let left = if done > 0 && frac < 1.0 {
+            let s = elapsed_s * (1.0 - frac) / frac;
+            if s >= 90.0 {
+                format!(", {:.0} min left", s / 60.0)
+            } else {
+                format!(", {s:.0} s left")
+            }
+        } else {
+            String::new()
+        };
+        format!(
+            "{}  [{}{}]  {:3.0} %  {done} / {total} cycles{left}",
+            self.what,
+            "#".repeat(filled),
+            ".".repeat(30 - filled.min(30)),
+            frac * 100.0
+        )
+    }
+
+    /// Redraw for `done` of `total` (throttled).
+    pub fn show(&mut self, done: u32, total: u32) {
+        if !self.on || self.drawn.is_some_and(|t| t.elapsed().as_millis() < 200) {
+            return;
+        }
+        self.drawn = Some(std::time::Instant::now());
+        let line = self.line(done, total, self.started.elapsed().as_secs_f64());
+        eprint!("\r{line}\x1b[K");
+    }
+
+    /// Clear the bar.
+    pub fn finish(&mut self) {
+        if self.on && self.drawn.is_some() {
+            eprint!("\r\x1b[K");
+        }
+    }
 }
 
 /// Run the command line `args` (without the program name), writing to `out`.

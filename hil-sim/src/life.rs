@@ -338,7 +338,18 @@ pub fn endurance(
     rate_sps: u32,
     material: Material,
 ) -> Result<EnduranceReport, String> {
+    endurance_with_progress(cycles, rate_sps, material, &mut |_, _| {})
+}
+
+/// [`endurance`], telling `progress(done, total)` each completed cycle.
+pub fn endurance_with_progress(
+    cycles: u32,
+    rate_sps: u32,
+    material: Material,
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<EnduranceReport, String> {
     let started = Instant::now();
+    let mut reported = u32::MAX;
     let mut rig = Rig::new(RigOptions {
         material,
         ..RigOptions::new(rate_sps)
@@ -347,7 +358,12 @@ pub fn endurance(
         rig.tick();
         match rig.ctrl.state() {
             State::Idle if !rig.ctrl.persist_pending() => {
-                if rig.ctrl.odometer().lifetime().cycles >= cycles {
+                let done = rig.ctrl.odometer().lifetime().cycles;
+                if done != reported {
+                    reported = done;
+                    progress(done, cycles);
+                }
+                if done >= cycles {
                     break;
                 }
                 if rig.ctrl.odometer().level() == WearLevel::Limit {

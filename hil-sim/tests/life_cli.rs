@@ -176,3 +176,20 @@ fn bad_readings_files_exit_2_with_one_line() {
     assert_eq!(code, 2);
     assert_eq!(err.lines().count(), 1, "{err}");
 }
+
+/// A long run shows progress on a terminal; on a pipe (a script, CI) stderr stays
+/// empty.
+#[test]
+fn endurance_shows_progress_on_a_terminal_only() {
+    let bar = hil_sim::cli::Progress::new("endurance", true);
+    let line = bar.line(5_000_000, 10_000_000, 120.0);
+    assert!(
+        line.starts_with("endurance  [###############...............]   50 %  5000000 / 10000000 cycles, 2 min left"),
+        "{line}"
+    );
+    assert!(bar.line(0, 10, 0.0).contains("  0 %  0 / 10 cycles"));
+    let (code, out, err) = run(&["endurance", "--cycles", "3"]);
+    assert_eq!(code, 0);
+    assert!(out.starts_with("endurance: 3 cycles"), "{out}");
+    assert!(err.is_empty(), "stderr is a pipe here: {err:?}");
+}
