@@ -71,9 +71,23 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
     let report = match o.get("plot") {
         None => crate::scene::run(name, opts).map_err(UsageError)?,
         Some(path) => {
+            // The title tells runs apart: the machine and the configuration too.
+            let machine = match &force_model {
+                crate::machine::ForceModel::Eq7 => "Eq. 7".to_string(),
+                crate::machine::ForceModel::Plant(p) => {
+                    let p = p.params();
+                    format!("plant m {} kg, µ1 {}, µ2 {}", p.mass_kg, p.mu1, p.mu2)
+                }
+            };
+            let config = if tuning.is_some() {
+                "configuration matching it"
+            } else {
+                "the build's configuration"
+            };
+            let variant = format!("{machine}, {config}");
             let (report, trace) = crate::scene::run_traced(name, opts).map_err(UsageError)?;
             let guard = tuning.map_or(docking_controller::guard::GuardConfig::DEFAULT, |t| t.guard);
-            crate::plot::scene(path.as_ref(), &report, &trace, &guard)?;
+            crate::plot::scene(path.as_ref(), &report, &trace, &guard, &variant)?;
             report
         }
     };

@@ -440,9 +440,10 @@ pub fn scene(
     report: &SceneReport,
     trace: &crate::scene::SceneTrace,
     guard: &GuardConfig,
+    variant: &str,
 ) -> Result<(), PlotError> {
     let title = format!(
-        "scene {}: force against insertion depth (cycle {}, {} SPS, seed {})",
+        "scene {}: force against insertion depth (cycle {}, {} SPS, seed {}; {variant})",
         report.scene, trace.cycle, report.rate_sps, report.seed
     );
     // The counts are the safety kernel's, as the report's `spikes_rejected`: the traced
@@ -803,10 +804,15 @@ pub fn life(
     let baseline = opts.readings.first().map_or(0, |r| r.1);
     let c = WearCurves {
         title: format!(
-            "life: wear against cycles ({}, {} cycles run, {} SPS)",
+            "life: wear against cycles ({}, {} cycles run, {} SPS{})",
             report.material.name(),
             report.cycles_run,
-            opts.rate_sps
+            opts.rate_sps,
+            if opts.readings.is_empty() {
+                String::new()
+            } else {
+                format!(", {} readings", opts.readings.len())
+            }
         ),
         cycles: opts.cycles,
         odometer: curve

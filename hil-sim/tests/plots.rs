@@ -298,3 +298,55 @@ fn spike_counts_agree_in_json_text_and_plot() {
     assert!(in_cycle > 0 && in_cycle <= rejected, "{label}");
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// Plots of different runs carry different titles: the same scene on another machine
+/// or configuration, and a life with readings, say so in the title.
+#[test]
+fn plots_of_different_runs_have_different_titles() {
+    let d = dir("titles");
+    let title = |svg: &str| {
+        let i = svg.find("scene nominal:").expect("a scene title");
+        svg[i..].split('<').next().unwrap().to_string()
+    };
+    let (_, a) = plot(&d, "a.svg", &["scene", "nominal"]);
+    let (_, b) = plot(
+        &d,
+        "b.svg",
+        &["scene", "nominal", "--model", "plant", "--mass-kg", "18"],
+    );
+    let (_, c) = plot(
+        &d,
+        "c.svg",
+        &[
+            "scene",
+            "nominal",
+            "--model",
+            "plant",
+            "--mass-kg",
+            "18",
+            "--config",
+            "matching",
+        ],
+    );
+    let (ta, tb, tc) = (title(&a), title(&b), title(&c));
+    assert!(
+        ta.contains("Eq. 7, the build&apos;s configuration")
+            || ta.contains("Eq. 7, the build's configuration"),
+        "{ta}"
+    );
+    assert!(
+        tb.contains("plant m 18 kg") && tb.contains("s configuration"),
+        "{tb}"
+    );
+    assert!(tc.contains("configuration matching it"), "{tc}");
+    let readings = concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/readings-1.3x.csv");
+    let (_, l) = plot(
+        &d,
+        "l.svg",
+        &["life", "--cycles", "2000", "--readings", readings],
+    );
+    assert!(
+        l.contains("SPS, 21 readings)"),
+        "the life title names its readings"
+    );
+}
