@@ -1,0 +1,248 @@
+#!/usr/bin/env python3
+"""Where the firmware's flash goes, by function and by crate/module (issue 20): a
+`cargo bloat`-style report read from the ELF with binutils alone (nm, size, addr2line).
+
+    cargo build --release --target thumbv7em-none-eabihf
+    python3 tools/size-report.py                      # top 30 functions, then crates and modules
+    python3 tools/size-report.py -n 20 --no-groups    # what .ci/run prints
+    python3 tools/size-report.py --depth 3            # modules one level deeper
+    python3 tools/size-report.py --inlined idle       # what was inlined into `...::idle`
+    python3 tools/size-report.py --inlined idle --inlined-depth 2   # two inline levels
+    python3 tools/size-report.py --baseline old.elf   # per-function differences to another image
+
+Every symbol that occupies flash is counted: code and read-only data (`t T r R`), the
+initial image of `.data` (`d D`, RAM functions included: they are copied from flash),
+each address once (aliases such as `__aeabi_*` are folded into their Rust name).
+Names are demangled by `nm -C` (legacy and v0 Rust mangling, binutils >= 2.36).
+A symbol's crate is that of the type or path it belongs to (`<a::T as b::Tr>::f` is
+crate `a`); `.Lanon.*` constants are grouped as `[anonymous constants]`.
+
+`--inlined SYMBOL` breaks one function's bytes down by the functions inlined into it,
+from the DWARF line tables (`addr2line -i` on every halfword): `self` is the bytes whose
+innermost frame is that function, `incl.` the bytes with it anywhere in the inline stack.
+Needs the release profile's `debug = 2` (it does not change the image).
+"""
+import argparse
+import collections
+import os
+import re
+import subprocess
+import sys
+
+DEFAULT_ELF = "target/thumbv7em-none-eabihf/release/docking-controller"
+FLASH_TYPES = set("tTrRdDvVwW")
+FLASH_SECTIONS = (".vector_table", ".text", ".rodata", ".data")
+
+
+def run(cmd):
+    return subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
+
+
+def section_sizes(elf):
+    sizes = {}
+    for ln in run(["size", "-A", elf]).splitlines():
+        parts = ln.split()
+        if len(parts) >= 3 and parts[0].startswith(".") and parts[1].isdigit():
+            sizes[parts[0]] = int(parts[1])
+    return sizes
+
+
+def symbols(elf):
+    """(address, size, type, demangled name) of every flash-resident symbol, one per address."""
+    by_addr = {}
+    for ln in run(["nm", "-S", "--size-sort", "-C", elf]).splitlines():
+        parts = ln.split(" ", 3)
+        if len(parts) != 4 or parts[2] not in FLASH_TYPES:
+            continue
+        addr, size, kind, name = int(parts[0], 16), int(parts[1], 16), parts[2], parts[3]
+        # Thumb functions carry bit 0; an alias at the same address is the same bytes.
+        key = addr & ~1 if kind in "tTwW" else addr
+        old = by_addr.get(key)
+        if old is None or rank(name) > rank(old[3]):
+            by_addr[key] = (key, size, kind, name)
+    return list(by_addr.values())
+
+
+def rank(name):
+    """Prefer a Rust path over a C alias (`__aeabi_memcpy` vs `compiler_builtins::mem::memcpy`)."""
+    return (("::" in name), -name.startswith("__"), len(name))
+
+
+def split_top(s, sep):
+    """Split `s` at `sep` outside <...>, (...) and [...]."""
+    out, depth, cur, i = [], 0, [], 0
+    while i < len(s):
+        c = s[i]
+        if c in "<([":
+            depth += 1
+        elif c in ">)]" and depth > 0:
+            depth -= 1
+        if depth == 0 and s.startswith(sep, i):
+            out.append("".join(cur))
+            cur = []
+            i += len(sep)
+            continue
+        cur.append(c)
+        i += 1
+    out.append("".join(cur))
+    return out
+
+
+def path_of(name):
+    """The module path a symbol belongs to, as a list of segments."""
+    if name.startswith(".Lanon") or name.startswith(".L"):
+        return ["[anonymous constants]"]
+    if name.startswith("<"):
+        # `<T as Trait>::f` or `<T>::f`: the path of T.
+        inner, depth = [], 0
+        for c in name[1:]:
+            if c == "<":
+                depth += 1
+            elif c == ">":
+                if depth == 0:
+                    break
+                depth -= 1
+            inner.append(c)
+        t = split_top("".join(inner), " as ")[0].strip().lstrip("&*").replace("mut ", "")
+        if t.startswith("dyn "):
+            t = t[4:]
+        return path_of(t) if "::" in t else ["[primitive]", t]
+    segs = [re.sub(r"<.*", "", s) for s in split_top(name, "::")]
+    if len(segs) == 1:
+        return ["[no crate]", name]
+    return segs
+
+
+def group_key(name, depth):
+    segs = path_of(name)
+    if segs[0].startswith("["):
+        return segs[0]
+    # Drop the item itself (function, type) so that a module is what remains: keep at most
+    # `depth` segments, and never the last one unless the path is that short.
+    mods = segs[:-1] if len(segs) > 1 else segs
+    # Type segments (capitalised) end the module path: `a::b::T::f` is module `a::b`.
+    cut = []
+    for s in mods:
+        if s[:1].isupper() or s.startswith("{"):
+            break
+        cut.append(s)
+    return "::".join((cut or mods[:1])[:depth])
+
+
+def fmt_bytes(n):
+    return f"{n:>8,}".replace(",", " ")
+
+
+def report(elf, top, depth, groups):
+    sizes = section_sizes(elf)
+    flash = sum(sizes.get(s, 0) for s in FLASH_SECTIONS)
+    syms = symbols(elf)
+    counted = sum(s[1] for s in syms)
+    print(f"{elf}: flash {flash} B (" + ", ".join(f"{s} {sizes.get(s, 0)}" for s in FLASH_SECTIONS) + ")")
+    print(f"{len(syms)} symbols hold {counted} B; {flash - counted} B are padding, tables and unnamed code")
+    print(f"\ntop {top} symbols by size:")
+    print(f"{'bytes':>8} {'%':>5}  kind  name")
+    for addr, size, kind, name in sorted(syms, key=lambda s: -s[1])[:top]:
+        print(f"{fmt_bytes(size)} {100 * size / flash:5.1f}  {kind:>4}  {name}")
+    if not groups:
+        return
+    for title, d in (("crate", 1), (f"module (depth {depth})", depth)):
+        tot = collections.Counter()
+        cnt = collections.Counter()
+        for _, size, _, name in syms:
+            k = group_key(name, d)
+            tot[k] += size
+            cnt[k] += 1
+        print(f"\nby {title}:")
+        print(f"{'bytes':>8} {'%':>5}  {'syms':>4}  name")
+        for k, v in tot.most_common():
+            print(f"{fmt_bytes(v)} {100 * v / flash:5.1f}  {cnt[k]:>4}  {k}")
+
+
+def inlined(elf, pattern, top, level):
+    syms = [s for s in symbols(elf) if s[2] in "tTwW" and pattern in s[3]]
+    if not syms:
+        sys.exit(f"no function matches {pattern!r}")
+    total = sum(s[1] for s in syms)
+    addrs = []
+    for addr, size, _, _ in syms:
+        addrs.extend(range(addr, addr + size, 2))
+    out = subprocess.run(
+        ["addr2line", "-a", "-i", "-f", "-C", "-e", elf],
+        input="\n".join(hex(a) for a in addrs) + "\n",
+        check=True, capture_output=True, text=True,
+    ).stdout.splitlines()
+    self_b = collections.Counter()
+    incl_b = collections.Counter()
+    stack = []
+
+    def flush():
+        if not stack:
+            return
+        chain = stack[::-1]  # addr2line -i lists the innermost frame first; outermost first here
+        # Bytes whose inline stack is shallower than `level` stay with their innermost frame.
+        key = chain[level] if level < len(chain) else f"(own code) {chain[-1]}"
+        self_b[key] += 2
+        for f in set(chain):
+            incl_b[f] += 2
+
+    i = 0
+    while i < len(out):
+        ln = out[i]
+        if ln.startswith("0x"):
+            flush()
+            stack = []
+            i += 1
+            continue
+        stack.append(re.sub(r"::h[0-9a-f]{16}$", "", ln))
+        i += 2  # skip file:line
+    flush()
+    names = ", ".join(s[3] for s in syms[:3]) + (" ..." if len(syms) > 3 else "")
+    print(f"{total} B in {len(syms)} function(s) matching {pattern!r}: {names}")
+    print(f"\nby inlined function at inline level {level} (0 = the symbol itself):")
+    print(f"{'bytes':>8} {'%':>5}  name")
+    for k, v in self_b.most_common(top):
+        print(f"{fmt_bytes(v)} {100 * v / total:5.1f}  {k}")
+    print(f"\ninclusive (bytes with the function anywhere in the inline stack):")
+    for k, v in incl_b.most_common(top):
+        print(f"{fmt_bytes(v)} {100 * v / total:5.1f}  {k}")
+
+
+def diff(elf, base, top):
+    new = collections.Counter()
+    old = collections.Counter()
+    # Unnamed constants are renumbered by every build: compared as one row.
+    for count, path in ((new, elf), (old, base)):
+        for _, size, _, name in symbols(path):
+            count["[anonymous constants]" if name.startswith(".L") else name] += size
+    fn = sum(section_sizes(elf).get(s, 0) for s in FLASH_SECTIONS)
+    fo = sum(section_sizes(base).get(s, 0) for s in FLASH_SECTIONS)
+    print(f"flash {fo} -> {fn} B ({fn - fo:+d})")
+    ch = [(new[k] - old[k], k) for k in set(new) | set(old) if new[k] != old[k]]
+    ch.sort(key=lambda c: -abs(c[0]))
+    for d, k in ch[:top]:
+        print(f"{d:+8d}  {old[k]:>7} -> {new[k]:<7} {k}")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("elf", nargs="?", default=DEFAULT_ELF)
+    ap.add_argument("-n", "--top", type=int, default=30, help="rows to print (default 30)")
+    ap.add_argument("--depth", type=int, default=2, help="module path depth of the module totals")
+    ap.add_argument("--no-groups", action="store_true", help="only the top symbols")
+    ap.add_argument("--inlined", metavar="SYMBOL", help="break down the functions whose name contains SYMBOL")
+    ap.add_argument("--inlined-depth", type=int, default=1, help="inline level for --inlined (default 1)")
+    ap.add_argument("--baseline", metavar="ELF", help="print per-symbol differences to this image")
+    a = ap.parse_args()
+    if not os.path.exists(a.elf):
+        sys.exit(f"{a.elf}: no such file (cargo build --release --target thumbv7em-none-eabihf)")
+    if a.inlined is not None:
+        inlined(a.elf, a.inlined, a.top, a.inlined_depth)
+    elif a.baseline:
+        diff(a.elf, a.baseline, a.top)
+    else:
+        report(a.elf, a.top, a.depth, not a.no_groups)
+
+
+if __name__ == "__main__":
+    main()
