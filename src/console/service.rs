@@ -83,12 +83,21 @@ struct Out {
     buf: Deque<u8, OUT_CAP>,
 }
 
-impl Write for Out {
-    fn write_str(&mut self, s: &str) -> fmt::Result {
-        for b in s.bytes() {
+impl Out {
+    /// Queue `bytes`, as many as fit; an error when one did not. Out of line: every
+    /// reply, echo and formatted value goes through it (inlined, each copy cost flash).
+    #[inline(never)]
+    fn push(&mut self, bytes: &[u8]) -> fmt::Result {
+        for &b in bytes {
             self.buf.push_back(b).map_err(|_| fmt::Error)?;
         }
         Ok(())
+    }
+}
+
+impl Write for Out {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        self.push(s.as_bytes())
     }
 }
 
@@ -304,9 +313,7 @@ impl Console {
 
     /// Bytes shown as typed (best effort: a full output ring drops them).
     fn echo(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            let _ = self.out.buf.push_back(b);
-        }
+        let _ = self.out.push(bytes);
     }
 
     /// `idle> `, or `idle# ` in maintenance mode (interactive only).
@@ -613,10 +620,17 @@ impl Console {
     /// Write one whole reply or none (replaced by a short notice when it does not fit).
     fn reply(&mut self, f: impl FnOnce(&mut Out) -> fmt::Result) {
         let mark = self.out.buf.len();
-        if f(&mut self.out).is_err() {
-            while self.out.buf.len() > mark {
-                self.out.buf.pop_back();
-            }
+        let r = f(&mut self.out);
+        self.reply_end(mark, r);
+    }
+
+    /// A reply written from `mark` on: kept whole, or (`r` an error: it did not fit)
+    /// taken back and replaced by the notice. Not generic and out of line: one copy
+    /// for every reply.
+    #[inline(never)]
+    fn reply_end(&mut self, mark: usize, r: fmt::Result) {
+        if r.is_err() {
+            self.out.buf.truncate(mark);
             self.dropped_replies = self.dropped_replies.saturating_add(1);
             let _ = self
                 .out
