@@ -49,7 +49,7 @@
 //! readings is a few thousand wide multiplies: it runs when a reading is added, not in
 //! the control step.
 
-use crate::fixed::{exp2_q32, log2_q32};
+use crate::fixed::{div_i128, div_u128, exp2_q32, log2_q32};
 use crate::material::Material;
 use crate::odometer::{depth_nm, wear_factor_q32, A_NM, B_Q32, C_NM, M0_Q32};
 
@@ -122,12 +122,9 @@ fn mul(a: i128, b: i128) -> i128 {
     (a * b) >> 32
 }
 
-#[inline(never)]
+// (0 for b = 0: `div_i128`'s.)
 fn div(a: i128, b: i128) -> i128 {
-    if b == 0 {
-        return 0;
-    }
-    (a << 32) / b
+    div_i128(a << 32, b)
 }
 
 /// Integer square root of a non-negative Q32.32 value, as Q32.32.
@@ -139,7 +136,7 @@ fn sqrt_q32(v: i128) -> i128 {
                                // Newton from above: converges for any start ≥ the root.
     let mut x: u128 = 1 << ((128 - n.leading_zeros()).div_ceil(2));
     loop {
-        let y = (x + n / x) >> 1;
+        let y = (x + div_u128(n, x)) >> 1;
         if y >= x {
             return x as i128;
         }
@@ -199,7 +196,7 @@ impl Fit {
         for r in readings.get(newest..).unwrap_or(&[]) {
             let u = u_of(r.e_q32);
             // y + c in µm, kept above c/4 (a bore read far below its baseline).
-            let v = (r.wear_nm as i128 * ONE / 1000 + C_UM).max(C_UM / 4);
+            let v = (div_i128(r.wear_nm as i128 * ONE, 1000) + C_UM).max(C_UM / 4);
             let z = log2_i(v);
             let sz = mul(div(SIGMA_READ_UM, v), LOG2_E);
             let var = mul(sz, sz) + SHAPE_VAR;
@@ -278,7 +275,7 @@ impl Fit {
             depth(m)
         };
         // Where the curve reaches the limit: log2(E_lim + m0) = u_p + (z_lim − α)/β.
-        let z_lim = log2_i(limit_nm as i128 * ONE / 1000 + C_UM);
+        let z_lim = log2_i(div_i128(limit_nm as i128 * ONE, 1000) + C_UM);
         let x_lim = PIVOT_Q32 as i128 + div(z_lim - alpha, beta.max(BETA_MIN));
         let e_lim = exp2_i(x_lim) - M0_Q32 as i128;
         let k = wear_factor_q32(material).max(1) as i128;

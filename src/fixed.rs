@@ -15,8 +15,36 @@
 /// One in Q32.32.
 pub const ONE_Q32: u64 = 1 << 32;
 
-/// 2^(2^-i) for i = 1..=32, in Q2.62 (computed to 60 digits offline).
-const EXP2_FRAC_Q62: [u128; 32] = [
+/// `n / d` in `u128` (0 for `d` = 0). Out of line, and the only 128-bit division in
+/// the image: Thumb has no 128-bit divide and no library routine for one, so each `/`
+/// on `u128`/`i128` was expanded in place into a ~600-byte shift-and-subtract loop
+/// (issue 20). Operands that fit in 64 bits take the core's 64-bit division; the result
+/// is the same either way.
+#[inline(never)]
+pub const fn div_u128(n: u128, d: u128) -> u128 {
+    if d == 0 {
+        return 0;
+    }
+    if n >> 64 == 0 && d >> 64 == 0 {
+        return (n as u64 / d as u64) as u128;
+    }
+    n / d
+}
+
+/// `a / b` in `i128`, truncated toward zero like `/` (0 for `b` = 0; `i128::MIN / -1`
+/// wraps instead of panicking). See [`div_u128`].
+pub const fn div_i128(a: i128, b: i128) -> i128 {
+    let q = div_u128(a.unsigned_abs(), b.unsigned_abs()) as i128;
+    if (a < 0) != (b < 0) {
+        q.wrapping_neg()
+    } else {
+        q
+    }
+}
+
+/// 2^(2^-i) for i = 1..=32, in Q2.62 (computed to 60 digits offline). Each is below
+/// 2^63: `u64` (a `u128` table spent 256 bytes of flash on zeros).
+const EXP2_FRAC_Q62: [u64; 32] = [
     6521908912666391106,
     5484249825272419512,
     5029079263719320435,
@@ -86,7 +114,7 @@ pub const fn exp2_q32(y_q32: i64) -> u64 {
     let mut i = 0;
     while i < 32 {
         if frac & (1 << (31 - i)) != 0 {
-            m = (m * EXP2_FRAC_Q62[i]) >> 62;
+            m = (m * EXP2_FRAC_Q62[i] as u128) >> 62;
         }
         i += 1;
     }
@@ -164,6 +192,35 @@ mod tests {
             let p = f(pow_q32(q(x), b));
             assert!((p / x.powf(0.3813) - 1.0).abs() < 1e-8, "{x}^b = {p}");
         }
+    }
+
+    #[test]
+    fn wide_division_is_the_operators() {
+        let vals: [i128; 12] = [
+            0,
+            1,
+            -1,
+            7,
+            -7,
+            1000,
+            (1 << 64) - 1,
+            1 << 64,
+            -(1 << 70) + 3,
+            i128::MAX,
+            i128::MIN + 1,
+            123_456_789_012_345_678_901_234_567,
+        ];
+        for &a in &vals {
+            for &b in &vals {
+                if b != 0 {
+                    assert_eq!(div_i128(a, b), a / b, "{a} / {b}");
+                    let (ua, ub) = (a.unsigned_abs(), b.unsigned_abs());
+                    assert_eq!(div_u128(ua, ub), ua / ub, "{ua} / {ub}");
+                }
+            }
+            assert_eq!(div_i128(a, 0), 0);
+        }
+        assert_eq!(div_u128(u128::MAX, 3), u128::MAX / 3);
     }
 
     #[test]

@@ -450,8 +450,17 @@ impl Calibration {
 }
 
 /// `num / den` rounded to nearest (halves up); `den` > 0, magnitudes < 2^96.
+/// (`(2·num + den).div_euclid(2·den)`, through the one out-of-line 128-bit division.)
 fn div_round(num: i128, den: i128) -> i128 {
-    (2 * num + den).div_euclid(2 * den)
+    let (n, d) = (2 * num + den, 2 * den);
+    let q = crate::fixed::div_u128(n.unsigned_abs(), d.unsigned_abs()) as i128;
+    if n >= 0 {
+        q
+    } else if q * d == -n {
+        -q
+    } else {
+        -q - 1 // floor
+    }
 }
 
 fn saturate_i32(v: i64) -> i32 {
@@ -474,6 +483,34 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn div_round_is_the_euclidean_rounding() {
+        for num in [
+            0i128,
+            1,
+            -1,
+            2,
+            -2,
+            3,
+            -3,
+            5,
+            -5,
+            999,
+            -1_000,
+            1 << 63,
+            -(1 << 90) + 17,
+            (1 << 95) - 1,
+        ] {
+            for den in [1i128, 2, 3, 4, 7, 1_000, (1 << 40) + 9, 1 << 94] {
+                assert_eq!(
+                    div_round(num, den),
+                    (2 * num + den).div_euclid(2 * den),
+                    "{num} / {den}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn sign_extension_at_both_ends_and_around_zero() {

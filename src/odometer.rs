@@ -113,7 +113,7 @@ impl Default for WearConfig {
 /// Equivalent nominal cycles (Q32.32) at which the depth reaches `depth_nm`.
 pub const fn e_at_depth_q32(depth_nm: u32) -> u64 {
     // In u128: (depth + c) << 32 overflows u64 for depths near u32::MAX.
-    let x = (((depth_nm as u128 + C_NM as u128) << 32) / A_NM as u128) as u64;
+    let x = crate::fixed::div_u128((depth_nm as u128 + C_NM as u128) << 32, A_NM as u128) as u64;
     pow_q32(x, INV_B_Q32).saturating_sub(M0_Q32)
 }
 
@@ -132,7 +132,10 @@ pub const fn depth_nm(e_q32: u64) -> u32 {
 
 /// Equivalent nominal cycles (Q32.32) of a load–distance `w_q1` on `material`.
 pub const fn equivalent_cycles_q32(w_q1: u64, material: Material) -> u64 {
-    let e = (wear_factor_q32(material) as u128 * w_q1 as u128) / W_NOM_Q1 as u128;
+    let e = crate::fixed::div_u128(
+        wear_factor_q32(material) as u128 * w_q1 as u128,
+        W_NOM_Q1 as u128,
+    );
     if e > u64::MAX as u128 {
         u64::MAX
     } else {
@@ -334,7 +337,8 @@ impl Odometer {
         self.derived = Derived {
             e_q32,
             wear_nm: depth_nm(e_q32),
-            remaining_cycles: (left * W_NOM_Q1 as u128 / per_cycle).min(u32::MAX as u128) as u32,
+            remaining_cycles: crate::fixed::div_u128(left * W_NOM_Q1 as u128, per_cycle)
+                .min(u32::MAX as u128) as u32,
         };
     }
 
