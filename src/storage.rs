@@ -691,7 +691,7 @@ impl<F: NorFlash> RecordLog<F> {
             offset
         );
         let mut found = None;
-        self.walk_newest_first(kind, 1, |off, rec| {
+        self.walk_newest_first(kind, 1, &mut |off, rec| {
             found = Some((off, *rec));
             true
         })?;
@@ -711,7 +711,7 @@ impl<F: NorFlash> RecordLog<F> {
         mut f: impl FnMut(&Record),
     ) -> Result<usize, StorageError<F::Error>> {
         kind_index(kind)?;
-        self.walk_newest_first(kind, max, |_, rec| {
+        self.walk_newest_first(kind, max, &mut |_, rec| {
             f(rec);
             true
         })
@@ -726,7 +726,7 @@ impl<F: NorFlash> RecordLog<F> {
         mut f: impl FnMut(&Record) -> bool,
     ) -> Result<usize, StorageError<F::Error>> {
         kind_index(kind)?;
-        self.walk_newest_first(kind, usize::MAX, |_, rec| f(rec))
+        self.walk_newest_first(kind, usize::MAX, &mut |_, rec| f(rec))
     }
 
     /// True when the next sector is not known to be erased and the current one is at
@@ -839,7 +839,7 @@ impl<F: NorFlash> RecordLog<F> {
                 }
             } else {
                 let mut full = false;
-                self.walk_newest_first(kind, self.keep.of(kind), |off, _| {
+                self.walk_newest_first(kind, self.keep.of(kind), &mut |off, _| {
                     full |= found.push((0, off)).is_err();
                     true
                 })?;
@@ -917,11 +917,14 @@ impl<F: NorFlash> RecordLog<F> {
     /// of `kind` in a sector are the newest records of `kind` of the sectors before it,
     /// in the same order: walking on into the next older sector, those originals (same
     /// payload, in order) are skipped, the copies having been reported.
+    // One copy for every caller (`f` is dynamic): each closure type made one before,
+    // ~900 bytes apiece.
+    #[inline(never)]
     fn walk_newest_first(
         &mut self,
         kind: u8,
         max: usize,
-        mut f: impl FnMut(u32, &Record) -> bool,
+        f: &mut dyn FnMut(u32, &Record) -> bool,
     ) -> Result<usize, StorageError<F::Error>> {
         let mut count = 0;
         let mut more = true;
