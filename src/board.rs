@@ -681,9 +681,10 @@ mod app {
         entropy,
         modbus_line,
         modbus_settings,
-        // In a static: 560 bytes.
+        // In a static (616 bytes), all-zero so that it is in `.bss` (not copied from
+        // flash): its settings are set first thing in `idle`.
         server: docking_controller::modbus::Server =
-            docking_controller::modbus::Server::new(docking_controller::modbus::ModbusSettings::DEFAULT),
+            docking_controller::modbus::Server::unconfigured(),
         // In a static (it holds the 8 KiB output ring): returned from init it would be
         // moved through init's stack.
         console: Console = Console::new([0; 32]),
@@ -696,7 +697,14 @@ mod app {
         cx.local
             .console
             .banner(reset.map_or("unknown", |r| r.name()));
-        let _ = cx.local.server.set_settings(*cx.local.modbus_settings);
+        // As `Server::new` would: invalid settings (never, `ModbusSettings::stored`
+        // checks them) give the default ones.
+        if !cx.local.server.set_settings(*cx.local.modbus_settings) {
+            let _ = cx
+                .local
+                .server
+                .set_settings(docking_controller::modbus::ModbusSettings::DEFAULT);
+        }
         // The unit's serial for Modbus device identification: the chip's unique ID.
         let serial_hex = unit_serial();
         let serial = core::str::from_utf8(&serial_hex).unwrap_or("");

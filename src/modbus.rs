@@ -1461,6 +1461,44 @@ impl Server {
         }
     }
 
+    /// A server with no settings yet, every byte zero: a static holding it is in
+    /// `.bss`, not 616 bytes of `.data` copied from flash (issue 20). It answers nothing
+    /// sensible until [`Self::set_settings`] gives it valid settings; the board does at
+    /// the start of its idle loop.
+    pub const fn unconfigured() -> Self {
+        let none = ModbusSettings { unit: 0, baud: 0 };
+        Self {
+            settings: none,
+            framer: RtuFramer {
+                buf: [0; MAX_FRAME],
+                len: 0,
+                rx: Rx::Idle,
+                last_us: None,
+                char_us: 0,
+                t1_5_us: 0,
+                t3_5_us: 0,
+                framing_errors: 0,
+                overruns: 0,
+            },
+            reply: [0; MAX_FRAME],
+            stats: ModbusStats {
+                frames_ok: 0,
+                crc_errors: 0,
+                framing_errors: 0,
+                overruns: 0,
+                other_unit: 0,
+                replies: 0,
+                exceptions: 0,
+                commands: 0,
+            },
+            session: Session {
+                last_command: 0,
+                last_result: 0,
+                accepted: 0,
+            },
+        }
+    }
+
     /// The settings in use.
     pub fn settings(&self) -> ModbusSettings {
         self.settings
