@@ -152,8 +152,10 @@ const SETTLE_STEPS: u64 = 2;
 /// Machine time the demo cycling waits after a console command, ns.
 const DEMO_PAUSE_NS: u64 = 5_000_000_000;
 
-/// Open the Modbus link; its address is printed as `modbus ADDRESS`.
-fn open_modbus(link: &Link, out: &mut dyn Write) -> Result<Bridge, String> {
+/// Open the Modbus link (a TCP client that comes while another is connected is closed
+/// with no text: on a bus it would be noise); its address is printed as
+/// `modbus ADDRESS`. Shared with `vboard serve`.
+pub fn open_modbus(link: &Link, out: &mut dyn Write) -> Result<Bridge, String> {
     let bridge = match link {
         Link::Pty => Bridge::Pty(Pty::open()?),
         Link::Tcp(addr) => {
@@ -171,8 +173,9 @@ fn open_modbus(link: &Link, out: &mut dyn Write) -> Result<Bridge, String> {
     Ok(bridge)
 }
 
-/// Lines of stdin, read by a thread (the loop never waits for them).
-fn stdin_lines() -> mpsc::Receiver<String> {
+/// Lines of stdin, read by a thread (the loop never waits for them). Shared with
+/// `vboard serve`.
+pub fn stdin_lines() -> mpsc::Receiver<String> {
     let (tx, rx) = mpsc::channel();
     std::thread::spawn(move || {
         for line in std::io::stdin().lock().lines() {

@@ -10,7 +10,7 @@ use crate::periph::flash::FlashTiming;
 use crate::scene::{Options, SceneOptions, SCENES};
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] | estimate-cost [--readings N] [--firmware ELF]";
+pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] | estimate-cost [--readings N] [--firmware ELF]";
 
 /// The sweep's usage (`vboard sweep`).
 pub const SWEEP_USAGE: &str = "       vboard sweep [--scene NAME[,NAME...]] [--seeds 1..10|1,2,3] [--cpi X[,X...]] [--timing cpi|art[,...]] [--flood] [--cycles N] [--rate 10|80] [--lsi-hz HZ] [--flash-timing max|typical] [--firmware ELF] [--jobs N] [--json]";
@@ -164,8 +164,9 @@ fn serve(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
             "lsi-hz",
             "flash-timing",
             "seed",
+            "modbus-tcp",
         ],
-        &["pty"],
+        &["pty", "modbus-pty", "plc"],
     )?;
     let link = match (o.flag("pty"), o.get("tcp")) {
         (true, Some(_)) => return usage("give --pty or --tcp, not both"),
@@ -176,8 +177,23 @@ fn serve(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
         })?),
         _ => hil_sim::serve::Link::Pty,
     };
+    let modbus = match (o.flag("modbus-pty"), o.get("modbus-tcp")) {
+        (true, Some(_)) => return usage("give --modbus-pty or --modbus-tcp, not both"),
+        (_, Some(a)) => match a.parse::<std::net::SocketAddr>() {
+            Ok(addr) if addr.ip().is_loopback() => Some(hil_sim::serve::Link::Tcp(addr)),
+            _ => {
+                return usage(format!(
+                    "--modbus-tcp must be a loopback address like 127.0.0.1:5020, got '{a}'"
+                ))
+            }
+        },
+        (true, None) => Some(hil_sim::serve::Link::Pty),
+        (false, None) => None,
+    };
     let opts = crate::serve::ServeOptions {
         link,
+        modbus,
+        plc: o.flag("plc"),
         session: session(&o)?,
         speed: o.num("speed", 1.0f64, 1e-3, 1e3)?,
         duration_s: match o.get("for") {
@@ -351,6 +367,24 @@ mod help_tests {
         }
         let (_, out) = run_args(&["serve", "--help"]);
         assert!(out.contains("[--pty | --tcp 127.0.0.1:PORT]"), "{out}");
+        assert!(
+            out.contains("[--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc]"),
+            "{out}"
+        );
+    }
+
+    #[test]
+    fn modbus_links_are_one_and_on_loopback() {
+        for args in [
+            &["serve", "--modbus-pty", "--modbus-tcp", "127.0.0.1:0"][..],
+            &["serve", "--modbus-tcp", "10.0.0.1:502"],
+            &["serve", "--modbus-tcp", "localhost"],
+        ] {
+            match run_args(args).0 {
+                Err(Failure::Usage(e)) => assert!(e.contains("--modbus"), "{e}"),
+                other => panic!("{args:?}: {:?}", other.err().map(|_| "not a usage error")),
+            }
+        }
     }
 
     #[test]

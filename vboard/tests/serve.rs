@@ -101,3 +101,215 @@ fn a_terminal_reads_wear_as_json_over_a_pty() {
     let _ = child.kill();
     let _ = child.wait();
 }
+
+/// `vboard serve` with a Modbus link and the PLC's inputs on stdin; killed when dropped.
+struct Plc {
+    child: Child,
+    stdin: std::process::ChildStdin,
+    lines: std::sync::mpsc::Receiver<String>,
+}
+
+impl Drop for Plc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Plc {
+    /// Start it with `args`; returns it, the console's address and the Modbus link's.
+    fn start(args: &[&str]) -> (Self, String, String) {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_vboard"))
+            .args(["serve", "--for", "120"])
+            .args(args)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("vboard runs");
+        let stdin = child.stdin.take().unwrap();
+        let out = child.stdout.take().unwrap();
+        let (tx, lines) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for l in BufReader::new(out).lines() {
+                let Ok(l) = l else { break };
+                if tx.send(l).is_err() {
+                    break;
+                }
+            }
+        });
+        let mut p = Self {
+            child,
+            stdin,
+            lines,
+        };
+        let console = p.line();
+        let modbus = p.line();
+        let modbus = modbus
+            .strip_prefix("modbus ")
+            .unwrap_or_else(|| panic!("second line: {modbus:?}"))
+            .to_string();
+        (p, console, modbus)
+    }
+
+    fn line(&mut self) -> String {
+        self.lines
+            .recv_timeout(Duration::from_secs(20))
+            .expect("a line on stdout")
+    }
+
+    /// `plc` on stdin until its line satisfies `want`.
+    fn plc_until(&mut self, want: &str) -> String {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while Instant::now() < deadline {
+            writeln!(self.stdin, "plc").unwrap();
+            let l = self.line();
+            assert!(l.starts_with("plc dock="), "{l}");
+            if l.split_whitespace().any(|w| w == want) {
+                return l;
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        panic!("never {want}");
+    }
+}
+
+/// A Modbus RTU request: `pdu` for unit 1 and its CRC.
+fn rtu(pdu: &[u8]) -> Vec<u8> {
+    vboard::scene::rtu(1, pdu)
+}
+
+/// Whether `r` is a well-formed RTU frame from unit 1 (its CRC right).
+fn well_formed(r: &[u8]) -> bool {
+    r.len() >= 4 && r[0] == 1 && rtu(&r[1..r.len() - 2]) == r
+}
+
+/// Read `n` bytes (fewer: what came before `timeout`).
+fn read_n(s: &mut std::net::TcpStream, n: usize, timeout: Duration) -> Vec<u8> {
+    let deadline = Instant::now() + timeout;
+    let mut got = Vec::new();
+    s.set_read_timeout(Some(Duration::from_millis(50))).unwrap();
+    while got.len() < n && Instant::now() < deadline {
+        let mut buf = [0u8; 512];
+        match s.read(&mut buf) {
+            Ok(0) => break,
+            Ok(k) => got.extend_from_slice(&buf[..k]),
+            Err(_) => {}
+        }
+    }
+    got
+}
+
+/// Send `req` until a reply of `len` bytes comes (a request the booting board missed
+/// gets none).
+fn ask_modbus(s: &mut std::net::TcpStream, req: &[u8], len: usize) -> Vec<u8> {
+    let deadline = Instant::now() + Duration::from_secs(40);
+    while Instant::now() < deadline {
+        s.write_all(req).unwrap();
+        let r = read_n(s, len, Duration::from_secs(2));
+        if !r.is_empty() {
+            return r;
+        }
+    }
+    panic!("no reply to {req:02x?}");
+}
+
+#[test]
+fn a_plc_reads_input_registers_over_modbus_tcp() {
+    use docking_controller::modbus::{ir, MAP_VERSION};
+    let (_board, console, modbus) =
+        Plc::start(&["--tcp", "127.0.0.1:0", "--modbus-tcp", "127.0.0.1:0"]);
+    assert!(console.starts_with("127.0.0.1:"), "{console}");
+    let mut s = std::net::TcpStream::connect(&modbus).expect("connect");
+    // Read input registers (04): the firmware version and the map's.
+    let req = rtu(&[0x04, 0, ir::FW_MAJOR as u8, 0, 4]);
+    let r = ask_modbus(&mut s, &req, 13);
+    assert!(well_formed(&r), "{r:02x?}");
+    assert_eq!(r[..3], [1, 0x04, 8], "{r:02x?}");
+    let regs: Vec<u16> = r[3..11]
+        .chunks(2)
+        .map(|c| u16::from_be_bytes([c[0], c[1]]))
+        .collect();
+    let version: Vec<u16> = docking_controller::modbus::REVISION
+        .split('.')
+        .map(|x| x.parse().unwrap())
+        .collect();
+    assert_eq!(regs[..3], version[..], "{regs:?}");
+    assert_eq!(regs[3], MAP_VERSION);
+
+    // A second client is closed at once, with nothing said (on a bus it would be noise).
+    let mut second = std::net::TcpStream::connect(&modbus).expect("connect");
+    assert_eq!(read_n(&mut second, 1, Duration::from_secs(5)), b"");
+
+    // The request in two pieces 200 ms apart (wall; ≥ 60 ms of machine time even while
+    // the board boots): a silence over t1.5 inside it, so the firmware drops it.
+    s.write_all(&req[..3]).unwrap();
+    std::thread::sleep(Duration::from_millis(200));
+    s.write_all(&req[3..]).unwrap();
+    assert_eq!(read_n(&mut s, 13, Duration::from_secs(1)), b"");
+    assert_eq!(ask_modbus(&mut s, &req, 13), r);
+
+    // A client that leaves while its reply (141 bytes, 81 ms at 19 200 baud) is on the
+    // wire: closed with reply bytes unread (one read), its socket resets. The next
+    // client, there 10 ms later with its request, gets its own reply and nothing of
+    // the other's.
+    let all = rtu(&[0x04, 0, 0, 0, ir::COUNT as u8]);
+    s.write_all(&all).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    let mut first = [0u8; 1];
+    s.read_exact(&mut first).expect("the reply starts");
+    assert_eq!(first, [1]);
+    std::thread::sleep(Duration::from_millis(5));
+    drop(s);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let r2 = loop {
+        std::thread::sleep(Duration::from_millis(10));
+        let mut next = std::net::TcpStream::connect(&modbus).expect("connect");
+        next.write_all(&req).unwrap();
+        let got = read_n(&mut next, 13, Duration::from_secs(2));
+        // Closed at once: the first was still being let go.
+        if !got.is_empty() || Instant::now() > deadline {
+            // Anything after its reply would be someone else's.
+            let more = read_n(&mut next, 1, Duration::from_millis(300));
+            assert_eq!(more, b"", "after {got:02x?}");
+            break got;
+        }
+    };
+    assert_eq!(r2, r);
+}
+
+#[test]
+fn a_plc_docks_the_firmware_over_modbus_and_over_the_dock_line() {
+    use docking_controller::modbus::{ir, status};
+    let (mut board, _console, modbus) = Plc::start(&[
+        "--tcp",
+        "127.0.0.1:0",
+        "--modbus-tcp",
+        "127.0.0.1:0",
+        "--speed",
+        "10",
+    ]);
+    let mut s = std::net::TcpStream::connect(&modbus).expect("connect");
+    // No automatic cycles: ready, at rest.
+    let at_rest = board.plc_until("ready=1");
+    assert!(at_rest.contains("mated=0"), "{at_rest}");
+    // Dock: coil 0 on (echoed when accepted).
+    let dock = rtu(&[0x05, 0, 0, 0xFF, 0]);
+    assert_eq!(ask_modbus(&mut s, &dock, dock.len()), dock);
+    let mated = board.plc_until("mated=1");
+    assert!(mated.starts_with("plc dock=off estop=closed"), "{mated}");
+    let st = rtu(&[0x04, 0, ir::STATUS as u8, 0, 1]);
+    let r = ask_modbus(&mut s, &st, 7);
+    assert!(well_formed(&r), "{r:02x?}");
+    assert_ne!(u16::from_be_bytes([r[3], r[4]]) & status::MATED, 0);
+    // Undock: coil 1.
+    let undock = rtu(&[0x05, 0, 1, 0xFF, 0]);
+    assert_eq!(ask_modbus(&mut s, &undock, undock.len()), undock);
+    board.plc_until("ready=1");
+    // The hard-wired DOCK line.
+    writeln!(board.stdin, "dock on").unwrap();
+    let mated = board.plc_until("mated=1");
+    assert!(mated.starts_with("plc dock=on estop=closed"), "{mated}");
+    writeln!(board.stdin, "dock off").unwrap();
+    board.plc_until("ready=1");
+}

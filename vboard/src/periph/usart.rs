@@ -172,6 +172,15 @@ impl Usart {
         self.rx_line.len()
     }
 
+    /// The far end goes away: the bytes it queued that have not arrived (the one on the
+    /// wire included) never do. Returns how many were dropped.
+    pub fn far_cancel(&mut self, now: u64) -> usize {
+        let n = self.rx_line.len();
+        self.rx_line.clear();
+        self.rx_line_end = self.rx_line_end.min(now);
+        n
+    }
+
     /// Everything sent so far (drained).
     pub fn take_sent(&mut self) -> Vec<(u64, u8)> {
         std::mem::take(&mut self.sent)
@@ -363,5 +372,21 @@ mod tests {
         u.far_send(b"z", 0);
         u.sync(PS_PER_S, PCLK);
         assert_ne!(u.read(0x00, 4, PS_PER_S, PCLK).unwrap() & bit::FE, 0);
+    }
+
+    #[test]
+    fn a_far_end_that_leaves_takes_its_queued_bytes_with_it() {
+        let mut u = at_115200();
+        let frame = 10 * PS_PER_S / 115_200;
+        u.far_send(b"abc", 0);
+        // 'a' has arrived; 'b' is on the wire, 'c' queued.
+        u.sync(frame + frame / 2, PCLK);
+        assert_eq!(u.far_cancel(frame + frame / 2), 2);
+        assert_eq!(u.read(0x04, 4, 10 * frame, PCLK).unwrap(), b'a' as u32);
+        assert_eq!(u.read(0x00, 4, 10 * frame, PCLK).unwrap() & bit::RXNE, 0);
+        // The next far end's bytes start from now, not after the dropped ones.
+        u.far_send(b"d", 10 * frame);
+        u.sync(11 * frame, PCLK);
+        assert_eq!(u.read(0x04, 4, 11 * frame, PCLK).unwrap(), b'd' as u32);
     }
 }
