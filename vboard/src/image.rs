@@ -23,8 +23,19 @@ pub struct Image {
 }
 
 impl Image {
-    /// Load `path`. Errors: unreadable, not an ELF, a segment outside the code flash.
+    /// Load `path`. Errors: unreadable, not an ELF, a segment outside the code flash,
+    /// and — for the default image ([`default_path`]) — an image older than a source it
+    /// is built from (a stale build would be tested silently).
     pub fn load(path: &str) -> Result<Self, String> {
+        if path == default_path() {
+            let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+            if let Some(src) = newer_source(std::path::Path::new(path), &root) {
+                return Err(format!(
+                    "firmware image {path} is older than {} : rebuild it with `cargo build --release --target thumbv7em-none-eabihf` at the repository root",
+                    src.display()
+                ));
+            }
+        }
         let elf = std::fs::read(path).map_err(|e| {
             format!("cannot read firmware image {path}: {e} (build it with `cargo build --release --target thumbv7em-none-eabihf` at the repository root)")
         })?;
@@ -132,6 +143,42 @@ impl Image {
     }
 }
 
+/// A source of the image (under `root`: `src/`, the manifest and lock file, the build
+/// script, the linker scripts) changed after the image `elf` was built; `None` when
+/// the image is newer than all of them, or when it is missing (the load says so).
+pub fn newer_source(elf: &std::path::Path, root: &std::path::Path) -> Option<std::path::PathBuf> {
+    let built = std::fs::metadata(elf).and_then(|m| m.modified()).ok()?;
+    let mut stack: Vec<std::path::PathBuf> = vec![root.join("src")];
+    let mut files: Vec<std::path::PathBuf> = [
+        "Cargo.toml",
+        "Cargo.lock",
+        "build.rs",
+        "memory.x",
+        "odometer-guard.x",
+    ]
+    .iter()
+    .map(|f| root.join(f))
+    .collect();
+    while let Some(dir) = stack.pop() {
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        for e in entries.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                files.push(p);
+            }
+        }
+    }
+    files.into_iter().find(|f| {
+        std::fs::metadata(f)
+            .and_then(|m| m.modified())
+            .is_ok_and(|t| t > built)
+    })
+}
+
 /// The default image: the release build at the repository root.
 pub fn default_path() -> String {
     concat!(
@@ -139,4 +186,42 @@ pub fn default_path() -> String {
         "/../target/thumbv7em-none-eabihf/release/docking-controller"
     )
     .to_string()
+}
+
+#[cfg(test)]
+mod stale_tests {
+    use super::newer_source;
+    use std::time::{Duration, SystemTime};
+
+    #[test]
+    fn an_image_older_than_a_source_is_found_stale() {
+        let root = std::env::temp_dir().join(format!("vboard-stale-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(root.join("src/board")).unwrap();
+        let t0 = SystemTime::now() - Duration::from_secs(100);
+        let touch = |p: &std::path::Path, t: SystemTime| {
+            std::fs::write(p, b"x").unwrap();
+            std::fs::File::options()
+                .write(true)
+                .open(p)
+                .unwrap()
+                .set_modified(t)
+                .unwrap();
+        };
+        let elf = root.join("image.elf");
+        touch(&root.join("src/lib.rs"), t0);
+        touch(&root.join("Cargo.toml"), t0);
+        touch(&elf, t0 + Duration::from_secs(10));
+        assert_eq!(newer_source(&elf, &root), None);
+        // A board file edited after the build: stale, and named.
+        let changed = root.join("src/board/flash.rs");
+        touch(&changed, t0 + Duration::from_secs(20));
+        assert_eq!(newer_source(&elf, &root), Some(changed));
+        // Rebuilt: fresh again.
+        touch(&elf, t0 + Duration::from_secs(30));
+        assert_eq!(newer_source(&elf, &root), None);
+        // No image at all: the load reports that, not staleness.
+        assert_eq!(newer_source(&root.join("missing.elf"), &root), None);
+        let _ = std::fs::remove_dir_all(&root);
+    }
 }
