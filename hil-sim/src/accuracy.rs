@@ -47,7 +47,7 @@
 //!   conversion (−0.5 mN mean), whole-count codes (±0.06 mN) and the tare mean's
 //!   truncation to whole counts. Negligible.
 //!
-//! Totals as measured now (`hil-sim accuracy`, the table in the README), per stroke
+//! Totals as measured now (`hil-sim accuracy`, the table in docs/simulator.md), per stroke
 //! (insertion / extraction): 10 SPS −0.015 % / +0.263 % (the contact edges and the
 //! jumps at a 120 µm sample spacing, above), 80 SPS +0.0003 % /
 //! +0.0078 %, 320 and 1280 SPS −0.0056 % both (identical: every 5-µm step is sampled

@@ -113,7 +113,7 @@ const C: u8 = 2;
 const D: u8 = 3;
 const E: u8 = 4;
 
-/// The controller board (README pin map). The driver and bridge inputs have external
+/// The controller board (the pin map in docs/board.md). The driver and bridge inputs have external
 /// pulls to their safe level, so a floating MCU pin (during and after reset) is a
 /// disabled motor: EN pulled up (driver off), STEP and both bridge inputs pulled down.
 pub const WIRING: &[Wire] = &[
