@@ -44,7 +44,6 @@ pub mod lock;
 pub mod material;
 pub mod modbus;
 pub mod odometer;
-pub mod plant;
 pub mod profile;
 pub mod propulsion;
 pub mod safety;

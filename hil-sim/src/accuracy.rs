@@ -765,12 +765,10 @@ impl AccuracyReport {
 }
 
 // ---------------------------------------------------------------------------------------
-// The plant model (`docking_controller::plant`): the equilibrium systems behind Eq. 7.
+// The plant model (`crate::plant`): the equilibrium systems behind Eq. 7.
 // ---------------------------------------------------------------------------------------
 
-use docking_controller::plant::{
-    Contact, Plant, PlantParams, REFERENCE_TABLE, TILT_MAX_ITER, TILT_TOL_RAD,
-};
+use crate::plant::{Contact, Plant, PlantParams, REFERENCE_TABLE, TILT_MAX_ITER, TILT_TOL_RAD};
 use docking_controller::profile::forces_at_time;
 
 /// Sampling step of the plant's residuals against Eq. 7, s.
@@ -908,7 +906,7 @@ fn max_abs_diff(a: [f64; 4], b: [f64; 4]) -> f64 {
 pub fn plant_n3_integral(plant: &Plant, step_s: f64) -> IntegralRow {
     let v = plant.params().v_model_mm_s;
     let [t1, t2, t3] = plant.boundaries_s();
-    let end = docking_controller::plant::STROKE_S;
+    let end = crate::plant::STROKE_S;
     let mut per_phase = 0.0;
     for (ph, a, b) in [(1u8, 0.0, t1), (2, t1, t2), (3, t2, t3), (4, t3, end)] {
         let (a, b) = (a.min(end), b.min(end));
@@ -1076,7 +1074,7 @@ pub fn plant_study() -> PlantStudy {
     }
 
     let mut residuals_n = [[0.0f64; 4]; 4];
-    let n = (docking_controller::plant::STROKE_S / PLANT_RESIDUAL_STEP_S).round() as u64;
+    let n = (crate::plant::STROKE_S / PLANT_RESIDUAL_STEP_S).round() as u64;
     for k in 0..=n {
         let t = k as f64 * PLANT_RESIDUAL_STEP_S;
         let pt = reference.at_time(t);
@@ -1242,7 +1240,7 @@ impl PlantStudy {
     /// The plant's tables for a terminal.
     pub fn to_text(&self) -> String {
         let mut s = format!(
-            "# plant (equilibrium systems of Eqs. 3–6, src/plant.rs) vs the reference's table (t3 = 12.445 s): max |ΔN| {:.2e} N, max |Δθ| {:.2e}°\n",
+            "# plant (equilibrium systems of Eqs. 3–6, hil-sim/src/plant.rs) vs the reference's table (t3 = 12.445 s): max |ΔN| {:.2e} N, max |Δθ| {:.2e}°\n",
             self.table_max_err_n, self.table_max_err_theta_deg
         );
         s += &format!(

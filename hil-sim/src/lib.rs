@@ -34,6 +34,7 @@ pub mod line;
 pub mod link;
 pub mod lock;
 pub mod machine;
+pub mod plant;
 pub mod plot;
 pub mod profile_cmd;
 pub mod rig;

@@ -1,5 +1,5 @@
 //! Another machine: its contact forces from the quasi-static plant
-//! ([`docking_controller::plant`]) and the controller configuration that matches it.
+//! ([`crate::plant`]) and the controller configuration that matches it.
 //!
 //! # Where the configuration comes from: commissioning, on the host
 //!
@@ -32,9 +32,9 @@
 //! `t = depth / v0` (v0 = 1.2 mm/s, the same mapping as Eq. 7's profile everywhere in
 //! this code), with its own travel per second of that axis (`--v-model`) inside.
 
+use crate::plant::{Plant, PlantError, PlantParams};
 use docking_controller::controller::ControllerConfig;
 use docking_controller::guard::{GuardConfig, NominalProfile};
-use docking_controller::plant::{Plant, PlantError, PlantParams};
 use docking_controller::profile::{forces_at_depth_um, STROKE_UM, V0_UM_PER_S};
 
 /// The spread of µ1 and µ2 the envelope covers, ±.

@@ -591,7 +591,7 @@ pub fn eq7_profile(
 /// [`profile`] of `hil-sim profile --model plant`'s rows.
 pub fn plant_profile(
     path: &Path,
-    plant: &docking_controller::plant::Plant,
+    plant: &crate::plant::Plant,
     rate_hz: f64,
     stroke: crate::profile_cmd::Stroke,
 ) -> Result<(), PlotError> {

@@ -4,7 +4,7 @@
 //! Extraction is the mirror: at extraction time `t` the panel is at the insertion
 //! depth of `25 − t`, and the forces are those of that depth.
 //!
-//! `--model plant` prints the equilibrium systems of `docking_controller::plant` instead
+//! `--model plant` prints the equilibrium systems of `crate::plant` instead
 //! of Eq. 7 (same columns plus `theta_deg`), with the paper's parameters unless
 //! `--mass-kg`, `--mu1`, `--mu2`, `--gamma-deg`, `--theta0-deg`, `--v-model` (the travel
 //! per second of Eq. 7's time axis, default 4 mm/s) or `--t3-s` (the phase 3→4 boundary;
@@ -13,7 +13,7 @@
 
 use std::io::Write;
 
-use docking_controller::plant::{Contact, Param, Plant, PlantParams};
+use crate::plant::{Contact, Param, Plant, PlantParams};
 use docking_controller::profile::{forces_at_time, ContactPhase, STROKE_S};
 
 use crate::cli::{Opts, UsageError};
@@ -75,7 +75,7 @@ pub fn write_csv(out: &mut impl Write, rate_hz: f64, stroke: Stroke) -> std::io:
 pub enum Model {
     /// Eq. 7 as printed (`src/profile.rs`), the default.
     Eq7,
-    /// The equilibrium systems of Eqs. 3–6 (`src/plant.rs`).
+    /// The equilibrium systems of Eqs. 3–6 (`hil-sim/src/plant.rs`).
     Plant(Plant),
 }
 

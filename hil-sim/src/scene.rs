@@ -115,11 +115,11 @@ pub const ESTOP_BOUNCE_DEPTH_UM: i32 = 5_000;
 
 /// The machine of `heavy-default`: 18 kg, µ2 0.1 (its phase-4 peak is ≈ 352 N, over the
 /// default guard's 300 N hard limit).
-pub fn heavy_machine() -> docking_controller::plant::PlantParams {
-    docking_controller::plant::PlantParams {
+pub fn heavy_machine() -> crate::plant::PlantParams {
+    crate::plant::PlantParams {
         mass_kg: 18.0,
         mu2: 0.1,
-        ..docking_controller::plant::PlantParams::PAPER
+        ..crate::plant::PlantParams::PAPER
     }
 }
 

@@ -10,11 +10,11 @@ mod example {
     include!("../../docs/tuning-example-18kg.rs");
 }
 
-fn heavy() -> docking_controller::plant::PlantParams {
-    docking_controller::plant::PlantParams {
+fn heavy() -> hil_sim::plant::PlantParams {
+    hil_sim::plant::PlantParams {
         mass_kg: 18.0,
         mu2: 0.1,
-        ..docking_controller::plant::PlantParams::PAPER
+        ..hil_sim::plant::PlantParams::PAPER
     }
 }
 

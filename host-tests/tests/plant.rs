@@ -1,11 +1,11 @@
-//! Acceptance of the plant model (`docking_controller::plant`): the reference's table of
+//! Acceptance of the plant model (`hil_sim::plant`): the reference's table of
 //! values and residuals against Eq. 7 (`shared/reference/force-model.md` §3–§4), the
 //! contact-set invariants over the stability sweep's ranges, a property test over random
 //! valid parameters and times, and `hil-sim profile --model plant` / `accuracy` in
 //! process.
 
-use docking_controller::plant::{Contact, Plant, PlantParams, STROKE_S};
 use docking_controller::profile::forces_at_time;
+use hil_sim::plant::{Contact, Plant, PlantParams, STROKE_S};
 use proptest::prelude::*;
 
 /// `force-model.md` §3, transcribed here independently of the library's copy:
@@ -26,7 +26,7 @@ fn reference() -> Plant {
     Plant::new(PlantParams::REFERENCE).unwrap()
 }
 
-fn valid(p: &docking_controller::plant::PlantPoint) -> bool {
+fn valid(p: &hil_sim::plant::PlantPoint) -> bool {
     p.forces().iter().all(|f| f.is_finite() && *f >= 0.0)
         && p.theta_deg.is_finite()
         && (1..=4).contains(&p.phase)

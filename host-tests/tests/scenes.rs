@@ -195,11 +195,11 @@ fn estop_during_insertion_stops_latches_and_needs_the_input_back_to_clear() {
 }
 
 /// Another machine (18 kg, µ2 0.1: its phase-4 peak is ≈ 352 N, the paper's 206 N).
-fn heavy_machine() -> docking_controller::plant::PlantParams {
-    docking_controller::plant::PlantParams {
+fn heavy_machine() -> hil_sim::plant::PlantParams {
+    hil_sim::plant::PlantParams {
         mass_kg: 18.0,
         mu2: 0.1,
-        ..docking_controller::plant::PlantParams::PAPER
+        ..hil_sim::plant::PlantParams::PAPER
     }
 }
 
@@ -274,10 +274,8 @@ fn the_paper_machine_as_a_plant_behaves_as_eq7_does() {
     let r = run(
         "nominal",
         SceneOptions {
-            force_model: hil_sim::machine::ForceModel::plant(
-                docking_controller::plant::PlantParams::PAPER,
-            )
-            .unwrap(),
+            force_model: hil_sim::machine::ForceModel::plant(hil_sim::plant::PlantParams::PAPER)
+                .unwrap(),
             ..SceneOptions::new(80)
         },
     )
