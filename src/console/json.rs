@@ -125,6 +125,7 @@ impl<'w, W: Write + ?Sized> JsonObject<'w, W> {
     }
 
     /// `"key":"value"` (escaped).
+    #[inline(never)]
     pub fn str(&mut self, key: &str, value: &str) -> Result<&mut Self, fmt::Error> {
         self.key(key)?;
         write_str_escaped(self.w, value)?;
@@ -132,6 +133,7 @@ impl<'w, W: Write + ?Sized> JsonObject<'w, W> {
     }
 
     /// `"key":v` for an unsigned integer.
+    #[inline(never)]
     pub fn u64(&mut self, key: &str, v: u64) -> Result<&mut Self, fmt::Error> {
         self.key(key)?;
         write!(self.w, "{v}")?;
@@ -139,6 +141,7 @@ impl<'w, W: Write + ?Sized> JsonObject<'w, W> {
     }
 
     /// `"key":v` for a signed integer.
+    #[inline(never)]
     pub fn i64(&mut self, key: &str, v: i64) -> Result<&mut Self, fmt::Error> {
         self.key(key)?;
         write!(self.w, "{v}")?;
@@ -146,6 +149,7 @@ impl<'w, W: Write + ?Sized> JsonObject<'w, W> {
     }
 
     /// `"key":true` / `"key":false`.
+    #[inline(never)]
     pub fn bool(&mut self, key: &str, b: bool) -> Result<&mut Self, fmt::Error> {
         self.key(key)?;
         self.w.write_str(if b { "true" } else { "false" })?;
@@ -153,6 +157,7 @@ impl<'w, W: Write + ?Sized> JsonObject<'w, W> {
     }
 
     /// `"key":null`.
+    #[inline(never)]
     pub fn null(&mut self, key: &str) -> Result<&mut Self, fmt::Error> {
         self.key(key)?;
         self.w.write_str("null")?;
@@ -160,6 +165,7 @@ impl<'w, W: Write + ?Sized> JsonObject<'w, W> {
     }
 
     /// `"key":` the fixed-point number `value_scaled / 10^decimals` (see [`write_fixed`]).
+    #[inline(never)]
     pub fn fixed(
         &mut self,
         key: &str,
@@ -266,6 +272,7 @@ impl<W: Write + ?Sized> JsonArray<'_, W> {
     }
 
     /// A string element (escaped).
+    #[inline(never)]
     pub fn str(&mut self, value: &str) -> Result<&mut Self, fmt::Error> {
         self.sep()?;
         write_str_escaped(self.w, value)?;
@@ -273,6 +280,7 @@ impl<W: Write + ?Sized> JsonArray<'_, W> {
     }
 
     /// An unsigned integer element.
+    #[inline(never)]
     pub fn u64(&mut self, v: u64) -> Result<&mut Self, fmt::Error> {
         self.sep()?;
         write!(self.w, "{v}")?;
@@ -280,6 +288,7 @@ impl<W: Write + ?Sized> JsonArray<'_, W> {
     }
 
     /// A signed integer element.
+    #[inline(never)]
     pub fn i64(&mut self, v: i64) -> Result<&mut Self, fmt::Error> {
         self.sep()?;
         write!(self.w, "{v}")?;
@@ -287,6 +296,7 @@ impl<W: Write + ?Sized> JsonArray<'_, W> {
     }
 
     /// A boolean element.
+    #[inline(never)]
     pub fn bool(&mut self, b: bool) -> Result<&mut Self, fmt::Error> {
         self.sep()?;
         self.w.write_str(if b { "true" } else { "false" })?;
@@ -294,6 +304,7 @@ impl<W: Write + ?Sized> JsonArray<'_, W> {
     }
 
     /// A `null` element.
+    #[inline(never)]
     pub fn null(&mut self) -> Result<&mut Self, fmt::Error> {
         self.sep()?;
         self.w.write_str("null")?;
@@ -301,6 +312,7 @@ impl<W: Write + ?Sized> JsonArray<'_, W> {
     }
 
     /// A fixed-point number element (see [`write_fixed`]).
+    #[inline(never)]
     pub fn fixed(&mut self, value_scaled: i64, decimals: u8) -> Result<&mut Self, fmt::Error> {
         self.sep()?;
         write_fixed(self.w, value_scaled, decimals)?;

@@ -84,6 +84,13 @@ struct Out {
 }
 
 impl Out {
+    /// Bytes queued (out of line: the ring's length is a dozen instructions, and every
+    /// reply takes it).
+    #[inline(never)]
+    fn len(&self) -> usize {
+        self.buf.len()
+    }
+
     /// Queue `bytes`, as many as fit; an error when one did not. Out of line: every
     /// reply, echo and formatted value goes through it (inlined, each copy cost flash).
     #[inline(never)]
@@ -619,7 +626,7 @@ impl Console {
 
     /// Write one whole reply or none (replaced by a short notice when it does not fit).
     fn reply(&mut self, f: impl FnOnce(&mut Out) -> fmt::Result) {
-        let mark = self.out.buf.len();
+        let mark = self.out.len();
         let r = f(&mut self.out);
         self.reply_end(mark, r);
     }
