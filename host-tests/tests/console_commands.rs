@@ -533,3 +533,24 @@ fn pin_set_hashes_without_the_controller() {
         .command("maint 2468", 10)
         .starts_with("ok: maintenance mode"));
 }
+
+/// A bore read below the cone's baseline is reported as such (a worn bore only grows:
+/// the reading or the baseline is wrong), not as a plain negative wear.
+#[test]
+fn a_bore_below_its_baseline_is_reported_as_such() {
+    let mut r = rig();
+    assert!(r.command("pin set 2468", 10).starts_with("ok"));
+    assert!(r.command("maint 2468", 10).starts_with("ok"));
+    assert!(r.command("measure --baseline 26.010", 10).starts_with("ok"));
+    let ok = r.command("measure 26.015", 10);
+    assert!(
+        ok.starts_with("ok:") && !ok.contains("below_baseline"),
+        "{ok}"
+    );
+    let low = r.command("measure 26.002", 10);
+    assert!(
+        low.contains(" measured_wear_mm=-0.008000")
+            && low.contains(" below_baseline=yes (the bore reads smaller than the cone's baseline"),
+        "{low}"
+    );
+}

@@ -1379,6 +1379,7 @@ impl Console {
         let base = ctrl.baseline_or_nominal();
         let assumed = ctrl.odometer().cone().baseline().is_none();
         let est = ctrl.wear_estimate();
+        let below = m.wear_nm(base) < 0;
         self.reply(|o| {
             o.write_str("ok:")?;
             kv_fixed(o, "bore_mm", bore_um as i64, 3)?;
@@ -1393,6 +1394,12 @@ impl Console {
             if assumed {
                 o.write_str(
                     " baseline_assumed=yes (nominal 26.000 mm: measure --baseline on a new cone)",
+                )?;
+            }
+            if below {
+                // A worn bore only grows: a smaller one is a misread or a wrong baseline.
+                o.write_str(
+                    " below_baseline=yes (the bore reads smaller than the cone's baseline: measure again, or check the baseline)",
                 )?;
             }
             o.write_str("\r\n")
