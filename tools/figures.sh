@@ -1,0 +1,102 @@
+#!/usr/bin/env bash
+# The measured figures on one page: builds the image and the simulators, runs the
+# benchmarks and the virtual board's scenes, and writes docs/measurements.md stamped
+# with the commit it measured (issue 19: a figure in the docs comes from a command that
+# regenerates it).
+#
+#   bash tools/figures.sh            # about 5 minutes on 2 cores, after the builds
+#   bash tools/figures.sh --sweep    # also the full timing sweep (80 runs, ~30 min)
+#
+# Run it from a clean tree: the page says which commit it measured, and "(dirty)" when
+# the tree had changes.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+out=docs/measurements.md
+sweep=0
+[ "${1:-}" = "--sweep" ] && sweep=1
+
+commit=$(git rev-parse --short HEAD)
+git diff --quiet HEAD -- || commit="$commit (dirty)"
+TARGET=thumbv7em-none-eabihf
+elf=target/$TARGET/release/docking-controller
+
+cargo build -q --release --target "$TARGET"
+cargo build -q --release -p hil-sim
+(cd vboard && cargo build -q --release)
+hil=./target/release/hil-sim
+vb=./vboard/target/release/vboard
+
+# One JSON field of a one-line JSON object.
+field() { python3 -c 'import json,sys; v=json.load(sys.stdin).get(sys.argv[1]); print("null" if v is None else v)' "$1"; }
+# Wall seconds of a command (its output discarded).
+wall() { local t0 t1; t0=$(date +%s.%N); "$@" >/dev/null; t1=$(date +%s.%N); python3 -c "print(f'{$t1-$t0:.1f}')"; }
+
+read -r text data bss < <(size -A "$elf" | awk '
+    $1 == ".vector_table" || $1 == ".text" || $1 == ".rodata" { t += $2 }
+    $1 == ".data" { d += $2 }
+    $1 == ".bss" || $1 == ".uninit" { b += $2 }
+    END { print t + 0, d + 0, b + 0 }')
+
+bench=$($hil bench --cycles 1000)
+ns_step=$(sed -E 's/.* ([0-9]+) ns per control step.*/\1/' <<<"$bench")
+life_s=$(wall $hil life --cycles 45270)
+life_json=$($hil life --cycles 45270 --json)
+life_cycles=$(field life_cycles <<<"$life_json")
+
+scene_row() { # model args...: one table row from `vboard scene overload --flood` and `scene estop`
+    local model=$1; shift
+    local o e
+    o=$($vb scene overload --flood --json "$@")
+    e=$($vb scene estop --json "$@")
+    printf '| %s | %s µs | %s ms | %s µs | %s | %s µs | %s µs |\n' "$model" \
+        "$(field stop_latency_pins_us <<<"$o")" "$(field control_period_max_ms <<<"$o")" \
+        "$(field control_entry_latency_max_us <<<"$o")" "$(field instructions_per_control_step <<<"$o")" \
+        "$(field masked_max_us <<<"$o")" "$(field estop_off_max_us <<<"$e")"
+}
+
+{
+    echo "# Measured figures"
+    echo
+    echo "Written by \`bash tools/figures.sh\` on commit $commit, $(date -u +%Y-%m-%d), on a"
+    echo "$(nproc)-core $(uname -m) machine. Every figure below comes from the command beside it;"
+    echo "run the script again after a change and commit the page with it."
+    echo
+    echo "## The image (\`cargo build --release --target $TARGET\`, \`size -A\`)"
+    echo
+    echo "| flash (text + rodata + vectors + data) | static RAM (data + bss + uninit) | budget |"
+    echo "|---|---|---|"
+    echo "| $((text + data)) B | $((data + bss)) B | 131 072 B flash, 32 768 B RAM |"
+    echo
+    echo "The 10 biggest functions (\`python3 tools/size-report.py -n 10 --no-groups $elf\`):"
+    echo
+    echo '```'
+    python3 tools/size-report.py -n 10 --no-groups "$elf"
+    echo '```'
+    echo
+    echo "## The host simulator"
+    echo
+    echo "| command | figure |"
+    echo "|---|---|"
+    echo "| \`hil-sim bench --cycles 1000\` | $ns_step ns per control step (controller + simulated HAL) |"
+    echo "| \`hil-sim life --cycles 45270\` | $life_s s wall; the cone's limit at cycle $life_cycles |"
+    echo
+    echo "## The virtual board (the release image; \`cd vboard\`)"
+    echo
+    echo "\`vboard scene overload --flood --json\` (console and Modbus flooded) and"
+    echo "\`vboard scene estop --json\`, seed 1, at each timing model:"
+    echo
+    echo "| model | overload stop, DOUT → EN high | control period, max | control entry latency while moving | instructions per control step | longest all-masked window | E-STOP edge → EN high |"
+    echo "|---|---|---|---|---|---|---|"
+    scene_row "CPI 1"
+    scene_row "CPI 3" --cpi 3
+    scene_row "ART cache, CPI 1" --timing art
+    if [ "$sweep" = 1 ]; then
+        echo
+        echo "The worst case over seeds 1–10 and every model (\`vboard sweep --flood\`):"
+        echo
+        echo '```'
+        $vb sweep --flood 2>/dev/null
+        echo '```'
+    fi
+} >"$out"
+echo "wrote $out"
