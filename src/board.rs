@@ -1,7 +1,7 @@
 //! Board layer for the STM32F407VGTx: pins, clocks, interrupts and their priorities,
 //! fault handlers. The control logic is the library's.
 //!
-//! Pin map (documented in the README):
+//! Pin map (documented in docs/board.md):
 //!
 //! | signal | pin | safe (disabled) level |
 //! |---|---|---|
@@ -459,7 +459,7 @@ mod app {
         };
         let mut cfg = ControllerConfig::new(DEFAULT_SAMPLE_RATE_SPS, DEFAULT_CALIBRATION);
         // Another machine's guard envelope, hold force and nominal load-distance, if the
-        // image was built for one (`DOCKING_TUNING`, see build.rs and the README).
+        // image was built for one (`DOCKING_TUNING`, see build.rs and docs/simulator.md).
         tuning::apply(&mut cfg);
         let ctrl = match Controller::new(parts, cfg) {
             Ok(c) => cx.local.ctrl_slot.write(c),

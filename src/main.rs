@@ -14,7 +14,7 @@ mod board;
 fn main() {
     eprintln!(
         "docking-controller is firmware for thumbv7em-none-eabihf: flash it with `cargo board` \
-         (see README); on the host run `cargo run --release -p hil-sim -- scene nominal`"
+         (see docs/board.md); on the host run `cargo run --release -p hil-sim -- scene nominal`"
     );
     std::process::exit(2);
 }

@@ -9,7 +9,7 @@
 //!
 //! Text replies are `key=value` lines (easy to read, easy to `grep`); `CMD --json`
 //! replies are one JSON object on one line. Errors are one line starting `error: `.
-//! Every line ends with CR LF (terminals). The formats are documented in the README and
+//! Every line ends with CR LF (terminals). The formats are documented in docs/console.md and
 //! are stable: fields may be added, never renamed or removed.
 //!
 //! State-changing commands (`clear-fault`, `home`, `dock`, `undock`, `rate`,
