@@ -43,4 +43,6 @@ pub fn apply(cfg: &mut docking_controller::controller::ControllerConfig) {
     cfg.guard.hard_limit_mn = 500000;
     cfg.wear.nominal_w_q1 = 25349220768;
     cfg.hold_expected_mn = 197653;
+    cfg.identity.vendor = "Example Machines Ltd";
+    cfg.identity.product = "AutoDock 18 (example)";
 }

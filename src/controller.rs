@@ -135,6 +135,26 @@ pub struct ControllerConfig {
     /// ([`HOLD_EXPECTED_MN`] for the paper's machine; another machine's from its force
     /// model). MATED and the hold envelope ([`HOLD_TOLERANCE_MN`]) are around it.
     pub hold_expected_mn: i32,
+    /// Who made the machine and what it is called: Modbus device identification's
+    /// VendorName and ProductName (a machine builder's, from its commissioning file).
+    pub identity: Identity,
+}
+
+/// Device identification's names (Modbus objects 0 and 4).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Identity {
+    /// VendorName.
+    pub vendor: &'static str,
+    /// ProductName.
+    pub product: &'static str,
+}
+
+impl Identity {
+    /// Until a commissioning file names them.
+    pub const DEFAULT: Self = Self {
+        vendor: crate::modbus::VENDOR_NAME,
+        product: crate::modbus::PRODUCT_NAME,
+    };
 }
 
 impl ControllerConfig {
@@ -149,6 +169,7 @@ impl ControllerConfig {
             wear: WearConfig::DEFAULT,
             default_material: Material::ZQSn5_2,
             hold_expected_mn: HOLD_EXPECTED_MN,
+            identity: Identity::DEFAULT,
         }
     }
 }

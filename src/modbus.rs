@@ -900,13 +900,14 @@ pub fn input_registers<B: Bsp>(ctrl: &Controller<B>) -> [u16; ir::COUNT as usize
 // Device identification
 // ---------------------------------------------------------------------------------
 
-/// Object 0, VendorName.
+/// Object 0, VendorName, unless the commissioning file names the machine's builder
+/// ([`crate::controller::Identity`]).
 pub const VENDOR_NAME: &str = "docking-controller project";
 /// Object 1, ProductCode (the firmware package).
 pub const PRODUCT_CODE: &str = env!("CARGO_PKG_NAME");
 /// Object 2, MajorMinorRevision (the firmware version).
 pub const REVISION: &str = env!("CARGO_PKG_VERSION");
-/// Object 4, ProductName.
+/// Object 4, ProductName, unless the commissioning file names the product.
 pub const PRODUCT_NAME: &str = "Automatic connector docking controller";
 /// Object 5, ModelName.
 pub const MODEL_NAME: &str = "STM32F407";
@@ -919,12 +920,12 @@ pub const CONFORMITY: u8 = 0x83;
 /// The objects, in stream order.
 const OBJECTS: [u8; 6] = [0, 1, 2, 4, 5, OBJECT_SERIAL];
 
-fn device_object(id: u8, serial: &str) -> Option<&[u8]> {
+fn device_object(id: u8, serial: &str, names: crate::controller::Identity) -> Option<&[u8]> {
     Some(match id {
-        0 => VENDOR_NAME.as_bytes(),
+        0 => names.vendor.as_bytes(),
         1 => PRODUCT_CODE.as_bytes(),
         2 => REVISION.as_bytes(),
-        4 => PRODUCT_NAME.as_bytes(),
+        4 => names.product.as_bytes(),
         5 => MODEL_NAME.as_bytes(),
         OBJECT_SERIAL => {
             let b = serial.as_bytes();
@@ -936,7 +937,12 @@ fn device_object(id: u8, serial: &str) -> Option<&[u8]> {
 
 /// Function 0x2B: `pdu` is the request's (function included); the reply goes to
 /// `out` (the unit address is there already); returns its length without the CRC.
-fn device_identification(pdu: &[u8], serial: &str, out: &mut [u8; MAX_FRAME]) -> Reply {
+fn device_identification(
+    pdu: &[u8],
+    serial: &str,
+    names: crate::controller::Identity,
+    out: &mut [u8; MAX_FRAME],
+) -> Reply {
     const HEAD: usize = 8; // unit, 0x2B, 0x0E, code, conformity, more, next, count
     let &[_, mei, code, object] = pdu else {
         return match pdu.get(1) {
@@ -953,7 +959,7 @@ fn device_identification(pdu: &[u8], serial: &str, out: &mut [u8; MAX_FRAME]) ->
         3 | 4 => 0xFF,
         _ => return Reply::Exception(exception::ILLEGAL_DATA_VALUE),
     };
-    let known = device_object(object, serial).is_some();
+    let known = device_object(object, serial, names).is_some();
     if code == 4 && !known {
         return Reply::Exception(exception::ILLEGAL_DATA_ADDRESS);
     }
@@ -969,7 +975,7 @@ fn device_identification(pdu: &[u8], serial: &str, out: &mut [u8; MAX_FRAME]) ->
         if code == 4 && id != object {
             continue;
         }
-        let value = device_object(id, serial).unwrap_or(&[]);
+        let value = device_object(id, serial, names).unwrap_or(&[]);
         let end = pos + 2 + value.len();
         // Room for the CRC after it.
         match out.get_mut(pos..end).filter(|_| end + 2 <= MAX_FRAME) {
@@ -1346,7 +1352,7 @@ fn process<B: Bsp>(
         *o = unit;
     }
     let reply = match function {
-        0x2B => device_identification(pdu, unit_serial, out),
+        0x2B => device_identification(pdu, unit_serial, ctrl.config().identity, out),
         _ => match validate(function, pdu) {
             Err(code) => Reply::Exception(code),
             Ok(()) => standard(frame, unit, function, broadcast, ctrl, out, session),

@@ -16,7 +16,7 @@ impl std::fmt::Display for UsageError {
 }
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] [--plot FILE.svg] [--model eq7|plant] [--mass-kg M] [--mu1 X] [--mu2 X] [--gamma-deg G] [--theta0-deg T] [--v-model MM_PER_S] [--t3-s S] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] [--plot FILE.svg] [--model eq7|plant (plant options as for profile)] [--config default|matching] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--readings FILE.csv] [--json] [--plot FILE.svg] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] [--plot FILE.svg] | commission --model plant [plant options] (Rust source for DOCKING_TUNING) | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS] (stdin: dock on|off, estop open|close, plc)";
+pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] [--plot FILE.svg] [--model eq7|plant] [--mass-kg M] [--mu1 X] [--mu2 X] [--gamma-deg G] [--theta0-deg T] [--v-model MM_PER_S] [--t3-s S] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] [--plot FILE.svg] [--model eq7|plant (plant options as for profile)] [--config default|matching] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--readings FILE.csv] [--json] [--plot FILE.svg] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] [--plot FILE.svg] | commission --model plant [plant options] [--vendor NAME] [--product NAME] (Rust source for DOCKING_TUNING) | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS] (stdin: dock on|off, estop open|close, plc)";
 
 /// Parse `--rate` as one of the HX711 rates.
 fn hx_rate(o: &Opts) -> Result<u32, UsageError> {
@@ -473,7 +473,27 @@ fn profile(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
 /// `commission --model plant [plant options]`: the controller's tuning for that machine
 /// as Rust source for the firmware's build (`DOCKING_TUNING=FILE`).
 fn commission(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
-    let o = Opts::parse(args, &profile_cmd::MODEL_OPTIONS, &[])?;
+    let valued: Vec<&str> = profile_cmd::MODEL_OPTIONS
+        .into_iter()
+        .chain(["vendor", "product"])
+        .collect();
+    let o = Opts::parse(args, &valued, &[])?;
+    // Device identification's names (Modbus objects 0 and 4): the machine builder's.
+    let name = |key: &str| -> Result<Option<&str>, UsageError> {
+        match o.get(key) {
+            Some(v)
+                if v.is_empty()
+                    || v.len() > 64
+                    || !v.bytes().all(|b| (0x20..0x7F).contains(&b)) =>
+            {
+                err(format!(
+                    "--{key} must be 1 to 64 printable ASCII characters, got '{v}'"
+                ))
+            }
+            v => Ok(v),
+        }
+    };
+    let (vendor, product) = (name("vendor")?, name("product")?);
     let profile_cmd::Model::Plant(plant) = profile_cmd::model(&o)? else {
         return err("commission needs --model plant (the paper's machine is the build's default)");
     };
@@ -489,7 +509,19 @@ fn commission(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         p.v_model_mm_s,
         crate::machine::MU_SPREAD
     );
-    let _ = write!(out, "{}", tuning.to_rust(&origin));
+    let mut source = tuning.to_rust(&origin);
+    // The names, as lines of `apply` (a string literal in Rust's own escaping).
+    let mut names = String::new();
+    if let Some(v) = vendor {
+        names += &format!("    cfg.identity.vendor = {v:?};\n");
+    }
+    if let Some(p) = product {
+        names += &format!("    cfg.identity.product = {p:?};\n");
+    }
+    if let Some(end) = source.rfind("}\n") {
+        source.insert_str(end, &names);
+    }
+    let _ = write!(out, "{source}");
     Ok(())
 }
 
@@ -532,6 +564,8 @@ pub const COMMAND_HELP: [(&str, &str); 9] = [
   --plot FILE.svg           the error per phase"),
     ("commission", "hil-sim commission --model plant [OPTIONS]: Rust source of a machine's tuning (for DOCKING_TUNING)
   --model plant             required
+  --vendor NAME             Modbus device identification's VendorName (1-64 printable ASCII)
+  --product NAME            its ProductName
   (plant options as for profile)"),
     ("serve", "hil-sim serve [OPTIONS]: the simulator live, its console on a pty or TCP
   --pty | --tcp 127.0.0.1:PORT         the console's link (first stdout line: its address)

@@ -453,6 +453,8 @@ pub struct RigOptions {
     /// The controller configured for another machine (commissioning); `None`: the
     /// build's defaults (the paper's machine).
     pub tuning: Option<crate::machine::Tuning>,
+    /// Device identification's names (a commissioning file's `cfg.identity`).
+    pub identity: docking_controller::controller::Identity,
 }
 
 impl RigOptions {
@@ -467,6 +469,7 @@ impl RigOptions {
             commissioned: true,
             force_model: crate::machine::ForceModel::Eq7,
             tuning: None,
+            identity: docking_controller::controller::Identity::DEFAULT,
         }
     }
 }
@@ -616,6 +619,7 @@ impl Rig {
         if let Some(t) = &opts.tuning {
             t.apply(&mut cfg);
         }
+        cfg.identity = opts.identity;
         let ctrl = match Controller::new(parts, cfg) {
             Ok(c) => c,
             Err(e) => unreachable!("simulated pins are infallible: {e:?}"),

@@ -27,6 +27,9 @@ fn the_generated_tuning_compiles_and_sets_what_commissioning_computed() {
     example::apply(&mut cfg);
     let want = hil_sim::machine::Tuning::for_plant(heavy()).unwrap();
     assert_eq!(hil_sim::machine::Tuning::of(&cfg), want);
+    // The builder's names for Modbus device identification.
+    assert_eq!(cfg.identity.vendor, "Example Machines Ltd");
+    assert_eq!(cfg.identity.product, "AutoDock 18 (example)");
 }
 
 #[test]
@@ -39,6 +42,10 @@ fn the_example_is_what_the_command_makes_today() {
         "18",
         "--mu2",
         "0.1",
+        "--vendor",
+        "Example Machines Ltd",
+        "--product",
+        "AutoDock 18 (example)",
     ]);
     assert_eq!(code, 0);
     let kept = std::fs::read_to_string(concat!(
@@ -46,7 +53,7 @@ fn the_example_is_what_the_command_makes_today() {
         "/../docs/tuning-example-18kg.rs"
     ))
     .unwrap();
-    assert_eq!(out, kept, "regenerate: hil-sim commission --model plant --mass-kg 18 --mu2 0.1 > docs/tuning-example-18kg.rs");
+    assert_eq!(out, kept, "regenerate: hil-sim commission --model plant --mass-kg 18 --mu2 0.1 --vendor 'Example Machines Ltd' --product 'AutoDock 18 (example)' > docs/tuning-example-18kg.rs");
 }
 
 #[test]
@@ -64,6 +71,8 @@ fn commission_refuses_what_it_cannot_tune() {
             "0.05",
         ],
         &["commission", "--model", "plant", "--mu1", "x"],
+        &["commission", "--model", "plant", "--vendor", ""],
+        &["commission", "--model", "plant", "--product", "Tab\there"],
     ] {
         usage_error(bad);
     }

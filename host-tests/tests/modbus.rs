@@ -1414,3 +1414,24 @@ fn maintenance_mode_locks_out_plc_motion() {
     assert_eq!(coil(&mut r, Command::Dock, true), Ok(()));
     assert!(run_until(&mut r, 50, |r| r.ctrl.state().is_docking()));
 }
+
+/// VendorName and ProductName are the machine builder's, from the commissioning file
+/// (`hil-sim commission --vendor … --product …` writes `cfg.identity`), not a
+/// placeholder.
+#[test]
+fn device_identification_names_come_from_the_commissioning_config() {
+    let mut r = rig_with(RigOptions {
+        identity: docking_controller::controller::Identity {
+            vendor: "ACME Docking GmbH",
+            product: "AutoDock 18",
+        },
+        ..RigOptions::new(80)
+    });
+    let (_, _, objs) = objects(&ask(&mut r, UNIT, &[0x2B, 0x0E, 0x02, 0x00]).unwrap());
+    assert_eq!(objs[0], (0, "ACME Docking GmbH".to_owned()));
+    assert_eq!(objs[3], (4, "AutoDock 18".to_owned()));
+    // Without one: the defaults.
+    let mut r = rig();
+    let (_, _, objs) = objects(&ask(&mut r, UNIT, &[0x2B, 0x0E, 0x02, 0x00]).unwrap());
+    assert_eq!(objs[0].1, docking_controller::modbus::VENDOR_NAME);
+}
