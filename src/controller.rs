@@ -1995,20 +1995,18 @@ impl<B: Bsp> Controller<B> {
 
     /// Write the records queued for a rest, oldest first (call only at rest).
     fn write_queued_records(&mut self) {
-        while let Some(r) = self.store.record_queue.front() {
+        while let Some(r) = self.store.record_queue.pop_front() {
             let ok = self
                 .store
                 .log
                 .as_mut()
                 .is_some_and(|l| l.append(r.kind, &r.data).is_ok());
             if ok {
-                let (kind, data) = (r.kind, r.data.clone());
-                self.cache_record(kind, &data);
+                self.cache_record(r.kind, &r.data);
             } else {
                 self.store.storage_errors = self.store.storage_errors.saturating_add(1);
                 error!("odometer: a queued record was not written");
             }
-            self.store.record_queue.pop_front();
         }
     }
 

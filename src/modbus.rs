@@ -1045,6 +1045,15 @@ struct Session {
     accepted: u32,
 }
 
+impl Session {
+    /// Nothing since boot.
+    const NEW: Self = Self {
+        last_command: 0,
+        last_result: 0,
+        accepted: 0,
+    };
+}
+
 /// Check the frame length and the quantity limits of functions 0x01–0x06, 0x0F, 0x10
 /// (`pdu` from the function code on, CRC excluded).
 fn validate(function: u8, pdu: &[u8]) -> Result<(), u8> {
@@ -1422,6 +1431,20 @@ pub struct ModbusStats {
     pub commands: u32,
 }
 
+impl ModbusStats {
+    /// Every counter at zero (a `const`, for the servers built in statics).
+    pub const ZERO: Self = Self {
+        frames_ok: 0,
+        crc_errors: 0,
+        framing_errors: 0,
+        overruns: 0,
+        other_unit: 0,
+        replies: 0,
+        exceptions: 0,
+        commands: 0,
+    };
+}
+
 /// The Modbus RTU server: settings, framer, reply buffer, counters, the last command
 /// (616 bytes on the board).
 ///
@@ -1449,21 +1472,8 @@ impl Server {
             settings,
             framer: RtuFramer::new(&settings),
             reply: [0; MAX_FRAME],
-            stats: ModbusStats {
-                frames_ok: 0,
-                crc_errors: 0,
-                framing_errors: 0,
-                overruns: 0,
-                other_unit: 0,
-                replies: 0,
-                exceptions: 0,
-                commands: 0,
-            },
-            session: Session {
-                last_command: 0,
-                last_result: 0,
-                accepted: 0,
-            },
+            stats: ModbusStats::ZERO,
+            session: Session::NEW,
         }
     }
 
@@ -1487,21 +1497,8 @@ impl Server {
                 overruns: 0,
             },
             reply: [0; MAX_FRAME],
-            stats: ModbusStats {
-                frames_ok: 0,
-                crc_errors: 0,
-                framing_errors: 0,
-                overruns: 0,
-                other_unit: 0,
-                replies: 0,
-                exceptions: 0,
-                commands: 0,
-            },
-            session: Session {
-                last_command: 0,
-                last_result: 0,
-                accepted: 0,
-            },
+            stats: ModbusStats::ZERO,
+            session: Session::NEW,
         }
     }
 

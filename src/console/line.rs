@@ -37,12 +37,14 @@ use core::fmt;
 /// at any control rate of 180 Hz or more.
 pub const MAX_BYTES_PER_POLL: usize = 64;
 
-const BS: u8 = 0x08;
-const TAB: u8 = 0x09;
-const LF: u8 = 0x0A;
-const CR: u8 = 0x0D;
-const ESC: u8 = 0x1B;
-const DEL: u8 = 0x7F;
+/// Backspace.
+pub(crate) const BS: u8 = 0x08;
+pub(crate) const TAB: u8 = 0x09;
+pub(crate) const LF: u8 = 0x0A;
+pub(crate) const CR: u8 = 0x0D;
+pub(crate) const ESC: u8 = 0x1B;
+/// DEL: what most terminals send for the backspace key.
+pub(crate) const DEL: u8 = 0x7F;
 
 /// Why a line was rejected.
 #[non_exhaustive]

@@ -28,7 +28,7 @@ use sha2::{Digest, Sha256};
 
 use super::auth::{make_pin_record, MaintenanceAuth, PinRecord};
 use super::json::JsonObject;
-use super::line::{LineEvent, LineReader, MAX_BYTES_PER_POLL};
+use super::line::{LineEvent, LineReader, BS, CR, DEL, ESC, LF, MAX_BYTES_PER_POLL, TAB};
 use super::parse::{parse, Command, COMMANDS};
 use crate::controller::{Bsp, Controller, HistoryEntry};
 use crate::hal::ConsoleIo;
@@ -157,15 +157,8 @@ struct TermState {
 
 /// Ctrl-C: abandon the line.
 const CTRL_C: u8 = 0x03;
-/// Backspace, and DEL (what most terminals send for the backspace key).
-const BS: u8 = 0x08;
-const DEL: u8 = 0x7F;
-const CR: u8 = 0x0D;
-const LF: u8 = 0x0A;
-const TAB: u8 = 0x09;
 /// Ctrl-U: erase the line.
 const CTRL_U: u8 = 0x15;
-const ESC: u8 = 0x1B;
 /// What erases one character on a terminal.
 const RUB_OUT: &[u8] = b"\x08 \x08";
 
