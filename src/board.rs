@@ -34,8 +34,16 @@
 //! | 3 | `step_tick` (SysTick, 20 kHz, only while moving) | step pulses | — |
 //! | 2 | `usart2` (USART2) | console bytes in and out | — |
 //! | 2 | `usart3` (USART3) | Modbus characters in (time-stamped) and out, RS-485 DE | — |
-//! | 1 | `control` (TIM2: each sample, and every sample period) | the control step: the PLC inputs read before it, the handshake outputs written after it | `kernel`, `ctrl` |
-//! | 0 | `idle` | console commands, Modbus requests, flash (record writes, erases), the defmt log; **sleeps** (`wfi`) when there is nothing to do (awake while a Modbus request is being received) | `ctrl` |
+//! | 1 | `control` (TIM2: each sample, and every sample period) | the control step: the PLC inputs read before it, the handshake outputs written after it; then pends `service` | `kernel`, `ctrl` |
+//! | 1 | `service` (SPI1, pended by `control` after each step and by idle's requests) | in the window after a step only (`owner.rs`): idle's jobs (one console command's gather, one Modbus PDU, one record), the flash's turn (record writes, erases: at rest only), the log's events and the state published | `ctrl` |
+//! | 0 | `idle` | console line editing, PIN hashes, report formatting, Modbus framing and replies, the defmt log; **sleeps** (`wfi`) when there is nothing to do (awake while a Modbus request is being received) | — (asks `service` through a one-slot mailbox) |
+//!
+//! **One owner.** The controller belongs to priority 1: `control` and `service` never
+//! preempt each other, and idle cannot lock it (it does not share it). Everything a
+//! technician or the PLC does reaches the machine as a job idle lends the service,
+//! which runs it only when it will end before the next step is due (`owner.rs`): the
+//! control step never waits for a client. Measured: `vboard sweep --flood`'s
+//! `control_entry_latency_max_us` (docs/board.md).
 //!
 //! # E-STOP
 //!
@@ -54,7 +62,7 @@
 //! readout (25.5 µs) and the guard, plus at most the longest section that masks every
 //! interrupt: a defmt log call (its RTT critical section), a `control` task's lock of
 //! `kernel` (a few dozen instructions), a clock-high phase of the readout. A console
-//! flood, a `history` walk (it holds `ctrl`, which only `control` shares), a record
+//! flood, a `history` walk (a job in `service`, below the sample's priority), a record
 //! write or the log never wait in front of it. A flash *erase* masks everything for up
 //! to 2 s: erases happen only with every motor off (`Controller::background`).
 
@@ -65,6 +73,7 @@ mod delay;
 mod flash;
 mod modbus;
 mod options;
+mod owner;
 mod step;
 
 use core::mem::MaybeUninit;
@@ -73,8 +82,8 @@ use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m_rt::{exception, ExceptionFrame};
 use defmt_rtt as _;
 use docking_controller::console::service::Console;
-use docking_controller::controller::Handshake;
 use docking_controller::controller::{Bsp, Controller, ControllerConfig, Parts};
+use docking_controller::controller::{Handshake, Timed};
 use docking_controller::diag::{file_tail, Crash, CrashKind, ResetCause};
 use docking_controller::hal::StopLatch;
 use docking_controller::hal::Watchdog;
@@ -309,6 +318,21 @@ static ESTOP_EDGES: EstopEdges = EstopEdges::new();
 /// Set by the control task when it has events or persistence for the idle loop.
 static IDLE_WORK: AtomicBool = AtomicBool::new(false);
 
+/// How long until TIM2's next update, µs (it counts µs up to ARR; the service keeps
+/// its reserve before it).
+fn tim2_left_us() -> u32 {
+    const TIM2_CNT: *const u32 = 0x4000_0024 as *const u32;
+    const TIM2_ARR: *const u32 = 0x4000_002C as *const u32;
+    // SAFETY: reads of TIM2's CNT and ARR, fixed MMIO addresses of this chip.
+    let (cnt, arr) = unsafe {
+        (
+            core::ptr::read_volatile(TIM2_CNT),
+            core::ptr::read_volatile(TIM2_ARR),
+        )
+    };
+    arr.saturating_sub(cnt)
+}
+
 /// Could not even build the controller: keep the motors safe and wait for the watchdog
 /// (or a debugger).
 fn halt_safe() -> ! {
@@ -344,6 +368,8 @@ mod app {
         stop: BoardStop,
         events_tx: Producer<'static, KernelEvent>,
         events_rx: Consumer<'static, KernelEvent>,
+        log_tx: Producer<'static, Timed>,
+        log_rx: Consumer<'static, Timed>,
         step_gen: step::StepGen,
         console_isr: console::ConsoleIsr,
         term: console::BoardConsole,
@@ -355,6 +381,7 @@ mod app {
 
     #[init(local = [
         events: Queue<KernelEvent, 16> = Queue::new(),
+        log: Queue<Timed, 9> = Queue::new(),
         rx_ring: Queue<u16, 257> = Queue::new(),
         mb_rx: Queue<(u16, u64), 64> = Queue::new(),
         mb_tx: Queue<u8, 257> = Queue::new(),
@@ -540,6 +567,7 @@ mod app {
         tim2.cr1().write(|w| w.cen().set_bit());
 
         let (events_tx, events_rx) = cx.local.events.split();
+        let (log_tx, log_rx) = cx.local.log.split();
         (
             Shared { ctrl, kernel },
             Local {
@@ -557,6 +585,8 @@ mod app {
                 stop: BoardStop,
                 events_tx,
                 events_rx,
+                log_tx,
+                log_rx,
                 step_gen: step::StepGen::new(step),
                 console_isr: console::ConsoleIsr {
                     rx,
@@ -643,10 +673,12 @@ mod app {
 
     /// The control step: once per sample (pended by `data_ready`) and once per sample
     /// period without one (TIM2), so that deadlines and the disconnect timeout run.
+    /// Then the service's turn (`owner.rs`): it runs right after this task returns.
     #[task(binds = TIM2, priority = 1, shared = [ctrl, kernel], local = [events_rx, tim2, plc])]
     fn control(mut cx: control::Context) {
         cx.local.tim2.sr().write(|w| w.uif().clear_bit());
         let now = clock::now_us();
+        let now_low = clock::now_us_low();
         let events_rx = cx.local.events_rx;
         let plc = cx.local.plc;
         cx.shared.ctrl.lock(|ctrl| {
@@ -657,10 +689,14 @@ mod app {
             );
             let mut stepped = false;
             while let Some(ev) = events_rx.dequeue() {
+                if !stepped {
+                    owner::step_began(now_low);
+                }
                 let _ = ctrl.step(now, Some(ev));
                 stepped = true;
             }
             if !stepped && ctrl.step_due(now) {
+                owner::step_began(now_low);
                 let mut stop = BoardStop;
                 let silent = cx.shared.kernel.lock(|k| k.check(now, &mut stop));
                 let _ = ctrl.step(now, silent);
@@ -671,16 +707,43 @@ mod app {
             crash::journal_write(&ctrl.journal());
             plc.write(ctrl.handshake());
         });
+        rtic::pend(pac::Interrupt::SPI1);
+    }
+
+    /// The service (`owner.rs`): idle's jobs and the flash's turn, with the controller,
+    /// only in the window after a step; what idle reads published. Same priority as
+    /// `control`: neither preempts the other.
+    #[task(binds = SPI1, priority = 1, shared = [ctrl], local = [log_tx])]
+    fn service(mut cx: service::Context) {
+        let now_low = clock::now_us_low();
+        let log_tx = cx.local.log_tx;
+        cx.shared.ctrl.lock(|ctrl| {
+            let period_us = 1_000_000 / ctrl.sample_rate_sps().max(1);
+            if !owner::in_window(now_low, period_us, tim2_left_us()) {
+                return; // `control` pends us again after its next step
+            }
+            owner::apply_published(ctrl);
+            owner::MAILBOX.serve(ctrl);
+            // The flash's turn (at rest only: `Controller::at_rest`).
+            ctrl.background();
+            while log_tx.ready() {
+                let Some(ev) = ctrl.next_event() else { break };
+                let _ = log_tx.enqueue(ev);
+            }
+            owner::publish_state(ctrl.state());
+        });
         IDLE_WORK.store(true, Ordering::Relaxed);
     }
 
-    /// Everything that may wait: console commands, flash, the log. Sleeps when there is
-    /// nothing to do.
-    #[idle(shared = [ctrl], local = [
+    /// Everything that may wait: console commands, Modbus requests, the log. Sleeps when
+    /// there is nothing to do. Reaches the controller only through the service's
+    /// mailbox (`owner.rs`): it has no access of its own.
+    #[idle(local = [
         term,
         entropy,
         modbus_line,
         modbus_settings,
+        log_rx,
         // In a static (616 bytes), all-zero so that it is in `.bss` (not copied from
         // flash): its settings are set first thing in `idle`.
         server: docking_controller::modbus::Server =
@@ -689,10 +752,12 @@ mod app {
         // moved through init's stack.
         console: Console = Console::new([0; 32]),
     ])]
-    fn idle(mut cx: idle::Context) -> ! {
+    fn idle(cx: idle::Context) -> ! {
+        let mailbox = &owner::MAILBOX;
         cx.local.console.seed(*cx.local.entropy);
         // The greeting: firmware, why it reset, the prompt (a terminal's first line).
-        let (reset, state) = cx.shared.ctrl.lock(|c| (c.last_reset(), c.state().name()));
+        let (mut reset, mut state) = (None, "unknown");
+        mailbox.call(&mut |c| (reset, state) = (c.last_reset(), c.state().name()));
         cx.local.console.observe(state, clock::now_us() / 1_000);
         cx.local
             .console
@@ -710,10 +775,10 @@ mod app {
         let serial = core::str::from_utf8(&serial_hex).unwrap_or("");
         let mut stack_checked_us = 0u64;
         loop {
-            // Sleep until there is work: the control task signals after each step (at
-            // least once a sample period), console bytes wake us through USART2. The
-            // check runs with interrupts masked: one that arrives meanwhile stays pending
-            // and `wfi` returns at once.
+            // Sleep until there is work: the service signals after each run (at least
+            // once a sample period), console bytes wake us through USART2. The check
+            // runs with interrupts masked: one that arrives meanwhile stays pending and
+            // `wfi` returns at once.
             let work = cortex_m::interrupt::free(|_| {
                 let w = IDLE_WORK.swap(false, Ordering::Relaxed)
                     || cx.local.term.rx_pending()
@@ -729,19 +794,20 @@ mod app {
             }
             let now_us = clock::now_us();
             // The stack's high-water mark, once a second (a walk of the unused part).
-            let stack = (now_us.saturating_sub(stack_checked_us) >= 1_000_000).then(|| {
+            if now_us.saturating_sub(stack_checked_us) >= 1_000_000 {
                 stack_checked_us = now_us;
-                crash::stack_usage()
-            });
-            // The controller is taken for short, bounded pieces of work only, each in a
-            // lock of its own, so the control step (which shares it) waits at most one
-            // of them: a Modbus request, a console command, the flash's turn, the
-            // events taken for the log. Reading input, framing, a PIN's hash, sending
-            // and logging happen with the controller free.
+                let (used, size) = crash::stack_usage();
+                owner::STACK_SIZE.store(size, Ordering::Relaxed);
+                owner::STACK_USED.store(used, Ordering::Relaxed);
+            }
+            // Each job below is one bounded piece of work the service runs in its window
+            // after a step: a Modbus request, a console command's gather, a record.
+            // Reading input, framing, a PIN's hash, formatting and sending happen here,
+            // with the controller free.
             let (term, console) = (&mut *cx.local.term, &mut *cx.local.console);
             let (line, server) = (&mut *cx.local.modbus_line, &mut *cx.local.server);
             // Modbus: the characters into the framer; a request whose t3.5 has passed
-            // is answered under the lock (one PDU: bounded).
+            // is answered by one job (one PDU).
             while let Some((c, t)) = line.next() {
                 match c {
                     Ok(b) => server.on_byte(b, t),
@@ -750,51 +816,37 @@ mod app {
             }
             let t = clock::now_us();
             if server.request_due(t) {
-                cx.shared.ctrl.lock(|ctrl| {
+                mailbox.call(&mut |ctrl| {
                     if let Some(reply) = server.poll(t, ctrl, serial) {
                         line.send(reply);
+                        // No flash work from now until the reply is out.
+                        ctrl.set_bus_busy(true);
+                        owner::BUS_BUSY.store(true, Ordering::Relaxed);
                     }
                 });
             }
-            // The console: a line in without the controller; the command with it; a
-            // login's PIN hash and the reply's sending without it.
+            // The console: a line in without the controller; the command's job; a
+            // login's PIN hash and the reply's formatting and sending without it.
             let now_ms = now_us / 1_000;
             let (cmd_line, _) = console.read_line(term);
             if let Some(cmd_line) = cmd_line {
-                cx.shared
-                    .ctrl
-                    .lock(|ctrl| console.run_line(ctrl, &cmd_line, now_ms));
+                mailbox.call(&mut |ctrl| {
+                    console.run_line(ctrl, &cmd_line, now_ms);
+                });
                 console.finish(now_ms);
                 if console.store_due() {
-                    // A record the hash just made (`pin set`), with the controller.
-                    cx.shared.ctrl.lock(|ctrl| console.store(ctrl, now_ms));
+                    // A record the hash just made (`pin set`).
+                    mailbox.call(&mut |ctrl| console.store(ctrl, now_ms));
                 }
             }
             console.flush_output(term);
-            let maint = console.maintenance_active(now_ms);
-            // The flash's turn (at rest only: `Controller::at_rest`), the events for the
-            // log taken out, the board's reports in.
-            let mut events: heapless::Vec<_, 8> = heapless::Vec::new();
-            let sending = line.sending();
-            let state = cx.shared.ctrl.lock(|ctrl| {
-                if let Some((used, size)) = stack {
-                    ctrl.set_stack_usage(used, size);
-                }
-                ctrl.set_maintenance_mode(maint);
-                ctrl.set_bus_busy(sending);
-                ctrl.background();
-                while !events.is_full() {
-                    let Some(ev) = ctrl.next_event() else { break };
-                    let _ = events.push(ev);
-                }
-                ctrl.state().name()
-            });
-            console.observe(state, now_ms);
-            for ev in &events {
+            // What the service applies at its next run: the login, the line.
+            owner::MAINTENANCE.store(console.maintenance_active(now_ms), Ordering::Relaxed);
+            owner::BUS_BUSY.store(line.sending(), Ordering::Relaxed);
+            console.observe(owner::state_name(), now_ms);
+            // The events for the log, as the service took them out.
+            while let Some(ev) = cx.local.log_rx.dequeue() {
                 defmt::info!("t={=u64} ms {}", ev.t_ms, ev.event);
-            }
-            if events.is_full() {
-                IDLE_WORK.store(true, Ordering::Relaxed); // more events wait
             }
         }
     }

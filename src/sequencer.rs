@@ -353,23 +353,48 @@ pub enum State {
 }
 
 impl State {
+    /// Every state's stable snake-case name, in [`Self::ordinal`] order.
+    pub const NAMES: [&'static str; 13] = [
+        "power_up",
+        "homing",
+        "locking",
+        "idle",
+        "pre_align",
+        "releasing",
+        "inserting",
+        "holding",
+        "extracting",
+        "returning",
+        "backing_off",
+        "faulted",
+        "recovering",
+    ];
+
+    /// The state's index in [`Self::NAMES`] (one byte: the board publishes it to the
+    /// console with a single atomic store).
+    pub const fn ordinal(&self) -> u8 {
+        match self {
+            Self::PowerUp => 0,
+            Self::Homing { .. } => 1,
+            Self::Locking { .. } => 2,
+            Self::Idle => 3,
+            Self::PreAlign { .. } => 4,
+            Self::Releasing { .. } => 5,
+            Self::Inserting { .. } => 6,
+            Self::Holding { .. } => 7,
+            Self::Extracting { .. } => 8,
+            Self::Returning { .. } => 9,
+            Self::BackingOff { .. } => 10,
+            Self::Faulted { .. } => 11,
+            Self::Recovering { .. } => 12,
+        }
+    }
+
     /// Stable snake-case name.
     pub const fn name(&self) -> &'static str {
-        match self {
-            Self::PowerUp => "power_up",
-            Self::Homing { .. } => "homing",
-            Self::Locking { .. } => "locking",
-            Self::Idle => "idle",
-            Self::PreAlign { .. } => "pre_align",
-            Self::Releasing { .. } => "releasing",
-            Self::Inserting { .. } => "inserting",
-            Self::Holding { .. } => "holding",
-            Self::Extracting { .. } => "extracting",
-            Self::Returning { .. } => "returning",
-            Self::BackingOff { .. } => "backing_off",
-            Self::Faulted { .. } => "faulted",
-            Self::Recovering { .. } => "recovering",
-        }
+        // In range: `ordinal` is at most 12, and `NAMES` has 13 entries.
+        #[allow(clippy::indexing_slicing)]
+        Self::NAMES[self.ordinal() as usize]
     }
 
     /// Whether the propulsion may be moving in this state.
@@ -921,6 +946,34 @@ impl Sequencer {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The board publishes a state as its ordinal (one atomic byte) and the console
+    /// names it from `NAMES`: every state round-trips to its own, distinct name.
+    #[test]
+    fn every_state_is_named_by_its_ordinal() {
+        let states = [
+            State::PowerUp,
+            State::Homing { deadline_ms: 0 },
+            State::Idle,
+            State::Holding {
+                until_ms: None,
+                unmating: false,
+            },
+            State::Faulted {
+                fault: FaultKind::Overload,
+            },
+            State::Recovering { deadline_ms: 0 },
+        ];
+        for st in states {
+            assert_eq!(State::NAMES.get(st.ordinal() as usize), Some(&st.name()));
+        }
+        let mut names = State::NAMES.to_vec();
+        names.sort_unstable();
+        names.dedup();
+        assert_eq!(names.len(), State::NAMES.len());
+        assert_eq!(State::Recovering { deadline_ms: 0 }.name(), "recovering");
+        assert_eq!(State::PowerUp.name(), "power_up");
+    }
 
     struct Rig {
         seq: Sequencer,

@@ -62,6 +62,14 @@ fn assert_targets(s: &Sweep) {
         w.to_text("overall")
     );
     assert_eq!(w.watchdog_feeds_missed, 0, "missed feeds\n{table}");
+    // Nothing below the step holds it (the firmware's owner.rs): before, idle held the
+    // controller for a console command and the step waited 256 µs at CPI 3.
+    assert!(
+        w.control_entry_latency_max_us
+            .is_some_and(|l| l <= vboard::sweep::ENTRY_LATENCY_TARGET_US),
+        "control entry latency: {}\n{table}",
+        w.to_text("overall")
+    );
     let (lo, hi) = w.backed_off_um.expect("the overload scene tripped");
     assert!(
         lo >= 1_900.0 && hi <= 2_100.0,
