@@ -1,0 +1,114 @@
+#!/usr/bin/env bash
+# Issue 20: the CPU time of `hil-sim life --cycles 45270` against 353c5c0's (the commit
+# before the board work), as a ratio measured in one run on one machine. Both are built
+# from source (release, each in its own git worktree and target directory), then run
+# alternately, old then new, a few pairs; the ratio is the median of the pairs' ratios
+# of user + system CPU time. The new run's JSON (wall_time_s aside) is also compared with
+# the one recorded before the speed-up (tools/life-45270.json), so a faster run is the
+# same run.
+#
+#   bash tools/life-ratio.sh                  # 45 270 cycles, 3 pairs: ~2 min after the builds
+#   bash tools/life-ratio.sh --cycles 300     # a smoke run (CI): the ratio is noisy there
+#   bash tools/life-ratio.sh --new REV        # measure another commit than HEAD
+#   bash tools/life-ratio.sh --pairs 5
+#
+# The builds (a few minutes each on 2 cores) are kept in target/life-ratio/<commit>/ and
+# reused; --rebuild builds again. Only committed code is measured: commit first.
+# The last line is `ratio X.XX (target <= 0.85)`.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+repo=$(pwd)
+
+old_rev=353c5c0
+new_rev=HEAD
+cycles=45270
+pairs=3
+rebuild=0
+while [ $# -gt 0 ]; do
+    case $1 in
+        --cycles) cycles=$2; shift 2 ;;
+        --pairs) pairs=$2; shift 2 ;;
+        --old) old_rev=$2; shift 2 ;;
+        --new) new_rev=$2; shift 2 ;;
+        --rebuild) rebuild=1; shift ;;
+        -h | --help) sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+        *) echo "life-ratio.sh: unknown argument $1 (--help)" >&2; exit 2 ;;
+    esac
+done
+case $cycles in '' | *[!0-9]*) echo "life-ratio.sh: --cycles takes a number" >&2; exit 2 ;; esac
+case $pairs in '' | *[!0-9]* | 0) echo "life-ratio.sh: --pairs takes a number >= 1" >&2; exit 2 ;; esac
+
+cache=${LIFE_RATIO_CACHE:-$repo/target/life-ratio}
+tmp=$(mktemp -d)
+worktrees=()
+cleanup() {
+    for w in "${worktrees[@]}"; do git -C "$repo" worktree remove --force "$w" >/dev/null 2>&1 || true; done
+    rm -rf "$tmp"
+}
+trap cleanup EXIT
+
+# Build REV's hil-sim (release) in its own worktree; print the binary's path.
+build() {
+    local sha dir bin
+    sha=$(git -C "$repo" rev-parse --verify "$1^{commit}")
+    dir=$cache/$sha
+    bin=$dir/release/hil-sim
+    if [ "$rebuild" = 1 ] || [ ! -x "$bin" ]; then
+        local wt=$tmp/${sha:0:12}
+        git -C "$repo" worktree add --detach "$wt" "$sha" >/dev/null 2>&1
+        worktrees+=("$wt")
+        echo "building ${sha:0:12}'s hil-sim (release) in $wt, target $dir" >&2
+        (cd "$wt" && CARGO_TARGET_DIR=$dir cargo build -q --release -p hil-sim >&2)
+    fi
+    echo "$bin"
+}
+old_bin=$(build "$old_rev")
+new_bin=$(build "$new_rev")
+old_sha=$(git rev-parse --short "$old_rev^{commit}")
+new_sha=$(git rev-parse --short "$new_rev^{commit}")
+
+reference=""
+[ "$cycles" = 45270 ] && reference=tools/life-45270.json
+
+python3 - "$old_bin" "$new_bin" "$old_sha" "$new_sha" "$cycles" "$pairs" "$reference" <<'EOF'
+import json, os, re, statistics, subprocess, sys
+
+old_bin, new_bin, old_sha, new_sha, cycles, pairs, reference = sys.argv[1:]
+pairs = int(pairs)
+args = ["life", "--cycles", cycles, "--json"]
+
+def run(binary):
+    """CPU seconds (user + system) of one run, and its JSON without wall_time_s."""
+    p = subprocess.Popen([binary, *args], stdout=subprocess.PIPE)
+    out = p.stdout.read()
+    _, status, ru = os.wait4(p.pid, 0)
+    if status != 0:
+        sys.exit(f"{binary} {' '.join(args)}: exit status {status}")
+    json.loads(out)  # one JSON object
+    # The text as printed, wall_time_s aside: "identical" means byte for byte.
+    return ru.ru_utime + ru.ru_stime, re.sub(rb',"wall_time_s":[^,}]*', b"", out).decode().strip()
+
+print(f"hil-sim {' '.join(args)}: CPU s (user + sys), {old_sha} then {new_sha}, {pairs} pairs")
+ratios, reports = [], []
+for i in range(pairs):
+    t_old, _ = run(old_bin)
+    t_new, rep = run(new_bin)
+    reports.append(rep)
+    ratios.append(t_new / t_old)
+    print(f"pair {i + 1}: {old_sha} {t_old:.2f} s, {new_sha} {t_new:.2f} s, ratio {t_new / t_old:.3f}", flush=True)
+
+status = 0
+if any(r != reports[0] for r in reports):
+    print(f"FAIL: {new_sha}'s runs disagree with each other")
+    status = 1
+if reference:
+    with open(reference) as f:
+        want = f.read().strip()
+    if reports[0] == want:
+        print(f"{new_sha}'s JSON (wall_time_s aside) is {reference}'s")
+    else:
+        print(f"FAIL: {new_sha}'s JSON differs from {reference}:\n  got  {reports[0]}\n  want {want}")
+        status = 1
+print(f"ratio {statistics.median(ratios):.2f} (target <= 0.85)")
+sys.exit(status)
+EOF
