@@ -23,6 +23,71 @@ fn json(reply: &str) -> Value {
 
 use host_tests::run_cycles;
 
+/// Every key a text reply shows, with the keys of its `key …` object lines.
+fn text_keys(text: &str) -> std::collections::BTreeSet<String> {
+    let mut keys = std::collections::BTreeSet::new();
+    for line in text.lines() {
+        let mut words = line.split(' ');
+        if let Some(first) = words.next() {
+            match first.split_once('=') {
+                Some((k, _)) => keys.insert(k.to_string()),
+                None => keys.insert(first.to_string()), // an object's line: `resets a=1`
+            };
+        }
+        for w in words {
+            if let Some((k, _)) = w.split_once('=') {
+                keys.insert(k.to_string());
+            }
+        }
+    }
+    keys
+}
+
+/// Every key of a JSON reply: the object's, its nested objects' and its records'.
+fn json_keys(v: &Value, keys: &mut std::collections::BTreeSet<String>, top: bool) {
+    if let Some(o) = v.as_object() {
+        for (k, x) in o {
+            // A list of records is named by its key in JSON and by its lines in text.
+            if !(top && x.is_array()) {
+                keys.insert(k.clone());
+            }
+            json_keys(x, keys, false);
+        }
+    } else if let Some(a) = v.as_array() {
+        for x in a {
+            json_keys(x, keys, false);
+        }
+    }
+}
+
+/// Issue 18: the text said `cycles=` and `in_estop=open` where the JSON said
+/// `cycles_completed` and `in_estop_open`. Each report is now one field list rendered
+/// both ways: the same keys, in text and in JSON.
+#[test]
+fn text_and_json_reports_name_every_field_the_same_way() {
+    let mut r = rig();
+    assert!(r.command("pin set 2468", 10).starts_with("ok"));
+    assert!(r.command("maint 2468", 10).starts_with("ok"));
+    let m = r.command("measure --baseline 25.993", 200);
+    assert!(m.starts_with("ok"), "{m}");
+    assert!(
+        r.command("maint exit", 10).starts_with("ok"),
+        "leave maintenance"
+    );
+    run_cycles(&mut r, 2);
+    assert!(r.command("maint 2468", 10).starts_with("ok"));
+    let m = r.command("measure 26.004", 200);
+    assert!(m.starts_with("ok"), "{m}");
+    for cmd in ["status", "wear", "faults", "measurements", "history"] {
+        let text = r.command(cmd, 10);
+        let j = json(&r.command(&format!("{cmd} --json"), 10));
+        let mut jk = std::collections::BTreeSet::new();
+        json_keys(&j, &mut jk, true);
+        assert!(!jk.is_empty(), "{cmd}: {j}");
+        assert_eq!(text_keys(&text), jk, "{cmd}:\n{text}\n{j}");
+    }
+}
+
 #[test]
 fn read_commands_in_text_and_json() {
     let mut r = rig();
@@ -36,7 +101,8 @@ fn read_commands_in_text_and_json() {
 
     let s = r.command("status", 10);
     assert!(
-        s.starts_with("state=idle phase=none force_n=") && s.contains(" cycles=3 fault=none"),
+        s.starts_with("state=idle phase=none force_n=")
+            && s.contains(" cycles_completed=3 fault=none"),
         "{s}"
     );
     let s = json(&r.command("status --json", 10));
@@ -310,7 +376,7 @@ fn dock_undock_stop_from_the_console_with_their_gates() {
     );
     let t = r.command("status", 10);
     assert!(
-        t.contains(" in_estop=closed out_ready=no out_mated=yes"),
+        t.contains(" in_estop_open=no out_ready=no out_mated=yes"),
         "{t}"
     );
     // Undock runs while the machine is not at rest.

@@ -27,6 +27,7 @@ use heapless::{Deque, String};
 use sha2::{Digest, Sha256};
 
 use super::auth::{make_pin_record, MaintenanceAuth, PinRecord};
+use super::fields::{Fields, JsonFields, TextFields};
 use super::json::JsonObject;
 use super::line::{LineEvent, LineReader, BS, CR, DEL, ESC, LF, MAX_BYTES_PER_POLL, TAB};
 use super::parse::{parse, Command, COMMANDS};
@@ -112,14 +113,6 @@ impl Write for Out {
 fn kv_fixed(o: &mut Out, key: &str, value_scaled: i64, decimals: u8) -> fmt::Result {
     write!(o, " {key}=")?;
     super::json::write_fixed(o, value_scaled, decimals)
-}
-
-/// Write ` phase=N`, or ` phase=none` outside the cone.
-fn kv_phase(o: &mut Out, phase: Option<crate::profile::ContactPhase>) -> fmt::Result {
-    match phase {
-        Some(p) => write!(o, " phase={}", p.number()),
-        None => o.write_str(" phase=none"),
-    }
 }
 
 /// The console.
@@ -1031,313 +1024,52 @@ impl Console {
         self.deferred.report_json = json;
     }
 
-    fn render_status(&mut self, v: &StatusView, json: bool) {
-        let StatusView {
-            s,
-            calibrated,
-            reset,
-            stack,
-            maint,
-        } = *v;
-        let fault = s.fault.map(|f| f.name());
-        if json {
-            self.reply_json(|j| {
-                j.str("state", s.state.name())?;
-                match s.phase {
-                    Some(p) => j.u64("phase", p.number() as u64)?,
-                    None => j.null("phase")?,
-                };
-                j.fixed("force_n", s.force_mn as i64, 3)?
-                    .fixed("limit_n", s.limit_mn as i64, 3)?
-                    .fixed("pos_mm", s.pos_um as i64, 3)?
-                    .u64("cycles_completed", s.cycles_completed as u64)?;
-                match fault {
-                    Some(f) => j.str("fault", f)?,
-                    None => j.null("fault")?,
-                };
-                j.bool("warning", s.warning)?
-                    .fixed("peak_force_n", s.peak_force_mn as i64, 3)?
-                    .bool("maintenance", maint)?
-                    .bool("calibrated", calibrated)?;
-                match reset {
-                    Some(r) => j.str("reset", r.name())?,
-                    None => j.null("reset")?,
-                };
-                match stack {
-                    Some((used, size)) => j
-                        .u64("stack_used", used as u64)?
-                        .u64("stack_size", size as u64)?,
-                    None => j.null("stack_used")?.null("stack_size")?,
-                };
-                let h = s.handshake;
-                j.bool("in_dock", h.dock)?
-                    .bool("in_estop_open", h.estop)?
-                    .bool("out_ready", h.ready)?
-                    .bool("out_mated", h.mated)?
-                    .bool("out_fault", h.fault)?
-                    .bool("out_maintenance", h.maintenance)?;
-                Ok(())
-            });
-        } else {
-            self.reply(|o| {
-                write!(o, "state={}", s.state.name())?;
-                kv_phase(o, s.phase)?;
-                kv_fixed(o, "force_n", s.force_mn as i64, 3)?;
-                kv_fixed(o, "limit_n", s.limit_mn as i64, 3)?;
-                kv_fixed(o, "pos_mm", s.pos_um as i64, 3)?;
-                write!(
-                    o,
-                    " cycles={} fault={} warning={} maintenance={} calibrated={} reset={}",
-                    s.cycles_completed,
-                    fault.unwrap_or("none"),
-                    if s.warning { "yes" } else { "no" },
-                    if maint { "yes" } else { "no" },
-                    if calibrated { "yes" } else { "no" },
-                    reset.map_or("unknown", |r| r.name()),
-                )?;
-                if let Some((used, size)) = stack {
-                    write!(o, " stack={used}/{size}")?;
-                }
-                let h = s.handshake;
-                let yn = |b: bool| if b { "yes" } else { "no" };
-                write!(
-                    o,
-                    " in_dock={} in_estop={} out_ready={} out_mated={} out_fault={} out_maintenance={}",
-                    yn(h.dock),
-                    if h.estop { "open" } else { "closed" },
-                    yn(h.ready),
-                    yn(h.mated),
-                    yn(h.fault),
-                    yn(h.maintenance),
-                )?;
+    /// A report: `fields` written once, rendered as text or as one JSON line.
+    fn report(&mut self, json: bool, fields: &mut dyn FnMut(&mut dyn Fields) -> fmt::Result) {
+        self.reply(|o| {
+            if json {
+                let mut j = JsonFields::new(o)?;
+                fields(&mut j)?;
+                j.finish()?;
                 o.write_str("\r\n")
-            });
-        }
+            } else {
+                let mut t = TextFields::new(o);
+                fields(&mut t)?;
+                t.finish()
+            }
+        });
+    }
+
+    fn render_status(&mut self, v: &StatusView, json: bool) {
+        self.report(json, &mut |f| status_fields(f, v));
     }
 
     fn render_wear(&mut self, v: &WearView, json: bool) {
-        let WearView {
-            ref cone,
-            ref life,
-            wear_nm,
-            remaining,
-            limit_nm,
-            warn_nm,
-            level,
-            ref est,
-            base,
-            measured,
-            cone_nmm_milli,
-            in_cycle_nmm_milli,
-            readings,
-        } = *v;
-        let assumed = cone.baseline().is_none();
-        if json {
-            self.reply_json(|j| {
-                j.u64("cone", cone.id as u64)?
-                    .str("material", cone.material.name())?
-                    .str("serial", cone.serial_str())?
-                    .u64("cycles", cone.cycles as u64)?
-                    .fixed("load_distance_nmm", cone_nmm_milli, 3)?
-                    .fixed("load_distance_in_cycle_nmm", in_cycle_nmm_milli, 3)?
-                    .fixed("wear_mm", wear_nm as i64, 6)?
-                    .u64("remaining_cycles", remaining as u64)?
-                    .str("level", level.name())?
-                    .fixed("limit_mm", limit_nm as i64, 6)?
-                    .fixed("warn_mm", warn_nm, 6)?
-                    .u64("lifetime_cycles", life.cycles as u64)?
-                    .u64("cones_installed", life.cones_installed as u64)?
-                    .u64("overload_events", life.overload_events as u64)?
-                    .u64("faults", life.faults as u64)?
-                    .fixed("peak_force_n", life.peak_force_mn as i64, 3)?;
-                match measured {
-                    Some(m) => j.fixed("wear_measured_mm", m, 6)?,
-                    None => j.null("wear_measured_mm")?,
-                };
-                j.fixed("wear_estimate_mm", est.wear_nm as i64, 6)?
-                    .fixed("estimate_low_mm", est.low_nm as i64, 6)?
-                    .fixed("estimate_high_mm", est.high_nm as i64, 6)?
-                    .u64("remaining_estimate_cycles", est.remaining_cycles as u64)?
-                    .fixed("baseline_bore_mm", base as i64, 3)?
-                    .bool("baseline_assumed", assumed)?
-                    .u64("readings", readings as u64)?;
-                Ok(())
-            });
-        } else {
-            self.reply(|o| {
-                write!(
-                    o,
-                    "cone={} material={} serial={} cycles={}",
-                    cone.id,
-                    cone.material.name(),
-                    cone.serial_str(),
-                    cone.cycles
-                )?;
-                kv_fixed(o, "load_distance_nmm", cone_nmm_milli, 3)?;
-                kv_fixed(o, "wear_mm", wear_nm as i64, 6)?;
-                write!(o, " remaining_cycles={remaining} level={}", level.name())?;
-                kv_fixed(o, "limit_mm", limit_nm as i64, 6)?;
-                kv_fixed(o, "warn_mm", warn_nm, 6)?;
-                write!(
-                    o,
-                    " lifetime_cycles={} cones_installed={} overload_events={} faults={}",
-                    life.cycles, life.cones_installed, life.overload_events, life.faults
-                )?;
-                kv_fixed(o, "peak_force_n", life.peak_force_mn as i64, 3)?;
-                match measured {
-                    Some(m) => kv_fixed(o, "wear_measured_mm", m, 6)?,
-                    None => o.write_str(" wear_measured_mm=none")?,
-                }
-                kv_fixed(o, "wear_estimate_mm", est.wear_nm as i64, 6)?;
-                kv_fixed(o, "estimate_low_mm", est.low_nm as i64, 6)?;
-                kv_fixed(o, "estimate_high_mm", est.high_nm as i64, 6)?;
-                write!(o, " remaining_estimate_cycles={}", est.remaining_cycles)?;
-                kv_fixed(o, "baseline_bore_mm", base as i64, 3)?;
-                write!(
-                    o,
-                    " baseline_assumed={} readings={}",
-                    if assumed { "yes" } else { "no" },
-                    readings
-                )?;
-                o.write_str("\r\n")
-            });
-        }
+        self.report(json, &mut |f| wear_fields(f, v));
     }
 
     fn render_history(&mut self, entries: &HistoryEntries, json: bool) {
-        // W in Q63.1 mN·µm → N·mm with 3 decimals: q1 / 2 / 1000 (mN·µm → 1e-3 N·mm units).
-        let nmm_milli = |e: &HistoryEntry| (e.w_q1 / 2_000) as i64;
-        if json {
-            self.reply_json(|j| {
-                j.array("history", |a| {
-                    for e in entries.iter() {
-                        a.object(|x| {
-                            x.u64("cycle", e.lifetime_cycle as u64)?
-                                .u64("cone", e.cone_id as u64)?
-                                .u64("cone_cycle", e.cone_cycle as u64)?
-                                .fixed("load_distance_nmm", nmm_milli(e), 3)?
-                                .fixed("wear_mm", e.wear_nm as i64, 6)?;
-                            Ok(())
-                        })?;
-                    }
-                    Ok(())
-                })?;
-                Ok(())
-            });
-        } else if entries.is_empty() {
+        if !json && entries.is_empty() {
             self.reply(|o| o.write_str("no completed cycles recorded\r\n"));
-        } else {
-            self.reply(|o| {
-                for e in entries.iter() {
-                    write!(
-                        o,
-                        "cycle={} cone={} cone_cycle={}",
-                        e.lifetime_cycle, e.cone_id, e.cone_cycle
-                    )?;
-                    kv_fixed(o, "load_distance_nmm", nmm_milli(e), 3)?;
-                    kv_fixed(o, "wear_mm", e.wear_nm as i64, 6)?;
-                    o.write_str("\r\n")?;
-                }
-                Ok(())
-            });
+            return;
         }
+        // W in Q63.1 mN·µm → N·mm with 3 decimals: q1 / 2 / 1000 (mN·µm → 1e-3 N·mm units).
+        self.report(json, &mut |f| {
+            f.records("history", entries.len(), &mut |i, x| {
+                let Some(e) = entries.get(i) else {
+                    return Ok(());
+                };
+                x.u64("cycle", e.lifetime_cycle as u64)?;
+                x.u64("cone", e.cone_id as u64)?;
+                x.u64("cone_cycle", e.cone_cycle as u64)?;
+                x.fixed("load_distance_nmm", (e.w_q1 / 2_000) as i64, 3)?;
+                x.fixed("wear_mm", e.wear_nm as i64, 6)
+            })
+        });
     }
 
     fn render_faults(&mut self, v: &FaultsView, json: bool) {
-        let FaultsView {
-            active,
-            count,
-            overloads,
-            ref recs,
-            ref resets,
-            queued,
-            dropped,
-            crash,
-        } = *v;
-        if json {
-            self.reply_json(|j| {
-                match active {
-                    Some(a) => j.str("active", a)?,
-                    None => j.null("active")?,
-                };
-                j.u64("count_since_boot", count as u64)?
-                    .u64("overload_events_lifetime", overloads as u64)?
-                    .u64("records_queued", queued as u64)?
-                    .u64("records_dropped", dropped as u64)?;
-                j.object("resets", |r| {
-                    for c in crate::diag::ResetCause::ALL {
-                        r.u64(c.name(), resets.of(c) as u64)?;
-                    }
-                    Ok(())
-                })?;
-                match crash {
-                    Some(c) => j.object("last_crash", |x| {
-                        x.str("kind", c.kind.name())?
-                            .u64("pc", c.pc as u64)?
-                            .u64("lr", c.lr as u64)?
-                            .u64("cfsr", c.cfsr as u64)?
-                            .u64("hfsr", c.hfsr as u64)?
-                            .str("file", c.file_str())?
-                            .u64("line", c.line as u64)?;
-                        Ok(())
-                    })?,
-                    None => j.null("last_crash")?,
-                };
-                j.array("faults", |a| {
-                    for f in recs {
-                        a.object(|x| {
-                            x.str("kind", f.kind.name())?.u64("cycle", f.cycle as u64)?;
-                            match f.phase {
-                                Some(p) => x.u64("phase", p.number() as u64)?,
-                                None => x.null("phase")?,
-                            };
-                            x.fixed("t_s", f.t_ms as i64, 3)?.fixed(
-                                "peak_force_n",
-                                f.peak_force_mn as i64,
-                                3,
-                            )?;
-                            Ok(())
-                        })?;
-                    }
-                    Ok(())
-                })?;
-                Ok(())
-            });
-        } else {
-            self.reply(|o| {
-                write!(
-                    o,
-                    "active={} count_since_boot={count} overload_events_lifetime={overloads} records_queued={queued} records_dropped={dropped}\r\n",
-                    active.unwrap_or("none")
-                )?;
-                for f in recs {
-                    write!(o, "kind={} cycle={}", f.kind.name(), f.cycle)?;
-                    kv_phase(o, f.phase)?;
-                    kv_fixed(o, "t_s", f.t_ms as i64, 3)?;
-                    kv_fixed(o, "peak_force_n", f.peak_force_mn as i64, 3)?;
-                    o.write_str("\r\n")?;
-                }
-                o.write_str("resets")?;
-                for c in crate::diag::ResetCause::ALL {
-                    write!(o, " {}={}", c.name(), resets.of(c))?;
-                }
-                o.write_str("\r\n")?;
-                if let Some(c) = crash {
-                    write!(
-                        o,
-                        "last_crash={} pc={:#010x} lr={:#010x} cfsr={:#010x} hfsr={:#010x} file={} line={}\r\n",
-                        c.kind.name(),
-                        c.pc,
-                        c.lr,
-                        c.cfsr,
-                        c.hfsr,
-                        c.file_str(),
-                        c.line
-                    )?;
-                }
-                Ok(())
-            });
-        }
+        self.report(json, &mut |f| faults_fields(f, v));
     }
 
     fn measure<B: Bsp>(
@@ -1400,53 +1132,180 @@ impl Console {
     }
 
     fn render_measurements(&mut self, v: &MeasurementsView, json: bool) {
-        let MeasurementsView {
-            base,
-            assumed,
-            cone,
-            ref list,
-        } = *v;
-        if json {
-            self.reply_json(|j| {
-                j.u64("cone", cone as u64)?
-                    .fixed("baseline_bore_mm", base as i64, 3)?
-                    .bool("baseline_assumed", assumed)?;
-                j.array("readings", |a| {
-                    for m in list {
-                        a.object(|x| {
-                            x.u64("cone_cycle", m.cone_cycle as u64)?
-                                .u64("cycle", m.lifetime_cycle as u64)?
-                                .fixed("bore_mm", m.bore_um as i64, 3)?
-                                .fixed("wear_mm", m.wear_nm(base) as i64, 6)?
-                                .fixed("model_wear_mm", m.model_nm as i64, 6)?;
-                            Ok(())
-                        })?;
-                    }
-                    Ok(())
-                })?;
-                Ok(())
-            });
-        } else {
-            self.reply(|o| {
-                write!(o, "cone={cone}")?;
-                kv_fixed(o, "baseline_bore_mm", base as i64, 3)?;
-                write!(
-                    o,
-                    " baseline_assumed={} readings={}\r\n",
-                    if assumed { "yes" } else { "no" },
-                    list.len()
-                )?;
-                for m in list {
-                    write!(o, "cone_cycle={} cycle={}", m.cone_cycle, m.lifetime_cycle)?;
-                    kv_fixed(o, "bore_mm", m.bore_um as i64, 3)?;
-                    kv_fixed(o, "wear_mm", m.wear_nm(base) as i64, 6)?;
-                    kv_fixed(o, "model_wear_mm", m.model_nm as i64, 6)?;
-                    o.write_str("\r\n")?;
-                }
-                Ok(())
-            });
+        self.report(json, &mut |f| measurements_fields(f, v));
+    }
+}
+
+/// An optional value: the value, or `none` / `null`.
+fn opt(f: &mut dyn Fields, key: &str, v: Option<&str>) -> fmt::Result {
+    match v {
+        Some(v) => f.str(key, v),
+        None => f.none(key),
+    }
+}
+
+/// `phase`: the contact phase's number, or none outside the cone.
+fn phase_field(f: &mut dyn Fields, phase: Option<crate::profile::ContactPhase>) -> fmt::Result {
+    match phase {
+        Some(p) => f.u64("phase", p.number() as u64),
+        None => f.none("phase"),
+    }
+}
+
+/// `status` (docs/console.md).
+fn status_fields(f: &mut dyn Fields, v: &StatusView) -> fmt::Result {
+    let StatusView {
+        s,
+        calibrated,
+        reset,
+        stack,
+        maint,
+    } = *v;
+    f.str("state", s.state.name())?;
+    phase_field(f, s.phase)?;
+    f.fixed("force_n", s.force_mn as i64, 3)?;
+    f.fixed("limit_n", s.limit_mn as i64, 3)?;
+    f.fixed("pos_mm", s.pos_um as i64, 3)?;
+    f.u64("cycles_completed", s.cycles_completed as u64)?;
+    opt(f, "fault", s.fault.map(|x| x.name()))?;
+    f.bool("warning", s.warning)?;
+    f.fixed("peak_force_n", s.peak_force_mn as i64, 3)?;
+    f.bool("maintenance", maint)?;
+    f.bool("calibrated", calibrated)?;
+    opt(f, "reset", reset.map(|r| r.name()))?;
+    match stack {
+        Some((used, size)) => {
+            f.u64("stack_used", used as u64)?;
+            f.u64("stack_size", size as u64)?;
+        }
+        None => {
+            f.none("stack_used")?;
+            f.none("stack_size")?;
         }
     }
+    let h = s.handshake;
+    f.bool("in_dock", h.dock)?;
+    f.bool("in_estop_open", h.estop)?;
+    f.bool("out_ready", h.ready)?;
+    f.bool("out_mated", h.mated)?;
+    f.bool("out_fault", h.fault)?;
+    f.bool("out_maintenance", h.maintenance)
+}
+
+/// `wear` (docs/console.md).
+fn wear_fields(f: &mut dyn Fields, v: &WearView) -> fmt::Result {
+    let WearView {
+        ref cone,
+        ref life,
+        wear_nm,
+        remaining,
+        limit_nm,
+        warn_nm,
+        level,
+        ref est,
+        base,
+        measured,
+        cone_nmm_milli,
+        in_cycle_nmm_milli,
+        readings,
+    } = *v;
+    f.u64("cone", cone.id as u64)?;
+    f.str("material", cone.material.name())?;
+    f.str("serial", cone.serial_str())?;
+    f.u64("cycles", cone.cycles as u64)?;
+    f.fixed("load_distance_nmm", cone_nmm_milli, 3)?;
+    f.fixed("load_distance_in_cycle_nmm", in_cycle_nmm_milli, 3)?;
+    f.fixed("wear_mm", wear_nm as i64, 6)?;
+    f.u64("remaining_cycles", remaining as u64)?;
+    f.str("level", level.name())?;
+    f.fixed("limit_mm", limit_nm as i64, 6)?;
+    f.fixed("warn_mm", warn_nm, 6)?;
+    f.u64("lifetime_cycles", life.cycles as u64)?;
+    f.u64("cones_installed", life.cones_installed as u64)?;
+    f.u64("overload_events", life.overload_events as u64)?;
+    f.u64("faults", life.faults as u64)?;
+    f.fixed("peak_force_n", life.peak_force_mn as i64, 3)?;
+    match measured {
+        Some(m) => f.fixed("wear_measured_mm", m, 6)?,
+        None => f.none("wear_measured_mm")?,
+    }
+    f.fixed("wear_estimate_mm", est.wear_nm as i64, 6)?;
+    f.fixed("estimate_low_mm", est.low_nm as i64, 6)?;
+    f.fixed("estimate_high_mm", est.high_nm as i64, 6)?;
+    f.u64("remaining_estimate_cycles", est.remaining_cycles as u64)?;
+    f.fixed("baseline_bore_mm", base as i64, 3)?;
+    f.bool("baseline_assumed", cone.baseline().is_none())?;
+    f.u64("readings", readings as u64)
+}
+
+/// `faults` (docs/console.md).
+fn faults_fields(f: &mut dyn Fields, v: &FaultsView) -> fmt::Result {
+    let FaultsView {
+        active,
+        count,
+        overloads,
+        ref recs,
+        ref resets,
+        queued,
+        dropped,
+        crash,
+    } = *v;
+    opt(f, "active", active)?;
+    f.u64("count_since_boot", count as u64)?;
+    f.u64("overload_events_lifetime", overloads as u64)?;
+    f.u64("records_queued", queued as u64)?;
+    f.u64("records_dropped", dropped as u64)?;
+    f.object("resets", &mut |r| {
+        for c in crate::diag::ResetCause::ALL {
+            r.u64(c.name(), resets.of(c) as u64)?;
+        }
+        Ok(())
+    })?;
+    match crash {
+        Some(c) => f.object("last_crash", &mut |x| {
+            x.str("kind", c.kind.name())?;
+            x.hex32("pc", c.pc)?;
+            x.hex32("lr", c.lr)?;
+            x.hex32("cfsr", c.cfsr)?;
+            x.hex32("hfsr", c.hfsr)?;
+            x.str("file", c.file_str())?;
+            x.u64("line", c.line as u64)
+        })?,
+        None => f.none("last_crash")?,
+    }
+    f.records("faults", recs.len(), &mut |i, x| {
+        let Some(r) = recs.get(i) else {
+            return Ok(());
+        };
+        x.str("kind", r.kind.name())?;
+        x.u64("cycle", r.cycle as u64)?;
+        phase_field(x, r.phase)?;
+        x.fixed("t_s", r.t_ms as i64, 3)?;
+        x.fixed("peak_force_n", r.peak_force_mn as i64, 3)
+    })
+}
+
+/// `measurements` (docs/console.md).
+fn measurements_fields(f: &mut dyn Fields, v: &MeasurementsView) -> fmt::Result {
+    let MeasurementsView {
+        base,
+        assumed,
+        cone,
+        ref list,
+    } = *v;
+    f.u64("cone", cone as u64)?;
+    f.fixed("baseline_bore_mm", base as i64, 3)?;
+    f.bool("baseline_assumed", assumed)?;
+    f.records("readings", list.len(), &mut |i, x| {
+        let Some(m) = list.get(i) else {
+            return Ok(());
+        };
+        x.u64("cone_cycle", m.cone_cycle as u64)?;
+        x.u64("cycle", m.lifetime_cycle as u64)?;
+        x.fixed("bore_mm", m.bore_um as i64, 3)?;
+        x.fixed("wear_mm", m.wear_nm(base) as i64, 6)?;
+        x.fixed("model_wear_mm", m.model_nm as i64, 6)
+    })
 }
 
 /// `status`'s data (with the controller).

@@ -1,0 +1,319 @@
+//! One field list per report, rendered as `key=value` text or as one JSON object.
+//!
+//! A report writes its fields once, through [`Fields`]; [`TextFields`] and
+//! [`JsonFields`] render them, so the text and the JSON name every field the same way
+//! (`cycles_completed=3` / `"cycles_completed":3`) and cannot drift apart. One copy of
+//! each report's code is in the image (the sinks are `dyn`).
+//!
+//! | field | text | JSON |
+//! |---|---|---|
+//! | [`Fields::str`] | `key=value` | `"key":"value"` (escaped) |
+//! | [`Fields::u64`] | `key=12` | `"key":12` |
+//! | [`Fields::fixed`] (`12345`, 3 decimals) | `key=12.345` | `"key":12.345` |
+//! | [`Fields::hex32`] | `key=0x0800abcd` | `"key":134261709` |
+//! | [`Fields::bool`] | `key=yes` / `key=no` | `"key":true` / `false` |
+//! | [`Fields::none`] | `key=none` | `"key":null` |
+//! | [`Fields::object`] | a line of its own: `key a=1 b=2` | `"key":{"a":1,"b":2}` |
+//! | [`Fields::records`] | a line per record: `a=1 b=2` | `"key":[{"a":1,"b":2},…]` |
+//!
+//! Text: the report's own fields on its first line, each object and record on a line of
+//! its own after it; lines end with CR LF. JSON: one line.
+//!
+//! ```
+//! use docking_controller::console::fields::{Fields, JsonFields, TextFields};
+//! use core::fmt::Write;
+//! fn report(f: &mut dyn Fields) -> core::fmt::Result {
+//!     f.u64("cycles_completed", 3)?;
+//!     f.bool("in_estop_open", false)?;
+//!     f.records("faults", 1, &mut |_, r| r.str("kind", "overload"))
+//! }
+//! let mut t = String::new();
+//! let mut w = TextFields::new(&mut t);
+//! report(&mut w)?;
+//! w.finish()?;
+//! assert_eq!(t, "cycles_completed=3 in_estop_open=no\r\nkind=overload\r\n");
+//! let mut j = String::new();
+//! let mut w = JsonFields::new(&mut j)?;
+//! report(&mut w)?;
+//! w.finish()?;
+//! assert_eq!(j, r#"{"cycles_completed":3,"in_estop_open":false,"faults":[{"kind":"overload"}]}"#);
+//! # Ok::<(), core::fmt::Error>(())
+//! ```
+
+use core::fmt::{self, Write};
+
+use super::json::{write_fixed, write_str_escaped};
+
+/// A record's fields, written into a [`Fields`] sink.
+pub type Record<'a> = dyn FnMut(usize, &mut dyn Fields) -> fmt::Result + 'a;
+
+/// Where a report writes its fields (see the module doc for each one's rendering).
+pub trait Fields {
+    /// A string.
+    fn str(&mut self, key: &str, v: &str) -> fmt::Result;
+    /// An unsigned integer.
+    fn u64(&mut self, key: &str, v: u64) -> fmt::Result;
+    /// A fixed-point number: `v / 10^decimals`.
+    fn fixed(&mut self, key: &str, v: i64, decimals: u8) -> fmt::Result;
+    /// A 32-bit word (an address, a register): hex in text, a number in JSON.
+    fn hex32(&mut self, key: &str, v: u32) -> fmt::Result;
+    /// A yes/no.
+    fn bool(&mut self, key: &str, v: bool) -> fmt::Result;
+    /// No value.
+    fn none(&mut self, key: &str) -> fmt::Result;
+    /// A nested object: `f` writes its fields.
+    fn object(
+        &mut self,
+        key: &str,
+        f: &mut dyn FnMut(&mut dyn Fields) -> fmt::Result,
+    ) -> fmt::Result;
+    /// `n` records: `item(i, sink)` writes record `i`'s fields.
+    fn records(&mut self, key: &str, n: usize, item: &mut Record<'_>) -> fmt::Result;
+}
+
+/// `key=value` text: the report's fields on the first line, each object and record on
+/// a line of its own.
+pub struct TextFields<'w> {
+    w: &'w mut dyn Write,
+    /// Something is on the current line (the next field is preceded by a space).
+    on_line: bool,
+    /// Any line begun (the next object or record starts a new line).
+    started: bool,
+}
+
+impl<'w> TextFields<'w> {
+    /// Text into `w`.
+    pub fn new(w: &'w mut dyn Write) -> Self {
+        Self {
+            w,
+            on_line: false,
+            started: false,
+        }
+    }
+
+    fn key(&mut self, key: &str) -> fmt::Result {
+        if self.on_line {
+            self.w.write_char(' ')?;
+        }
+        self.on_line = true;
+        self.started = true;
+        self.w.write_str(key)?;
+        self.w.write_char('=')
+    }
+
+    fn new_line(&mut self) -> fmt::Result {
+        if self.started {
+            self.w.write_str("\r\n")?;
+        }
+        self.on_line = false;
+        self.started = true;
+        Ok(())
+    }
+
+    /// End the last line.
+    pub fn finish(self) -> fmt::Result {
+        if self.started {
+            self.w.write_str("\r\n")?;
+        }
+        Ok(())
+    }
+}
+
+impl Fields for TextFields<'_> {
+    fn str(&mut self, key: &str, v: &str) -> fmt::Result {
+        self.key(key)?;
+        self.w.write_str(v)
+    }
+
+    fn u64(&mut self, key: &str, v: u64) -> fmt::Result {
+        self.key(key)?;
+        write!(self.w, "{v}")
+    }
+
+    fn fixed(&mut self, key: &str, v: i64, decimals: u8) -> fmt::Result {
+        self.key(key)?;
+        write_fixed(self.w, v, decimals)
+    }
+
+    fn hex32(&mut self, key: &str, v: u32) -> fmt::Result {
+        self.key(key)?;
+        write!(self.w, "{v:#010x}")
+    }
+
+    fn bool(&mut self, key: &str, v: bool) -> fmt::Result {
+        self.str(key, if v { "yes" } else { "no" })
+    }
+
+    fn none(&mut self, key: &str) -> fmt::Result {
+        self.str(key, "none")
+    }
+
+    fn object(
+        &mut self,
+        key: &str,
+        f: &mut dyn FnMut(&mut dyn Fields) -> fmt::Result,
+    ) -> fmt::Result {
+        self.new_line()?;
+        self.w.write_str(key)?;
+        self.on_line = true;
+        f(self)
+    }
+
+    fn records(&mut self, _key: &str, n: usize, item: &mut Record<'_>) -> fmt::Result {
+        for i in 0..n {
+            self.new_line()?;
+            item(i, self)?;
+        }
+        Ok(())
+    }
+}
+
+/// One JSON object on one line.
+pub struct JsonFields<'w> {
+    w: &'w mut dyn Write,
+    /// No field written yet in the innermost object.
+    first: bool,
+}
+
+impl<'w> JsonFields<'w> {
+    /// An object into `w` (its opening brace written now).
+    pub fn new(w: &'w mut dyn Write) -> Result<Self, fmt::Error> {
+        w.write_char('{')?;
+        Ok(Self { w, first: true })
+    }
+
+    fn key(&mut self, key: &str) -> fmt::Result {
+        if !self.first {
+            self.w.write_char(',')?;
+        }
+        self.first = false;
+        write_str_escaped(self.w, key)?;
+        self.w.write_char(':')
+    }
+
+    /// Close the object.
+    pub fn finish(self) -> fmt::Result {
+        self.w.write_char('}')
+    }
+}
+
+impl Fields for JsonFields<'_> {
+    fn str(&mut self, key: &str, v: &str) -> fmt::Result {
+        self.key(key)?;
+        write_str_escaped(self.w, v)
+    }
+
+    fn u64(&mut self, key: &str, v: u64) -> fmt::Result {
+        self.key(key)?;
+        write!(self.w, "{v}")
+    }
+
+    fn fixed(&mut self, key: &str, v: i64, decimals: u8) -> fmt::Result {
+        self.key(key)?;
+        write_fixed(self.w, v, decimals)
+    }
+
+    fn hex32(&mut self, key: &str, v: u32) -> fmt::Result {
+        self.u64(key, u64::from(v))
+    }
+
+    fn bool(&mut self, key: &str, v: bool) -> fmt::Result {
+        self.key(key)?;
+        self.w.write_str(if v { "true" } else { "false" })
+    }
+
+    fn none(&mut self, key: &str) -> fmt::Result {
+        self.key(key)?;
+        self.w.write_str("null")
+    }
+
+    fn object(
+        &mut self,
+        key: &str,
+        f: &mut dyn FnMut(&mut dyn Fields) -> fmt::Result,
+    ) -> fmt::Result {
+        self.key(key)?;
+        self.w.write_char('{')?;
+        self.first = true;
+        f(self)?;
+        self.first = false;
+        self.w.write_char('}')
+    }
+
+    fn records(&mut self, key: &str, n: usize, item: &mut Record<'_>) -> fmt::Result {
+        self.key(key)?;
+        self.w.write_char('[')?;
+        for i in 0..n {
+            if i > 0 {
+                self.w.write_char(',')?;
+            }
+            self.w.write_char('{')?;
+            self.first = true;
+            item(i, self)?;
+            self.w.write_char('}')?;
+        }
+        self.first = false;
+        self.w.write_char(']')
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use std::string::String;
+
+    fn both(f: &dyn Fn(&mut dyn Fields) -> fmt::Result) -> (String, String) {
+        let (mut t, mut j) = (String::new(), String::new());
+        let mut tw = TextFields::new(&mut t);
+        f(&mut tw).unwrap();
+        tw.finish().unwrap();
+        let mut jw = JsonFields::new(&mut j).unwrap();
+        f(&mut jw).unwrap();
+        jw.finish().unwrap();
+        (t, j)
+    }
+
+    #[test]
+    fn every_kind_of_field_renders_as_text_and_json() {
+        let (t, j) = both(&|f| {
+            f.str("state", "idle")?;
+            f.fixed("force_n", -5, 3)?;
+            f.none("phase")?;
+            f.hex32("pc", 0x0800_abcd)?;
+            f.object("resets", &mut |r| {
+                r.u64("power_on", 1)?;
+                r.u64("watchdog", 0)
+            })?;
+            f.records("list", 2, &mut |i, r| {
+                r.u64("i", i as u64)?;
+                r.bool("odd", i % 2 == 1)
+            })
+        });
+        assert_eq!(
+            t,
+            "state=idle force_n=-0.005 phase=none pc=0x0800abcd\r\n\
+             resets power_on=1 watchdog=0\r\ni=0 odd=no\r\ni=1 odd=yes\r\n"
+        );
+        assert_eq!(
+            j,
+            r#"{"state":"idle","force_n":-0.005,"phase":null,"pc":134261709,"resets":{"power_on":1,"watchdog":0},"list":[{"i":0,"odd":false},{"i":1,"odd":true}]}"#
+        );
+    }
+
+    #[test]
+    fn records_alone_start_on_the_first_line_and_an_empty_report_is_empty() {
+        let (t, j) = both(&|f| f.records("history", 1, &mut |_, r| r.u64("cycle", 3)));
+        assert_eq!(t, "cycle=3\r\n");
+        assert_eq!(j, r#"{"history":[{"cycle":3}]}"#);
+        let (t, j) = both(&|f| f.records("history", 0, &mut |_, _| Ok(())));
+        assert_eq!(t, "");
+        assert_eq!(j, r#"{"history":[]}"#);
+    }
+
+    #[test]
+    fn strings_are_escaped_in_json() {
+        let (_, j) = both(&|f| f.str("serial", "a\"b\n"));
+        assert_eq!(j, r#"{"serial":"a\"b\u000a"}"#);
+    }
+}
