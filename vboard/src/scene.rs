@@ -1417,17 +1417,32 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
                 && s.machine().lock.fraction_locked() < 1.0
             {
                 pos_checked = true;
-                let real_um = s.machine().axis.pos_um();
+                if opts.flood {
+                    // The flood's queued pieces first, and their replies out: asked
+                    // behind them, `status` would be answered seconds later, and a
+                    // flood piece's own `status --json` taken for its reply.
+                    let t = s.now() + 3 * PS_PER_S;
+                    s.run_until(t, |x| x.board.soc().usart2.far_pending() == 0)
+                        .map_err(|e| e.to_string())?;
+                    s.run_for(PS_PER_S / 2).map_err(|e| e.to_string())?;
+                }
+                // The count is taken at some instant while the command runs: the
+                // carriage before the command and after its reply bracket it (the
+                // same position when it stands still, as without a flood it does).
+                let before_um = s.machine().axis.pos_um();
                 let st = s.console_json("status --json").map_err(|e| e.to_string())?;
+                let after_um = s.machine().axis.pos_um();
+                let real_um = after_um;
                 let counted_um = json_field(&st, "pos_mm")
                     .and_then(|v| v.parse::<f64>().ok())
                     .map(|mm| mm * 1000.0);
-                let ok = counted_um.is_some_and(|c| (c - real_um).abs() <= 5.0);
+                let (lo, hi) = (before_um.min(after_um), before_um.max(after_um));
+                let ok = counted_um.is_some_and(|c| c >= lo - 5.0 && c <= hi + 5.0);
                 checks.push((
                     "pulses counted in the direction they were emitted".into(),
                     ok,
                     format!(
-                        "after the extraction: counted {counted_um:?} µm, carriage {real_um:.1} µm"
+                        "after the extraction: counted {counted_um:?} µm, carriage {before_um:.1} µm before the command, {real_um:.1} µm after its reply"
                     ),
                 ));
             }
