@@ -408,7 +408,7 @@ impl Sweep {
             s.push('\n');
         }
         s += &self.worst(None).to_text("overall");
-        s += "\ntargets: control period ≤ sample period + 1 ms (13.5 ms at 80 SPS), no watchdog feed missed, back-off 2 mm every trip, overload stop latency ≤ 100 µs, E-STOP edge → EN high ≤ 10 µs";
+        s += "\ntargets: control period ≤ sample period + 1 ms (13.5 ms at 80 SPS), control entry latency ≤ 100 µs while anything moves, no watchdog feed missed, back-off 2 mm every trip, overload stop latency ≤ 100 µs, E-STOP edge → EN high ≤ 10 µs";
         s
     }
 
