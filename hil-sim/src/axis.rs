@@ -118,6 +118,7 @@ pub struct AxisModel {
 impl AxisModel {
     /// Move the carriage to where the pulses since the last update put it. Several
     /// lines are read at one instant each control step: only the first moves the model.
+    #[inline]
     fn update(&self, now: u64) {
         if now > self.last_ns.get() {
             self.advance(now);
@@ -252,6 +253,7 @@ impl SimAxis {
     }
 
     /// The model, moved up to now.
+    #[inline]
     fn now(&self) -> &AxisModel {
         self.model.update(self.clock.now_ns());
         &self.model
@@ -399,22 +401,36 @@ impl AxisPin {
     }
 }
 
+impl AxisModel {
+    /// The home switch's line (active low: closed at x <= 0 unless dead).
+    #[inline]
+    fn home_high(&self) -> bool {
+        !(self.fault.get() != AxisFault::HomeSwitchDead && self.pos_steps.get() <= 0)
+    }
+
+    /// The end switch's line (active low); a read consumes one of the noise reads.
+    #[inline]
+    fn end_high(&self) -> bool {
+        let noise = self.end_noise_reads.get();
+        if noise > 0 {
+            self.end_noise_reads.set(noise - 1);
+            return false;
+        }
+        let closed = match self.fault.get() {
+            AxisFault::EndSwitchDead => false,
+            AxisFault::EndSwitchClosed => true,
+            _ => self.pos_steps.get() >= self.end_steps,
+        };
+        !closed
+    }
+}
+
 impl embedded_hal::digital::InputPin for AxisPin {
     fn is_high(&mut self) -> Result<bool, Self::Error> {
         let m = self.0.now();
-        let pos = m.pos_steps.get();
         Ok(match self.1 {
-            PinRole::Home => !(m.fault.get() != AxisFault::HomeSwitchDead && pos <= 0),
-            PinRole::End => {
-                let noise = m.end_noise_reads.get();
-                m.end_noise_reads.set(noise.saturating_sub(1));
-                let closed = match m.fault.get() {
-                    AxisFault::EndSwitchDead => false,
-                    AxisFault::EndSwitchClosed => true,
-                    _ => pos >= m.end_steps,
-                };
-                !(closed || noise > 0)
-            }
+            PinRole::Home => m.home_high(),
+            PinRole::End => m.end_high(),
             PinRole::EnableN => !m.enabled.get(),
             PinRole::Dir => m.dir_positive.get(),
             PinRole::Step => m.step_high.get(),
@@ -422,6 +438,55 @@ impl embedded_hal::digital::InputPin for AxisPin {
     }
     fn is_low(&mut self) -> Result<bool, Self::Error> {
         self.is_high().map(|h| !h)
+    }
+}
+
+/// The home switch alone: [`AxisPin`]'s home line with its role fixed by the type, so
+/// the controller's read (every control step of a long run) compiles to the check
+/// itself, without the dispatch over the roles.
+pub struct HomeSwitch(SimAxis);
+
+/// The end switch alone (see [`HomeSwitch`]).
+pub struct EndSwitch(SimAxis);
+
+impl SimAxis {
+    /// Home switch (active low), as its own type.
+    pub fn home_switch_line(&self) -> HomeSwitch {
+        HomeSwitch(self.clone())
+    }
+    /// End switch (active low), as its own type.
+    pub fn end_switch_line(&self) -> EndSwitch {
+        EndSwitch(self.clone())
+    }
+}
+
+impl embedded_hal::digital::ErrorType for HomeSwitch {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_hal::digital::InputPin for HomeSwitch {
+    #[inline]
+    fn is_high(&mut self) -> Result<bool, Self::Error> {
+        Ok(self.0.now().home_high())
+    }
+    #[inline]
+    fn is_low(&mut self) -> Result<bool, Self::Error> {
+        Ok(!self.0.now().home_high())
+    }
+}
+
+impl embedded_hal::digital::ErrorType for EndSwitch {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_hal::digital::InputPin for EndSwitch {
+    #[inline]
+    fn is_high(&mut self) -> Result<bool, Self::Error> {
+        Ok(self.0.now().end_high())
+    }
+    #[inline]
+    fn is_low(&mut self) -> Result<bool, Self::Error> {
+        Ok(!self.0.now().end_high())
     }
 }
 

@@ -221,8 +221,25 @@ impl<S: ForceSource> Hx711Model<S> {
         code
     }
 
+    #[inline]
     fn mark_read(&mut self, t: u64) {
-        // Newest first: the one read is almost always the last conversion.
+        // The one read is the newest conversion (the part converts nothing while it is
+        // read out, and a newer conversion replaces the one not yet read): checked
+        // first, without the walk.
+        let newest = (self.recent_next + RECENT - 1) % RECENT;
+        if self.recent_len > 0 {
+            if let Some(c) = self.recent.get_mut(newest).filter(|c| c.0 == t) {
+                c.2 = true;
+                return;
+            }
+        }
+        self.mark_read_older(t);
+    }
+
+    /// [`Self::mark_read`] of a conversion older than the newest, newest first.
+    #[cold]
+    #[inline(never)]
+    fn mark_read_older(&mut self, t: u64) {
         for back in 1..=self.recent_len {
             let i = (self.recent_next + RECENT - back) % RECENT;
             if let Some(c) = self.recent.get_mut(i) {

@@ -41,9 +41,13 @@ impl LockModel {
         self.in1.get() != self.in2.get()
     }
 
+    #[inline]
     fn update(&self, now: u64) {
         let last = self.last_ns.get();
-        self.last_ns.set(last.max(now));
+        if now <= last {
+            return; // moved up to now already (the pins are read several times a step)
+        }
+        self.last_ns.set(now);
         if self.fault.get() == LockFault::Stuck || !self.driven() {
             return;
         }
@@ -83,6 +87,7 @@ impl SimLock {
     }
 
     /// The model, moved up to now.
+    #[inline]
     fn now(&self) -> &LockModel {
         self.model.update(self.clock.now_ns());
         &self.model
@@ -168,6 +173,54 @@ impl embedded_hal::digital::InputPin for LockPin {
             LockRole::In2 => m.in2.get(),
         })
     }
+    fn is_low(&mut self) -> Result<bool, Self::Error> {
+        self.is_high().map(|h| !h)
+    }
+}
+
+/// The locked switch alone: [`LockPin`]'s line with its role fixed by the type, so the
+/// controller's read (every control step of a long run) is the check itself.
+pub struct LockedSwitch(SimLock);
+
+/// The released switch alone (see [`LockedSwitch`]).
+pub struct ReleasedSwitch(SimLock);
+
+impl SimLock {
+    /// Locked switch (active low), as its own type.
+    pub fn locked_switch_line(&self) -> LockedSwitch {
+        LockedSwitch(self.clone())
+    }
+    /// Released switch (active low), as its own type.
+    pub fn released_switch_line(&self) -> ReleasedSwitch {
+        ReleasedSwitch(self.clone())
+    }
+}
+
+impl embedded_hal::digital::ErrorType for LockedSwitch {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_hal::digital::InputPin for LockedSwitch {
+    #[inline]
+    fn is_high(&mut self) -> Result<bool, Self::Error> {
+        Ok(self.0.now().pos_nm.get() < LOCK_TRAVEL_UM * 1_000)
+    }
+    #[inline]
+    fn is_low(&mut self) -> Result<bool, Self::Error> {
+        self.is_high().map(|h| !h)
+    }
+}
+
+impl embedded_hal::digital::ErrorType for ReleasedSwitch {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_hal::digital::InputPin for ReleasedSwitch {
+    #[inline]
+    fn is_high(&mut self) -> Result<bool, Self::Error> {
+        Ok(self.0.now().pos_nm.get() > 0)
+    }
+    #[inline]
     fn is_low(&mut self) -> Result<bool, Self::Error> {
         self.is_high().map(|h| !h)
     }

@@ -11,13 +11,13 @@ use docking_controller::hx711::{Calibration, Gain, Hx711};
 use docking_controller::profile::STROKE_UM;
 use docking_controller::safety::{GatedEn, GatedHigh, SafetyKernel};
 
-use crate::axis::{AxisPin, AxisPulses, SimAxis};
+use crate::axis::{AxisPin, AxisPulses, EndSwitch, HomeSwitch, SimAxis};
 use crate::clock::SimClock;
 use crate::console::SimConsole;
 use crate::flash::{SharedFlash, SimFlash};
 use crate::hx711::{ForceSource, Hx711Config, Hx711Dout, Hx711Sck, SimHx711};
 use crate::line::SimLine;
-use crate::lock::{LockPin, SimLock};
+use crate::lock::{LockPin, LockedSwitch, ReleasedSwitch, SimLock};
 use docking_controller::console::service::{Console, ConsolePoll};
 
 /// The shortest time the board's watchdog may bite after a feed, ns: the firmware sets a
@@ -155,10 +155,10 @@ impl Bsp for SimBsp {
     type Pulses = AxisPulses;
     type LockIn1 = GatedHigh<LockPin, SimStop>;
     type LockIn2 = GatedHigh<LockPin, SimStop>;
-    type Home = AxisPin;
-    type End = AxisPin;
-    type Locked = LockPin;
-    type Released = LockPin;
+    type Home = HomeSwitch;
+    type End = EndSwitch;
+    type Locked = LockedSwitch;
+    type Released = ReleasedSwitch;
     type Stop = SimStop;
     type Wdg = SimWatchdog;
     type Flash = BoardFlash;
@@ -600,10 +600,10 @@ impl Rig {
             pulses: axis.pulses(),
             lock_in1: GatedHigh::new(lock.in1(), stop.clone()),
             lock_in2: GatedHigh::new(lock.in2(), stop.clone()),
-            home: axis.home_switch(),
-            end: axis.end_switch(),
-            locked: lock.locked_switch(),
-            released: lock.released_switch(),
+            home: axis.home_switch_line(),
+            end: axis.end_switch_line(),
+            locked: lock.locked_switch_line(),
+            released: lock.released_switch_line(),
             stop: stop.clone(),
             wdg: wdg.clone(),
             flash: BoardFlash {
