@@ -34,6 +34,9 @@ pub struct Propulsion<EN, DIR, P> {
     pos_steps: i32,
     /// The same in µm (cached: converting divides by steps/mm).
     pos_um: i32,
+    /// µm per step when steps/mm divides 1000 (5 at 200 steps/mm), else 0: the
+    /// position in µm is then a product, the same as the truncating division gives.
+    um_per_step: i32,
     /// Current commanded velocity, steps/s (signed).
     vel_sps: i32,
     /// Target position, steps (`None` = stop where the ramp ends).
@@ -105,6 +108,11 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
             cfg,
             pos_steps: 0,
             pos_um: 0,
+            um_per_step: match cfg.steps_per_mm {
+                0 => 0,
+                n if 1000 % n == 0 => (1000 / n) as i32,
+                _ => 0,
+            },
             vel_sps: 0,
             target_steps: None,
             max_sps: 0,
@@ -175,7 +183,7 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
     pub fn set_position_um(&mut self, pos_um: i32) {
         self.cruise = None;
         self.pos_steps = self.cfg.um_to_steps(pos_um);
-        self.pos_um = self.cfg.steps_to_um(self.pos_steps);
+        self.pos_um = self.steps_to_um(self.pos_steps);
     }
 
     /// Counted position, µm from home.
@@ -210,7 +218,18 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
             } else {
                 self.pos_steps.saturating_sub(n)
             };
-            self.pos_um = self.cfg.steps_to_um(self.pos_steps);
+            self.pos_um = self.steps_to_um(self.pos_steps);
+        }
+    }
+
+    /// [`MachineConfig::steps_to_um`], as a multiplication when steps/mm divides 1000
+    /// (no division at every step that moves).
+    fn steps_to_um(&self, steps: i32) -> i32 {
+        if self.um_per_step != 0 {
+            // (steps·1000)/spm = steps·(1000/spm) exactly when spm divides 1000.
+            (steps as i64 * self.um_per_step as i64) as i32
+        } else {
+            self.cfg.steps_to_um(steps)
         }
     }
 
@@ -395,6 +414,23 @@ mod tests {
             let acc = self.frac + self.rate as u64 * self.dt_us;
             self.frac = acc % 1_000_000;
             (acc / 1_000_000) as u32
+        }
+    }
+
+    /// The counted position in µm, a product where steps/mm divides 1000, is the
+    /// configuration's truncating division for every steps/mm and count.
+    #[test]
+    fn position_in_um_is_the_configurations_division() {
+        let (en, dir) = (Line::default(), Line::default());
+        for spm in [1u32, 3, 7, 8, 125, 200, 250, 333, 400, 1_000, 1_024, 10_000] {
+            let cfg = MachineConfig {
+                steps_per_mm: spm,
+                ..MachineConfig::DEFAULT
+            };
+            let p = Propulsion::new(&en, &dir, Gen::new(PERIOD_US), cfg).unwrap();
+            for s in [0, 1, -1, 2, 199, -201, 12_345, -99_999, 2_000_000, i32::MAX, i32::MIN] {
+                assert_eq!(p.steps_to_um(s), cfg.steps_to_um(s), "{spm} steps/mm, {s}");
+            }
         }
     }
 
