@@ -428,7 +428,7 @@ mod tests {
                 ..MachineConfig::DEFAULT
             };
             let p = Propulsion::new(&en, &dir, Gen::new(PERIOD_US), cfg).unwrap();
-            for s in [0, 1, -1, 2, 199, -201, 12_345, -99_999, 2_000_000, i32::MAX, i32::MIN] {
+            for s in [0, 1, -1, 199, -201, 12_345, -99_999, i32::MAX, i32::MIN] {
                 assert_eq!(p.steps_to_um(s), cfg.steps_to_um(s), "{spm} steps/mm, {s}");
             }
         }

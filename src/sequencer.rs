@@ -580,11 +580,20 @@ impl Sequencer {
             (_, Some(f)) => Some(self.fault(f, inp)),
             _ => None,
         };
-        let (state, mut event, zero_position) = match next {
-            Some((s, e)) => (s, e, false),
-            None => self.transition(inp),
+        // The state is written only when it changes (most steps it stays).
+        let (mut event, zero_position) = match next {
+            Some((s, e)) => {
+                self.state = s;
+                (e, false)
+            }
+            None => match self.transition(inp) {
+                Some((s, e, zero)) => {
+                    self.state = s;
+                    (e, zero)
+                }
+                None => (None, false),
+            },
         };
-        self.state = state;
 
         if let (Some(r), None) = (inp.request, event) {
             let accepted = matches!(
@@ -686,58 +695,62 @@ impl Sequencer {
         }
     }
 
-    /// The fault-free transition of the current state.
-    fn transition(&mut self, inp: &Inputs) -> (State, Option<SeqEvent>, bool) {
+    /// The fault-free transition of the current state: `None` when it stays as it is
+    /// (the usual step), without a copy of it.
+    fn transition(&mut self, inp: &Inputs) -> Option<(State, Option<SeqEvent>, bool)> {
         let now = inp.now_ms;
         let sw = inp.switches;
         let cfg = self.cfg;
         let past = |deadline_ms: u64| now > deadline_ms;
-        let stay = |s: State| (s, None, false);
-        let fault = |f: FaultKind| (State::Faulted { fault: f }, Some(SeqEvent::Fault(f)), false);
+        let to = |s: State| Some((s, None, false));
+        let fault =
+            |f: FaultKind| Some((State::Faulted { fault: f }, Some(SeqEvent::Fault(f)), false));
         match self.state {
             // Home and locked already: zero here and idle, moving nothing at all.
-            State::PowerUp if sw.home && sw.locked => (State::Idle, Some(SeqEvent::Homed), true),
+            State::PowerUp if sw.home && sw.locked => {
+                Some((State::Idle, Some(SeqEvent::Homed), true))
+            }
             // Anything else needs a request: the panel may be inside the cone.
             State::PowerUp => match inp.request {
-                Some(Request::Home | Request::StartCycle | Request::Dock) if sw.home => (
+                Some(Request::Home | Request::StartCycle | Request::Dock) if sw.home => Some((
                     State::Locking {
                         deadline_ms: self.lock_deadline(now),
                         then: AfterLock::Idle,
                     },
                     Some(SeqEvent::Homed),
                     true,
-                ),
+                )),
                 Some(Request::Home | Request::StartCycle | Request::Dock) => {
                     let deadline_ms = self.move_deadline(
                         now,
                         cfg.end_switch_um + HOME_OVERSHOOT_UM,
                         cfg.dock_speed_um_per_s,
                     );
-                    (State::Homing { deadline_ms }, None, false)
+                    Some((State::Homing { deadline_ms }, None, false))
                 }
-                _ => stay(State::PowerUp),
+                _ => None,
             },
             State::Homing { deadline_ms } => {
                 if sw.home {
-                    (
+                    Some((
                         State::Locking {
                             deadline_ms: self.lock_deadline(now),
                             then: AfterLock::Idle,
                         },
                         Some(SeqEvent::Homed),
                         true,
-                    )
+                    ))
                 } else if past(deadline_ms) || inp.axis_idle {
                     fault(FaultKind::AxisStall)
                 } else {
-                    stay(self.state)
+                    None
                 }
             }
             State::Locking { deadline_ms, then } => {
                 if sw.locked {
                     match then {
-                        AfterLock::Idle => stay(State::Idle),
-                        AfterLock::Return => (
+                        AfterLock::Idle => to(State::Idle),
+                        AfterLock::Return => Some((
                             self.start_return(
                                 now,
                                 inp.pos_um,
@@ -745,12 +758,12 @@ impl Sequencer {
                             ),
                             None,
                             false,
-                        ),
+                        )),
                     }
                 } else if past(deadline_ms) {
                     fault(FaultKind::LockNotLocked)
                 } else {
-                    stay(self.state)
+                    None
                 }
             }
             State::Idle => match inp.request {
@@ -762,55 +775,55 @@ impl Sequencer {
                         cfg.engage_um - inp.pos_um,
                         cfg.fast_speed_um_per_s,
                     );
-                    (
+                    Some((
                         State::PreAlign { deadline_ms },
                         Some(SeqEvent::CycleStarted(self.cycle_in_progress)),
                         false,
-                    )
+                    ))
                 }
                 Some(Request::StartCycle | Request::Dock) if !sw.home => {
                     fault(FaultKind::AxisStall)
                 }
                 Some(Request::StartCycle | Request::Dock) => fault(FaultKind::LockNotLocked),
-                _ => stay(State::Idle),
+                _ => None,
             },
             // Undock before the rod is in the cone: no insertion, no cycle. Locked (or
             // locking again), the panel returns home.
             State::PreAlign { .. } if inp.request == Some(Request::Undock) => {
                 self.cycle_in_progress = self.cycles_completed;
-                (self.start_return(now, inp.pos_um, false), None, false)
+                Some((self.start_return(now, inp.pos_um, false), None, false))
             }
             State::Releasing { .. } if inp.request == Some(Request::Undock) => {
                 self.cycle_in_progress = self.cycles_completed;
-                (
+                Some((
                     State::Locking {
                         deadline_ms: self.lock_deadline(now),
                         then: AfterLock::Return,
                     },
                     None,
                     false,
-                )
+                ))
             }
             // Undock during the insertion: a controlled extraction from where it is
             // (an insertion and an extraction: it counts as a cycle).
             State::Inserting { .. } if inp.request == Some(Request::Undock) => {
                 let deadline_ms =
                     self.move_deadline(now, inp.pos_um - cfg.engage_um, cfg.dock_speed_um_per_s);
-                (State::Extracting { deadline_ms }, None, false)
+                Some((State::Extracting { deadline_ms }, None, false))
             }
             State::PreAlign { deadline_ms } => {
                 if inp.axis_idle && (inp.pos_um - cfg.engage_um).abs() <= 10 {
-                    (
+                    Some((
                         State::Releasing {
                             deadline_ms: self.lock_deadline(now),
                         },
                         None,
                         false,
-                    )
+                    ))
                 } else if past(deadline_ms) {
                     fault(FaultKind::AxisStall)
                 } else {
-                    stay(self.state)
+                    None
                 }
             }
             State::Releasing { deadline_ms } => {
@@ -820,39 +833,39 @@ impl Sequencer {
                         cfg.mated_um() - inp.pos_um,
                         cfg.dock_speed_um_per_s,
                     );
-                    (State::Inserting { deadline_ms }, None, false)
+                    Some((State::Inserting { deadline_ms }, None, false))
                 } else if past(deadline_ms) {
                     fault(FaultKind::LockNotReleased)
                 } else {
-                    stay(self.state)
+                    None
                 }
             }
             State::Inserting { deadline_ms } => {
                 if inp.axis_idle && (inp.pos_um - cfg.mated_um()).abs() <= 10 {
-                    (
+                    Some((
                         State::Holding {
                             until_ms: (!self.service).then_some(now + cfg.hold_ms as u64),
                             unmating: false,
                         },
                         None,
                         false,
-                    )
+                    ))
                 } else if past(deadline_ms) {
                     fault(FaultKind::AxisStall)
                 } else {
-                    stay(self.state)
+                    None
                 }
             }
             State::Holding {
                 unmating: false, ..
-            } if inp.request == Some(Request::Undock) => (
+            } if inp.request == Some(Request::Undock) => Some((
                 State::Holding {
                     until_ms: Some(now + UNMATE_MS),
                     unmating: true,
                 },
                 None,
                 false,
-            ),
+            )),
             State::Holding { until_ms, .. } => {
                 if until_ms.is_some_and(|t| now >= t) {
                     let deadline_ms = self.move_deadline(
@@ -860,25 +873,25 @@ impl Sequencer {
                         inp.pos_um - cfg.engage_um,
                         cfg.dock_speed_um_per_s,
                     );
-                    (State::Extracting { deadline_ms }, None, false)
+                    Some((State::Extracting { deadline_ms }, None, false))
                 } else {
-                    stay(self.state)
+                    None
                 }
             }
             State::Extracting { deadline_ms } | State::Recovering { deadline_ms } => {
                 if inp.axis_idle && (inp.pos_um - cfg.engage_um).abs() <= 10 {
-                    (
+                    Some((
                         State::Locking {
                             deadline_ms: self.lock_deadline(now),
                             then: AfterLock::Return,
                         },
                         None,
                         false,
-                    )
+                    ))
                 } else if past(deadline_ms) {
                     fault(FaultKind::AxisStall)
                 } else {
-                    stay(self.state)
+                    None
                 }
             }
             State::Returning {
@@ -893,24 +906,24 @@ impl Sequencer {
                     } else {
                         Some(SeqEvent::Homed)
                     };
-                    (State::Idle, ev, true)
+                    Some((State::Idle, ev, true))
                 } else if !creeping && inp.axis_idle && (inp.pos_um - HOME_APPROACH_UM).abs() <= 10
                 {
-                    (self.start_creep(now, ends_cycle), None, false)
+                    Some((self.start_creep(now, ends_cycle), None, false))
                 } else if past(deadline_ms) || (creeping && inp.axis_idle) {
                     // Counted position says home (or time is up) but the switch is open.
                     fault(FaultKind::AxisStall)
                 } else {
-                    stay(self.state)
+                    None
                 }
             }
             State::BackingOff { deadline_ms, .. } => {
                 if inp.axis_idle || past(deadline_ms) {
-                    stay(State::Faulted {
+                    to(State::Faulted {
                         fault: FaultKind::Overload,
                     })
                 } else {
-                    stay(self.state)
+                    None
                 }
             }
             State::Faulted { .. } => match inp.request {
@@ -921,23 +934,23 @@ impl Sequencer {
                             inp.pos_um - cfg.engage_um,
                             cfg.dock_speed_um_per_s,
                         );
-                        (
+                        Some((
                             State::Recovering { deadline_ms },
                             Some(SeqEvent::FaultCleared),
                             false,
-                        )
+                        ))
                     } else {
-                        (
+                        Some((
                             State::Locking {
                                 deadline_ms: self.lock_deadline(now),
                                 then: AfterLock::Return,
                             },
                             Some(SeqEvent::FaultCleared),
                             false,
-                        )
+                        ))
                     }
                 }
-                _ => stay(self.state),
+                _ => None,
             },
         }
     }
