@@ -665,6 +665,9 @@ impl Rig {
             .next_conversion_ns()
             .min(self.clock.now_ns() + self.period_ns);
         self.clock.advance_to_ns(next);
+        // The carriage moved up to now first (the model is moved lazily, at its first
+        // read in an instant; here before the load cell converts at its position).
+        let _ = self.axis.pos_steps();
         let now_us = self.clock.now_ns() / 1_000;
         // The board's E-STOP interrupt, at its edge (here at the tick: the rig is not
         // interrupt-accurate; the virtual board measures the real latency).
