@@ -140,9 +140,9 @@ pub struct Hx711Model<S = BoxedSource> {
     /// The last [`RECENT`] conversions: (completion time ns, code, read out), a ring
     /// (a fixed array: this runs at every conversion of a 45 000-cycle life run).
     recent: [(u64, i32, bool); RECENT],
-    /// Next slot of `recent` to write; conversions written so far (capped at RECENT).
-    recent_next: usize,
-    recent_len: usize,
+    /// Conversions written to `recent` so far (the next goes to this count modulo
+    /// [`RECENT`]; the last `min(count, RECENT)` are kept).
+    recent_count: u64,
 }
 
 /// Conversions kept in [`SimHx711::recent_conversions`].
@@ -190,11 +190,10 @@ impl<S: ForceSource> Hx711Model<S> {
         }
         self.stats.conversions += 1;
         self.ready = Some((code, t));
-        if let Some(slot) = self.recent.get_mut(self.recent_next) {
+        if let Some(slot) = self.recent.get_mut(self.recent_count as usize % RECENT) {
             *slot = (t, code, false);
         }
-        self.recent_next = (self.recent_next + 1) % RECENT;
-        self.recent_len = (self.recent_len + 1).min(RECENT);
+        self.recent_count += 1;
         self.pulses = 0;
     }
 
@@ -226,8 +225,8 @@ impl<S: ForceSource> Hx711Model<S> {
         // The one read is the newest conversion (the part converts nothing while it is
         // read out, and a newer conversion replaces the one not yet read): checked
         // first, without the walk.
-        let newest = (self.recent_next + RECENT - 1) % RECENT;
-        if self.recent_len > 0 {
+        if self.recent_count > 0 {
+            let newest = (self.recent_count - 1) as usize % RECENT;
             if let Some(c) = self.recent.get_mut(newest).filter(|c| c.0 == t) {
                 c.2 = true;
                 return;
@@ -240,8 +239,8 @@ impl<S: ForceSource> Hx711Model<S> {
     #[cold]
     #[inline(never)]
     fn mark_read_older(&mut self, t: u64) {
-        for back in 1..=self.recent_len {
-            let i = (self.recent_next + RECENT - back) % RECENT;
+        for back in 1..=self.recent_len() as u64 {
+            let i = (self.recent_count - back) as usize % RECENT;
             if let Some(c) = self.recent.get_mut(i) {
                 if c.0 == t {
                     c.2 = true;
@@ -249,6 +248,11 @@ impl<S: ForceSource> Hx711Model<S> {
                 }
             }
         }
+    }
+
+    /// Conversions kept in `recent`.
+    fn recent_len(&self) -> usize {
+        self.recent_count.min(RECENT as u64) as usize
     }
 
     fn dout_high(&mut self, now: u64) -> bool {
@@ -363,8 +367,7 @@ impl<S: ForceSource> SimHx711<S> {
             reading_ready_ns: 0,
             last_read: None,
             recent: [(0, 0, false); RECENT],
-            recent_next: 0,
-            recent_len: 0,
+            recent_count: 0,
         };
         m.next_conv_ns = now + m.settle_ns();
         Self {
@@ -404,9 +407,9 @@ impl<S: ForceSource> SimHx711<S> {
         let now = self.clock.now_ns();
         let mut m = self.model.borrow_mut();
         m.catch_up(now);
-        (0..m.recent_len)
+        (0..m.recent_len() as u64)
             .rev()
-            .filter_map(|back| m.recent.get((m.recent_next + RECENT - 1 - back) % RECENT))
+            .filter_map(|back| m.recent.get((m.recent_count - 1 - back) as usize % RECENT))
             .copied()
             .collect()
     }

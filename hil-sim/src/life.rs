@@ -102,7 +102,13 @@ pub fn run(opts: &LifeOptions) -> LifeReport {
             seen_cycles = cycles;
             checkpoint_due = true;
         }
-        let at_rest = rig.ctrl.state() == State::Idle && !rig.ctrl.persist_pending();
+        // Moving (most ticks): nothing to do but go on, or stop at a fault.
+        match rig.ctrl.state() {
+            State::Idle => {}
+            State::Faulted { .. } => break,
+            _ => continue,
+        }
+        let at_rest = !rig.ctrl.persist_pending();
         if at_rest {
             // Readings due by now, through the console as a technician enters them.
             while let Some(&(c, bore_um)) = readings.peek().filter(|r| r.0 <= cycles) {

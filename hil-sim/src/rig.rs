@@ -65,8 +65,12 @@ impl SimWatchdog {
 
 impl Watchdog for SimWatchdog {
     fn feed(&mut self) {
-        self.check();
-        self.last_feed_ns.set(self.clock.now_ns());
+        // `check` at the feed's instant, then the feed.
+        let now = self.clock.now_ns();
+        if now.saturating_sub(self.last_feed_ns.get()) > self.timeout_ns {
+            self.bitten.set(true);
+        }
+        self.last_feed_ns.set(now);
         self.feeds.set(self.feeds.get() + 1);
     }
 }
