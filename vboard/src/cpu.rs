@@ -344,6 +344,7 @@ impl Board {
                         if let Some(d) = s.flash.take_done() {
                             apply_done(uc, d);
                         }
+                        store_dma(uc);
                         v as u64
                     },
                 ),
@@ -351,6 +352,7 @@ impl Board {
                     move |uc: &mut Unicorn<'_, Soc>, off: u64, size: usize, v: u64| {
                         let s = uc.get_data_mut();
                         s.bus_write((base + off) as u32, size, v as u32);
+                        store_dma(uc);
                     },
                 ),
             )
@@ -363,6 +365,7 @@ impl Board {
                 let (addr, bit) = bitband(0x4000_0000, off as u32);
                 let s = uc.get_data_mut();
                 let v = (s.bus_read(addr, 4) >> bit) & 1;
+                store_dma(uc);
                 v as u64
             }),
             Some(
@@ -371,6 +374,7 @@ impl Board {
                     let s = uc.get_data_mut();
                     let w = s.bus_read(addr, 4) & !(1 << bit) | (((v & 1) as u32) << bit);
                     s.bus_write(addr, 4, w);
+                    store_dma(uc);
                 },
             ),
         )
@@ -512,6 +516,29 @@ fn bitband(region: u32, off: u32) -> (u32, u32) {
     let bit = (off % 32) / 4;
     let addr = region + (byte & !3);
     (addr, (byte & 3) * 8 + bit)
+}
+
+/// Store in SRAM the bytes the DMA moved (the models run without the engine's memory),
+/// before the core reads anything that says they are there (NDTR, a flag).
+fn store_dma(uc: &mut Unicorn<'_, Soc>) {
+    if !uc.get_data().dma1.has_writes() {
+        return;
+    }
+    let writes = uc.get_data_mut().take_dma_writes();
+    let mut i = 0;
+    while i < writes.len() {
+        // Runs of consecutive addresses in one write.
+        let (start, _) = writes[i];
+        let mut run = vec![writes[i].1];
+        while let Some(&(a, b)) = writes.get(i + run.len()) {
+            if a != start + run.len() as u32 {
+                break;
+            }
+            run.push(b);
+        }
+        i += run.len();
+        let _ = uc.mem_write(start as u64, &run);
+    }
 }
 
 /// Apply a finished flash operation; erased code sectors are erased in emulator memory
@@ -945,6 +972,7 @@ impl Board {
             if let Some(d) = done {
                 apply_done(&mut self.uc, d);
             }
+            store_dma(&mut self.uc);
             let reset = {
                 let s = self.uc.get_data_mut();
                 if s.nvic.reset_requested {

@@ -5,6 +5,7 @@
 //! calls in here for every peripheral access and at every event.
 
 use crate::periph::art::LINE_BYTES;
+use crate::periph::dma::Dma;
 use crate::periph::dwt::Dwt;
 use crate::periph::exti::Exti;
 use crate::periph::flash::{self, Done, FlashCtl, FlashTiming, Op, ODOMETER_BASE};
@@ -48,6 +49,8 @@ pub enum Periph {
     Rcc,
     /// Flash interface.
     Flash,
+    /// DMA1.
+    Dma1,
 }
 
 /// A peripheral's clock enable: bus and bit of its RCC enable register.
@@ -72,6 +75,7 @@ pub const BUS_MAP: &[(u32, u32, Periph, ClockEnable)] = &[
     (0x4002_1000, 0x400, Periph::Gpio(4), Some((Bus::Ahb1, 4))),
     (0x4002_3800, 0x400, Periph::Rcc, None),
     (0x4002_3C00, 0x400, Periph::Flash, None),
+    (0x4002_6000, 0x400, Periph::Dma1, Some((Bus::Ahb1, 21))),
 ];
 
 /// Interrupt numbers wired to the models.
@@ -84,6 +88,8 @@ pub mod irq {
     pub const USART2: u32 = 38;
     /// USART3.
     pub const USART3: u32 = 39;
+    /// DMA1 streams 0–7.
+    pub const DMA1: [u32; 8] = [11, 12, 13, 14, 15, 16, 17, 47];
 }
 
 /// Something the board noticed that software should not have done, but that the
@@ -186,6 +192,8 @@ pub struct Soc {
     /// Bytes the far end sent while our driver was on (DE high): they collide on the bus
     /// and are lost.
     pub modbus_collisions: u64,
+    /// DMA1 (USART2_RX on stream 5).
+    pub dma1: Dma,
     /// IWDG.
     pub iwdg: Iwdg,
     /// EXTI and SYSCFG.
@@ -295,11 +303,12 @@ impl Soc {
                 d.reset();
                 d
             },
-            usart2: Usart::new("USART2", CONSOLE_BAUD),
+            usart2: Usart::new("USART2", CONSOLE_BAUD).with_dma_rx(),
             usart3: Usart::new("USART3", MODBUS_BAUD).with_far_bits(11), // 8E1
             modbus_out: Vec::new(),
             modbus_de_losses: 0,
             modbus_collisions: 0,
+            dma1: Dma::new("DMA1"),
             iwdg: Iwdg::new(lsi_hz),
             exti: Exti::default(),
             pwr: Pwr::default(),
@@ -404,8 +413,9 @@ impl Soc {
         self.systick.reset();
         self.nvic.reset();
         self.dwt.reset();
-        self.usart2.sync(now, self.rcc.clocks().pclk1);
+        self.sync_usart2(now);
         self.usart2.reset();
+        self.dma1.reset();
         self.usart3.sync(now, self.rcc.clocks().pclk1);
         self.usart3.reset();
         self.iwdg.reset();
@@ -588,7 +598,7 @@ impl Soc {
             let clk = self.tim_clk(i);
             self.tims[i].sync(now, clk);
         }
-        self.usart2.sync(now, c.pclk1);
+        self.sync_usart2(now);
         self.collect_console();
         self.usart3.sync(now, c.pclk1);
         self.collect_modbus();
@@ -602,6 +612,35 @@ impl Soc {
         self.sample_exti();
         self.update_lines();
         done
+    }
+
+    /// Bring USART2 up to `now`, its received bytes through DMA1 stream 5 when it
+    /// requests them (`CR3.DMAR`): the DMA moves each at its own time, whatever the core
+    /// is doing (stalled on the flash included).
+    fn sync_usart2(&mut self, now: u64) {
+        let pclk = self.rcc.clocks().pclk1;
+        let dma = &mut self.dma1;
+        self.usart2
+            .sync_dma(now, pclk, &mut |t, b| dma.usart2_rx(t, b));
+    }
+
+    /// A byte already waiting in USART2's DR when its DMA request or stream comes on is
+    /// taken then (the request is a level).
+    fn serve_usart2_dma(&mut self) {
+        if let Some(b) = self.usart2.dma_request() {
+            let now = self.now();
+            if self.dma1.usart2_rx(now, b) {
+                self.usart2.dma_read();
+            }
+        }
+        for n in std::mem::take(&mut self.dma1.notes) {
+            self.diag(n);
+        }
+    }
+
+    /// The SRAM bytes the DMA wrote since the last call, for the board to store.
+    pub fn take_dma_writes(&mut self) -> Vec<(u32, u8)> {
+        self.dma1.take_writes()
     }
 
     /// Move the bytes USART2 sent to the far end (if PA2 is its alternate function).
@@ -690,7 +729,13 @@ impl Soc {
 
     /// Set the NVIC's interrupt lines from the models.
     pub fn update_lines(&mut self) {
+        if self.usart2.take_irq_pulse() {
+            self.nvic.pend(exc::IRQ0 + irq::USART2);
+        }
         self.nvic.set_line(irq::USART2, self.usart2.irq());
+        for (s, &l) in irq::DMA1.iter().enumerate() {
+            self.nvic.set_line(l, self.dma1.irq(s));
+        }
         self.nvic.set_line(irq::USART3, self.usart3.irq());
         self.nvic.set_line(irq::FLASH, self.flash.irq());
         for (i, t) in self.tims.iter().enumerate() {
@@ -770,6 +815,7 @@ impl Soc {
             }
             Periph::Iwdg => self.iwdg.read(off, size, now),
             Periph::Usart2 => {
+                self.sync_usart2(now);
                 let r = self.usart2.read(off, size, now, c.pclk1);
                 self.collect_console();
                 r
@@ -792,6 +838,11 @@ impl Soc {
             }
             Periph::Rcc => self.rcc.read(off, size, now),
             Periph::Flash => self.flash.read(off, size, now),
+            Periph::Dma1 => {
+                // NDTR counts what arrived up to now.
+                self.sync_usart2(now);
+                self.dma1.read(off, size)
+            }
         };
         // A read can only clear flags (lower lines) or notice what time already brought:
         // no new event to schedule, no new interrupt to take.
@@ -826,7 +877,12 @@ impl Soc {
                     self.rcc.force_lsi(now);
                 }
             }),
-            Periph::Usart2 => self.usart2.write(off, size, value, now, c.pclk1),
+            Periph::Usart2 => {
+                self.sync_usart2(now);
+                let r = self.usart2.write(off, size, value, now, c.pclk1);
+                self.serve_usart2_dma();
+                r
+            }
             Periph::Usart3 => self.usart3.write(off, size, value, now, c.pclk1),
             Periph::Pwr => self.pwr.write(off, size, value),
             Periph::Syscfg => self.exti.write_syscfg(off, size, value),
@@ -843,6 +899,12 @@ impl Soc {
                 }
             }),
             Periph::Flash => self.flash.write(off, size, value, now),
+            Periph::Dma1 => {
+                self.sync_usart2(now);
+                let r = self.dma1.write(off, size, value);
+                self.serve_usart2_dma();
+                r
+            }
         };
         if let Err(Unmodelled { .. }) = r {
             self.unmodelled_at(addr, true);

@@ -7,6 +7,7 @@
 //! it and stops, it is never silently read as zero.
 
 pub mod art;
+pub mod dma;
 pub mod dwt;
 pub mod exti;
 pub mod flash;

@@ -6,13 +6,20 @@
 //!   arrives while `RXNE` is still set is lost and sets `ORE` (the old byte stays). A far
 //!   end whose baud rate differs from ours by more than 3 %, or whose frame has another
 //!   length (8N1 against 8E1), produces framing errors.
-//!   `RXNE` clears on a `DR` read; `ORE`/`FE`/`NF`/`PE` clear by an `SR` read followed by
-//!   a `DR` read.
+//!   `RXNE` clears on a `DR` read; `ORE`/`FE`/`NF`/`PE` clear by an `SR` read that saw
+//!   them followed by a `DR` read (a flag that rose after the `SR` read stays).
+//! * Receive by DMA (`CR3.DMAR`, on a USART whose RX request is wired to a stream: USART2
+//!   only, [`Usart::dma_rx_wired`]): each byte that sets `RXNE` is read from `DR` by the
+//!   DMA at once (the stream's [`super::dma`] takes it), so nothing overruns while the
+//!   stream runs, however late the CPU is. The error flags stay for the CPU (with
+//!   `CR3.EIE` they interrupt). The `RXNE` of a byte the DMA took lasted an instant: with
+//!   `RXNEIE` the NVIC latched it ([`Usart::take_irq_pulse`]).
 //! * Transmit: a `DR` write moves to the shift register at once if it is idle (`TXE`
 //!   stays set), else waits in `DR` (`TXE` clear); a frame takes 10 (8N1) or 11 (9-bit
 //!   word: 8 data + parity) bit times; `TC` sets when the shift register empties with
 //!   nothing waiting. Sent bytes go to the far end with their time.
-//! * Interrupt line: `RXNEIE·(RXNE|ORE) | TXEIE·TXE | TCIE·TC | PEIE·PE`.
+//! * Interrupt line: `RXNEIE·(RXNE|ORE) | TXEIE·TXE | TCIE·TC | PEIE·PE |
+//!   EIE·DMAR·(FE|NF|ORE)`. Transmission by DMA (`CR3.DMAT`) is not modelled.
 //!
 //! | off | name | reset |
 //! |---|---|---|
@@ -21,7 +28,7 @@
 //! | 0x08 | BRR | 0 |
 //! | 0x0C | CR1 | 0 (RE 2, TE 3, RXNEIE 5, TCIE 6, TXEIE 7, PCE 10, M 12, UE 13, OVER8 15) |
 //! | 0x10 | CR2 | 0 |
-//! | 0x14 | CR3 | 0 |
+//! | 0x14 | CR3 | 0 (EIE 0, DMAR 6, DMAT 7) |
 //! | 0x18 | GTPR | 0 |
 
 use std::collections::VecDeque;
@@ -51,8 +58,14 @@ pub struct Usart {
     cr2: u32,
     cr3: u32,
     gtpr: u32,
-    /// SR was read since the last DR read (for clearing the error flags).
+    /// SR was read since the last DR read (for clearing TC).
     sr_read: bool,
+    /// The error flags that SR read saw (a DR read clears them).
+    sr_seen: u32,
+    /// RXNE rose and the DMA read DR at once, with RXNEIE set: the NVIC latched it.
+    irq_pulse: bool,
+    /// Its RX request is wired to a DMA stream (CR3.DMAR may be set).
+    pub dma_rx_wired: bool,
     /// Byte in the transmit data register, waiting for the shift register.
     tx_dr: Option<u8>,
     /// The shift register: byte and the time its stop bit ends.
@@ -87,6 +100,9 @@ impl Usart {
             cr3: 0,
             gtpr: 0,
             sr_read: false,
+            sr_seen: 0,
+            irq_pulse: false,
+            dma_rx_wired: false,
             tx_dr: None,
             tx_shift: None,
             rx_line: VecDeque::new(),
@@ -118,6 +134,8 @@ impl Usart {
         self.cr3 = 0;
         self.gtpr = 0;
         self.sr_read = false;
+        self.sr_seen = 0;
+        self.irq_pulse = false;
         self.tx_dr = None;
         self.tx_shift = None;
     }
@@ -186,8 +204,58 @@ impl Usart {
         std::mem::take(&mut self.sent)
     }
 
-    /// Bring the line up to `now` at bus clock `pclk`.
+    /// Its RX request is wired to a DMA stream.
+    pub fn with_dma_rx(mut self) -> Self {
+        self.dma_rx_wired = true;
+        self
+    }
+
+    /// Bring the line up to `now` at bus clock `pclk` (no DMA stream: with `CR3.DMAR`
+    /// set, no request is served).
     pub fn sync(&mut self, now: u64, pclk: u64) {
+        self.sync_dma(now, pclk, &mut |_, _| false);
+    }
+
+    /// Whether `CR3.DMAR` is set.
+    fn dmar(&self) -> bool {
+        self.cr3 & (1 << 6) != 0
+    }
+
+    /// The byte waiting in `DR` for a DMA request (`RXNE` with `CR3.DMAR`).
+    pub fn dma_request(&self) -> Option<u8> {
+        (self.dmar() && self.sr & bit::RXNE != 0).then_some(self.dr_rx)
+    }
+
+    /// The DMA read `DR` (it took the byte [`Usart::dma_request`] offered).
+    pub fn dma_read(&mut self) {
+        self.read_dr();
+        if self.cr1 & (1 << 5) != 0 {
+            self.irq_pulse = true;
+        }
+    }
+
+    /// Whether an RXNE the DMA cleared at once pended the interrupt since the last call.
+    pub fn take_irq_pulse(&mut self) -> bool {
+        std::mem::take(&mut self.irq_pulse)
+    }
+
+    /// A read of `DR` (by the CPU or the DMA): `RXNE` clears, and the error flags the
+    /// last `SR` read saw.
+    fn read_dr(&mut self) -> u32 {
+        let v = self.dr_rx as u32;
+        self.sr &= !bit::RXNE;
+        if self.sr_read {
+            self.sr &= !self.sr_seen;
+        }
+        self.sr_read = false;
+        self.sr_seen = 0;
+        v
+    }
+
+    /// Bring the line up to `now` at bus clock `pclk`; each byte that arrives with
+    /// `CR3.DMAR` set is offered to `dma` (its time, the byte), which says whether a
+    /// stream took it.
+    pub fn sync_dma(&mut self, now: u64, pclk: u64, dma: &mut dyn FnMut(u64, u8) -> bool) {
         // Receive.
         while let Some(&(t, b)) = self.rx_line.front() {
             if t > now {
@@ -212,6 +280,9 @@ impl Usart {
                 self.framing_errors += 1;
             }
             self.sr |= bit::RXNE;
+            if self.dmar() && dma(t, self.dr_rx) {
+                self.dma_read();
+            }
         }
         // Transmit.
         while let Some((b, end)) = self.tx_shift {
@@ -249,6 +320,7 @@ impl Usart {
             || (cr1 & (1 << 7) != 0 && self.sr & bit::TXE != 0)
             || (cr1 & (1 << 6) != 0 && self.sr & bit::TC != 0)
             || (cr1 & (1 << 8) != 0 && self.sr & bit::PE != 0)
+            || (self.cr3 & 1 != 0 && self.dmar() && self.sr & (bit::FE | bit::NF | bit::ORE) != 0)
     }
 
     /// Read at `off`.
@@ -257,17 +329,10 @@ impl Usart {
         let v = match off & !3 {
             0x00 => {
                 self.sr_read = true;
+                self.sr_seen = self.sr & (bit::ORE | bit::FE | bit::NF | bit::PE);
                 self.sr
             }
-            0x04 => {
-                let v = self.dr_rx as u32;
-                self.sr &= !bit::RXNE;
-                if self.sr_read {
-                    self.sr &= !(bit::ORE | bit::FE | bit::NF | bit::PE);
-                }
-                self.sr_read = false;
-                v
-            }
+            0x04 => self.read_dr(),
             0x08 => self.brr,
             0x0C => self.cr1,
             0x10 => self.cr2,
@@ -307,7 +372,14 @@ impl Usart {
             0x08 => self.brr = merge(self.brr, off, size, value) & 0xFFFF,
             0x0C => self.cr1 = merge(self.cr1, off, size, value) & 0xBFFF,
             0x10 => self.cr2 = merge(self.cr2, off, size, value) & 0x7F7F,
-            0x14 => self.cr3 = merge(self.cr3, off, size, value) & 0x0FFF,
+            0x14 => {
+                let v = merge(self.cr3, off, size, value) & 0x0FFF;
+                // DMA transmission, or reception with no stream wired: not modelled.
+                if v & (1 << 7) != 0 || (v & (1 << 6) != 0 && !self.dma_rx_wired) {
+                    return no_write(off);
+                }
+                self.cr3 = v;
+            }
             0x18 => self.gtpr = merge(self.gtpr, off, size, value) & 0xFFFF,
             _ => return no_write(off),
         }
@@ -371,6 +443,49 @@ mod tests {
         u.far_baud = 9_600;
         u.far_send(b"z", 0);
         u.sync(PS_PER_S, PCLK);
+        assert_ne!(u.read(0x00, 4, PS_PER_S, PCLK).unwrap() & bit::FE, 0);
+    }
+
+    #[test]
+    fn with_dmar_the_dma_takes_every_byte_and_the_error_flags_stay_for_the_cpu() {
+        let mut u = at_115200().with_dma_rx();
+        u.write(0x0C, 4, (1 << 13) | (1 << 5) | (1 << 3) | (1 << 2), 0, PCLK)
+            .unwrap(); // RXNEIE
+        u.write(0x14, 4, (1 << 6) | 1, 0, PCLK).unwrap(); // DMAR, EIE
+        let frame = 10 * PS_PER_S / 115_200;
+        u.far_send(b"abc", 0);
+        let mut took = Vec::new();
+        // The CPU looks only after all three arrived (it was stalled): nothing overran.
+        u.sync_dma(10 * frame, PCLK, &mut |_, b| {
+            took.push(b);
+            true
+        });
+        assert_eq!(took, b"abc");
+        assert_eq!(u.overruns, 0);
+        assert!(u.take_irq_pulse(), "RXNE pended the interrupt");
+        assert!(!u.irq(), "RXNE already cleared by the DMA");
+        // A framing error: the byte goes to the DMA, FE stays and interrupts (EIE).
+        u.far_baud = 9_600;
+        u.far_send(b"z", 10 * frame);
+        u.sync_dma(PS_PER_S, PCLK, &mut |_, _| true);
+        assert!(u.irq());
+        let sr = u.read(0x00, 4, PS_PER_S, PCLK).unwrap();
+        assert_eq!(sr & (bit::FE | bit::RXNE), bit::FE);
+        u.read(0x04, 4, PS_PER_S, PCLK).unwrap();
+        assert!(!u.irq(), "SR then DR cleared it");
+        // USART3 has no stream: DMAR there is not modelled.
+        let mut u3 = at_115200();
+        assert!(u3.write(0x14, 4, 1 << 6, 0, PCLK).is_err());
+    }
+
+    #[test]
+    fn an_error_flag_that_rose_after_the_sr_read_survives_the_dr_read() {
+        let mut u = at_115200();
+        u.far_baud = 9_600;
+        u.read(0x00, 4, 0, PCLK).unwrap();
+        u.far_send(b"z", 0);
+        u.sync(PS_PER_S, PCLK);
+        u.read(0x04, 4, PS_PER_S, PCLK).unwrap();
         assert_ne!(u.read(0x00, 4, PS_PER_S, PCLK).unwrap() & bit::FE, 0);
     }
 
