@@ -32,7 +32,8 @@
 //! | 5 | `estop` (EXTI9_5: E-STOP opens) | **propulsion EN high, lock bridge low**, the stop latched | — |
 //! | 4 | `data_ready` (EXTI0: HX711 DOUT falls) | read the sample, judge it, **stop the propulsion** | `kernel` |
 //! | 3 | `step_tick` (SysTick, 20 kHz, only while moving) | step pulses | — |
-//! | 2 | `usart2` (USART2) | console bytes in and out | — |
+//! | 2 | `usart2` (USART2) | console bytes out; receive errors reported (bytes in: DMA1 stream 5 into a ring, `console.rs`) | — |
+//! | 2 | `console_rx_dma` (DMA1_STREAM5) | the console's receive ring: half-rings counted, a lapped ring reported | — |
 //! | 2 | `usart3` (USART3) | Modbus characters in (time-stamped) and out, RS-485 DE | — |
 //! | 1 | `control` (TIM2: each sample, and every sample period) | the control step: the PLC inputs read before it, the handshake outputs written after it; then pends `service` | `kernel`, `ctrl` |
 //! | 1 | `service` (SPI1, pended by `control` after each step and by idle's requests) | in the window after a step only (`owner.rs`): idle's jobs (one console command's gather, one Modbus PDU, one record), the flash's turn (record writes, erases: at rest only), the log's events and the state published | `ctrl` |
@@ -382,7 +383,6 @@ mod app {
     #[init(local = [
         events: Queue<KernelEvent, 16> = Queue::new(),
         log: Queue<Timed, 9> = Queue::new(),
-        rx_ring: Queue<u16, 257> = Queue::new(),
         mb_rx: Queue<(u16, u64), 64> = Queue::new(),
         mb_tx: Queue<u8, 257> = Queue::new(),
         tx_ring: Queue<u8, 1025> = Queue::new(),
@@ -531,8 +531,11 @@ mod app {
             Err(_) => halt_safe(),
         };
         let (tx, mut rx) = serial.split();
+        // Received bytes go to a ring by DMA (console.rs); RXNE's interrupt only wakes
+        // the core.
         rx.listen();
-        let (rx_in, rx_out) = cx.local.rx_ring.split();
+        pac::DMA1::enable(&mut rcc);
+        console::start_rx(dp.DMA1);
         let (tx_in, tx_out) = cx.local.tx_ring.split();
 
         // 12. The Modbus line on USART3 (settings as stored, else 19200 8E1 unit 1).
@@ -588,14 +591,8 @@ mod app {
                 log_tx,
                 log_rx,
                 step_gen: step::StepGen::new(step),
-                console_isr: console::ConsoleIsr {
-                    rx,
-                    tx,
-                    rx_in,
-                    loss_pending: false,
-                    tx_out,
-                },
-                term: console::BoardConsole { rx_out, tx_in },
+                console_isr: console::ConsoleIsr { tx, tx_out },
+                term: console::BoardConsole::new(tx_in),
                 entropy: entropy(),
                 plc: PlcPins {
                     dock,
@@ -665,10 +662,16 @@ mod app {
         cx.local.step_gen.tick();
     }
 
-    /// Console bytes in and out.
+    /// Console bytes out; receive errors (the bytes in are the DMA's).
     #[task(binds = USART2, priority = 2, local = [console_isr])]
     fn usart2(cx: usart2::Context) {
         cx.local.console_isr.on_interrupt();
+    }
+
+    /// The console's receive ring: DMA1 stream 5's half and full ring (`console.rs`).
+    #[task(binds = DMA1_STREAM5, priority = 2)]
+    fn console_rx_dma(_: console_rx_dma::Context) {
+        console::on_dma_interrupt();
     }
 
     /// The control step: once per sample (pended by `data_ready`) and once per sample

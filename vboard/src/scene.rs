@@ -931,6 +931,9 @@ pub struct Report {
     pub hx711_power_downs: u64,
     /// Console bytes lost to USART2 overruns (the one-byte data register was full).
     pub console_overruns: u64,
+    /// Lines the firmware discarded because input was lost on the way in (its `input
+    /// lost` errors): a USART overrun or receive error, or its receive ring lapped.
+    pub console_input_lost: u64,
     /// Bytes the flooding terminal sent (`--flood`).
     pub console_flood_bytes: u64,
     /// Bytes the flooding Modbus master sent (`--flood`), and the reply bytes that
@@ -1029,7 +1032,7 @@ impl Report {
             })
             .collect();
         format!(
-            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{},\"moving_s\":{},\"control_period_max_ms\":{},\"control_entry_latency_max_us\":{},\"control_entry_latency_max_us_all\":{},\"control_late\":{},\"watchdog_feed_gap_max_ms\":{},\"watchdog_feeds_missed\":{},\"estop_edges_moving\":{},\"estop_off_max_us\":{},\"estop_edges_not_stopped\":{}}}",
+            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_input_lost\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{},\"moving_s\":{},\"control_period_max_ms\":{},\"control_entry_latency_max_us\":{},\"control_entry_latency_max_us_all\":{},\"control_late\":{},\"watchdog_feed_gap_max_ms\":{},\"watchdog_feeds_missed\":{},\"estop_edges_moving\":{},\"estop_off_max_us\":{},\"estop_edges_not_stopped\":{}}}",
             self.reset_count,
             strs(&causes),
             num(self.instructions_per_control_step),
@@ -1043,6 +1046,7 @@ impl Report {
             self.samples_missed,
             self.hx711_power_downs,
             self.console_overruns,
+            self.console_input_lost,
             self.console_flood_bytes,
             self.modbus_flood_bytes,
             self.modbus_reply_bytes,
@@ -1149,8 +1153,8 @@ impl Report {
         }
         if self.console_flood_bytes > 0 || self.console_overruns > 0 {
             s += &format!(
-                "\n  console: {} bytes of flood sent, {} lost to overruns",
-                self.console_flood_bytes, self.console_overruns
+                "\n  console: {} bytes of flood sent, {} lost to overruns, {} line(s) discarded for lost input",
+                self.console_flood_bytes, self.console_overruns, self.console_input_lost
             );
         }
         if self.modbus_flood_bytes > 0 {
@@ -1545,6 +1549,10 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         samples_missed: hx.samples_missed,
         hx711_power_downs: hx.power_downs,
         console_overruns: soc.usart2.overruns,
+        console_input_lost: {
+            let out: Vec<u8> = soc.console_out.iter().map(|&(_, b)| b).collect();
+            out.windows(10).filter(|w| w == b"input lost").count() as u64
+        },
         cpi: soc.clock.cpi_milli() as f64 / 1000.0,
         lsi_hz: soc.iwdg.lsi_hz,
         flash_timing: match soc.flash.timing {
