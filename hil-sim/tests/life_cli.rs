@@ -193,3 +193,44 @@ fn endurance_shows_progress_on_a_terminal_only() {
     assert!(out.starts_with("endurance: 3 cycles"), "{out}");
     assert!(err.is_empty(), "stderr is a pipe here: {err:?}");
 }
+
+/// What a life run computes does not change when it is made faster (issue 20): its
+/// JSON, `wall_time_s` aside, as b859484 printed it, with and without readings.
+/// `tools/life-ratio.sh` checks the full `life --cycles 45270` against
+/// `tools/life-45270.json` the same way.
+#[test]
+fn life_computes_what_it_computed_before_the_speed_up() {
+    let readings = concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/readings-1.3x.csv");
+    for (args, want) in [
+        (
+            &[
+                "life",
+                "--cycles",
+                "500",
+                "--at",
+                "1,10,100,250,500",
+                "--json",
+            ][..],
+            r#"{"material":"zqsn5-2","points":[{"cycle":1,"wear_mm":0.003018,"remaining_cycles":45267},{"cycle":10,"wear_mm":0.017609,"remaining_cycles":45258},{"cycle":100,"wear_mm":0.062275,"remaining_cycles":45168},{"cycle":250,"wear_mm":0.095236,"remaining_cycles":45018},{"cycle":500,"wear_mm":0.129194,"remaining_cycles":44768}],"not_reached":[],"life_cycles":45268,"limit_reached":false,"cycles_run":500,"erases_per_sector_max":0,"faults":0,"sim_time_s":29118.8}"#,
+        ),
+        (
+            &[
+                "life",
+                "--cycles",
+                "1000",
+                "--at",
+                "1,1000",
+                "--readings",
+                readings,
+                "--json",
+            ][..],
+            r#"{"material":"zqsn5-2","points":[{"cycle":1,"wear_mm":0.003018,"remaining_cycles":45267,"wear_estimate_mm":0.003018,"estimate_low_mm":0.000000,"estimate_high_mm":0.048755,"remaining_estimate_cycles":45267},{"cycle":1000,"wear_mm":0.173506,"remaining_cycles":44268,"wear_estimate_mm":0.225901,"estimate_low_mm":0.218358,"estimate_high_mm":0.233685,"remaining_estimate_cycles":23043}],"not_reached":[],"life_cycles":45268,"limit_reached":false,"cycles_run":1000,"erases_per_sector_max":0,"faults":0,"sim_time_s":58237.6}"#,
+        ),
+    ] {
+        let (code, out, err) = run(args);
+        assert_eq!(code, 0, "{args:?}: {err}");
+        let wall = out.find(",\"wall_time_s\":").expect("wall_time_s");
+        let got = format!("{}}}", &out[..wall]);
+        assert_eq!(got, want, "{args:?}");
+    }
+}
