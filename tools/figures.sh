@@ -4,7 +4,7 @@
 # with the commit it measured (issue 19: a figure in the docs comes from a command that
 # regenerates it).
 #
-#   bash tools/figures.sh            # about 5 minutes on 2 cores, after the builds
+#   bash tools/figures.sh            # about 7 minutes on 2 cores, after the builds
 #   bash tools/figures.sh --sweep    # also the full timing sweep (80 runs, ~30 min)
 #
 # Run it from a clean tree: the page says which commit it measured, and "(dirty)" when
@@ -42,6 +42,10 @@ ns_step=$(sed -E 's/.* ([0-9]+) ns per control step.*/\1/' <<<"$bench")
 life_s=$(wall $hil life --cycles 45270)
 life_json=$($hil life --cycles 45270 --json)
 life_cycles=$(field life_cycles <<<"$life_json")
+# Issue 20: life's CPU time against 353c5c0's, both built from source (3 pairs, ~2 min).
+ratio_out=$(bash tools/life-ratio.sh 2>/dev/null)
+ratio=$(sed -n 's/^ratio \([0-9.]*\).*/\1/p' <<<"$ratio_out")
+ratio_cpu=$(sed -n 's/^median CPU: //p' <<<"$ratio_out")
 
 scene_row() { # model args...: one table row from `vboard scene overload --flood` and `scene estop`
     local model=$1; shift
@@ -79,6 +83,7 @@ scene_row() { # model args...: one table row from `vboard scene overload --flood
     echo "|---|---|"
     echo "| \`hil-sim bench --cycles 1000\` | $ns_step ns per control step (controller + simulated HAL) |"
     echo "| \`hil-sim life --cycles 45270\` | $life_s s wall; the cone's limit at cycle $life_cycles |"
+    echo "| \`bash tools/life-ratio.sh\` | CPU time of that run against 353c5c0's, median of 3 pairs: **$ratio** (target ≤ 0.85; $ratio_cpu) |"
     echo
     echo "## The virtual board (the release image; \`cd vboard\`)"
     echo

@@ -12,9 +12,10 @@
 #   bash tools/life-ratio.sh --new REV        # measure another commit than HEAD
 #   bash tools/life-ratio.sh --pairs 5
 #
-# The builds (a few minutes each on 2 cores) are kept in target/life-ratio/<commit>/ and
-# reused; --rebuild builds again. Only committed code is measured: commit first.
-# The last line is `ratio X.XX (target <= 0.85)`.
+# The builds (under a minute each on 2 cores) are kept in target/life-ratio/<commit>/
+# (or $LIFE_RATIO_CACHE/<commit>/) and reused; --rebuild builds again. Only committed
+# code is measured: commit first. It prints each pair, the median CPU time of each
+# commit, and last `ratio X.XX (target <= 0.85)`; it exits 1 if the JSON differs.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 repo=$(pwd)
@@ -31,7 +32,7 @@ while [ $# -gt 0 ]; do
         --old) old_rev=$2; shift 2 ;;
         --new) new_rev=$2; shift 2 ;;
         --rebuild) rebuild=1; shift ;;
-        -h | --help) sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+        -h | --help) sed -n '2,18p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
         *) echo "life-ratio.sh: unknown argument $1 (--help)" >&2; exit 2 ;;
     esac
 done
@@ -89,12 +90,14 @@ def run(binary):
     return ru.ru_utime + ru.ru_stime, re.sub(rb',"wall_time_s":[^,}]*', b"", out).decode().strip()
 
 print(f"hil-sim {' '.join(args)}: CPU s (user + sys), {old_sha} then {new_sha}, {pairs} pairs")
-ratios, reports = [], []
+ratios, reports, olds, news = [], [], [], []
 for i in range(pairs):
     t_old, _ = run(old_bin)
     t_new, rep = run(new_bin)
     reports.append(rep)
     ratios.append(t_new / t_old)
+    olds.append(t_old)
+    news.append(t_new)
     print(f"pair {i + 1}: {old_sha} {t_old:.2f} s, {new_sha} {t_new:.2f} s, ratio {t_new / t_old:.3f}", flush=True)
 
 status = 0
@@ -109,6 +112,7 @@ if reference:
     else:
         print(f"FAIL: {new_sha}'s JSON differs from {reference}:\n  got  {reports[0]}\n  want {want}")
         status = 1
+print(f"median CPU: {old_sha} {statistics.median(olds):.2f} s, {new_sha} {statistics.median(news):.2f} s")
 print(f"ratio {statistics.median(ratios):.2f} (target <= 0.85)")
 sys.exit(status)
 EOF
