@@ -48,7 +48,9 @@ cleanup() {
 }
 trap cleanup EXIT
 
-# Build REV's hil-sim (release) in its own worktree; print the binary's path.
+# Build REV's hil-sim (release) in its own worktree; the binary's path into variable $2
+# (not printed: a command substitution's subshell would not record the worktree for
+# the clean-up).
 build() {
     local sha dir bin
     sha=$(git -C "$repo" rev-parse --verify "$1^{commit}")
@@ -61,10 +63,10 @@ build() {
         echo "building ${sha:0:12}'s hil-sim (release) in $wt, target $dir" >&2
         (cd "$wt" && CARGO_TARGET_DIR=$dir cargo build -q --release -p hil-sim >&2)
     fi
-    echo "$bin"
+    printf -v "$2" '%s' "$bin"
 }
-old_bin=$(build "$old_rev")
-new_bin=$(build "$new_rev")
+build "$old_rev" old_bin
+build "$new_rev" new_bin
 old_sha=$(git rev-parse --short "$old_rev^{commit}")
 new_sha=$(git rev-parse --short "$new_rev^{commit}")
 
