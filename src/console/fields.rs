@@ -49,12 +49,19 @@ pub type Record<'a> = dyn FnMut(usize, &mut dyn Fields) -> fmt::Result + 'a;
 
 /// Where a report writes its fields (see the module doc for each one's rendering).
 pub trait Fields {
+    /// Write `key` and what separates it from its value (`key=`, `"key":`, after the
+    /// previous field's separator); the value goes to the writer returned.
+    fn value(&mut self, key: &str) -> Result<&mut dyn Write, fmt::Error>;
     /// A string.
     fn str(&mut self, key: &str, v: &str) -> fmt::Result;
-    /// An unsigned integer.
-    fn u64(&mut self, key: &str, v: u64) -> fmt::Result;
-    /// A fixed-point number: `v / 10^decimals`.
-    fn fixed(&mut self, key: &str, v: i64, decimals: u8) -> fmt::Result;
+    /// An unsigned integer (the same digits in text and JSON).
+    fn u64(&mut self, key: &str, v: u64) -> fmt::Result {
+        write!(self.value(key)?, "{v}")
+    }
+    /// A fixed-point number: `v / 10^decimals` (the same digits in text and JSON).
+    fn fixed(&mut self, key: &str, v: i64, decimals: u8) -> fmt::Result {
+        write_fixed(self.value(key)?, v, decimals)
+    }
     /// A 32-bit word (an address, a register): hex in text, a number in JSON.
     fn hex32(&mut self, key: &str, v: u32) -> fmt::Result;
     /// A yes/no.
@@ -91,16 +98,6 @@ impl<'w> TextFields<'w> {
         }
     }
 
-    fn key(&mut self, key: &str) -> fmt::Result {
-        if self.on_line {
-            self.w.write_char(' ')?;
-        }
-        self.on_line = true;
-        self.started = true;
-        self.w.write_str(key)?;
-        self.w.write_char('=')
-    }
-
     fn new_line(&mut self) -> fmt::Result {
         if self.started {
             self.w.write_str("\r\n")?;
@@ -120,24 +117,23 @@ impl<'w> TextFields<'w> {
 }
 
 impl Fields for TextFields<'_> {
+    fn value(&mut self, key: &str) -> Result<&mut dyn Write, fmt::Error> {
+        if self.on_line {
+            self.w.write_char(' ')?;
+        }
+        self.on_line = true;
+        self.started = true;
+        self.w.write_str(key)?;
+        self.w.write_char('=')?;
+        Ok(&mut *self.w)
+    }
+
     fn str(&mut self, key: &str, v: &str) -> fmt::Result {
-        self.key(key)?;
-        self.w.write_str(v)
-    }
-
-    fn u64(&mut self, key: &str, v: u64) -> fmt::Result {
-        self.key(key)?;
-        write!(self.w, "{v}")
-    }
-
-    fn fixed(&mut self, key: &str, v: i64, decimals: u8) -> fmt::Result {
-        self.key(key)?;
-        write_fixed(self.w, v, decimals)
+        self.value(key)?.write_str(v)
     }
 
     fn hex32(&mut self, key: &str, v: u32) -> fmt::Result {
-        self.key(key)?;
-        write!(self.w, "{v:#010x}")
+        write!(self.value(key)?, "{v:#010x}")
     }
 
     fn bool(&mut self, key: &str, v: bool) -> fmt::Result {
@@ -182,15 +178,6 @@ impl<'w> JsonFields<'w> {
         Ok(Self { w, first: true })
     }
 
-    fn key(&mut self, key: &str) -> fmt::Result {
-        if !self.first {
-            self.w.write_char(',')?;
-        }
-        self.first = false;
-        write_str_escaped(self.w, key)?;
-        self.w.write_char(':')
-    }
-
     /// Close the object.
     pub fn finish(self) -> fmt::Result {
         self.w.write_char('}')
@@ -198,19 +185,18 @@ impl<'w> JsonFields<'w> {
 }
 
 impl Fields for JsonFields<'_> {
+    fn value(&mut self, key: &str) -> Result<&mut dyn Write, fmt::Error> {
+        if !self.first {
+            self.w.write_char(',')?;
+        }
+        self.first = false;
+        write_str_escaped(self.w, key)?;
+        self.w.write_char(':')?;
+        Ok(&mut *self.w)
+    }
+
     fn str(&mut self, key: &str, v: &str) -> fmt::Result {
-        self.key(key)?;
-        write_str_escaped(self.w, v)
-    }
-
-    fn u64(&mut self, key: &str, v: u64) -> fmt::Result {
-        self.key(key)?;
-        write!(self.w, "{v}")
-    }
-
-    fn fixed(&mut self, key: &str, v: i64, decimals: u8) -> fmt::Result {
-        self.key(key)?;
-        write_fixed(self.w, v, decimals)
+        write_str_escaped(self.value(key)?, v)
     }
 
     fn hex32(&mut self, key: &str, v: u32) -> fmt::Result {
@@ -218,13 +204,11 @@ impl Fields for JsonFields<'_> {
     }
 
     fn bool(&mut self, key: &str, v: bool) -> fmt::Result {
-        self.key(key)?;
-        self.w.write_str(if v { "true" } else { "false" })
+        self.value(key)?.write_str(if v { "true" } else { "false" })
     }
 
     fn none(&mut self, key: &str) -> fmt::Result {
-        self.key(key)?;
-        self.w.write_str("null")
+        self.value(key)?.write_str("null")
     }
 
     fn object(
@@ -232,8 +216,7 @@ impl Fields for JsonFields<'_> {
         key: &str,
         f: &mut dyn FnMut(&mut dyn Fields) -> fmt::Result,
     ) -> fmt::Result {
-        self.key(key)?;
-        self.w.write_char('{')?;
+        self.value(key)?.write_char('{')?;
         self.first = true;
         f(self)?;
         self.first = false;
@@ -241,8 +224,7 @@ impl Fields for JsonFields<'_> {
     }
 
     fn records(&mut self, key: &str, n: usize, item: &mut Record<'_>) -> fmt::Result {
-        self.key(key)?;
-        self.w.write_char('[')?;
+        self.value(key)?.write_char('[')?;
         for i in 0..n {
             if i > 0 {
                 self.w.write_char(',')?;

@@ -1436,7 +1436,6 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
                 let before_um = s.machine().axis.pos_um();
                 let st = s.console_json("status --json").map_err(|e| e.to_string())?;
                 let after_um = s.machine().axis.pos_um();
-                let real_um = after_um;
                 let counted_um = json_field(&st, "pos_mm")
                     .and_then(|v| v.parse::<f64>().ok())
                     .map(|mm| mm * 1000.0);
@@ -1446,7 +1445,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
                     "pulses counted in the direction they were emitted".into(),
                     ok,
                     format!(
-                        "after the extraction: counted {counted_um:?} µm, carriage {before_um:.1} µm before the command, {real_um:.1} µm after its reply"
+                        "after the extraction: counted {counted_um:?} µm, carriage {before_um:.1} µm before the command, {after_um:.1} µm after its reply"
                     ),
                 ));
             }
