@@ -460,35 +460,8 @@ impl SimAxis {
     }
 }
 
-impl embedded_hal::digital::ErrorType for HomeSwitch {
-    type Error = core::convert::Infallible;
-}
-
-impl embedded_hal::digital::InputPin for HomeSwitch {
-    #[inline]
-    fn is_high(&mut self) -> Result<bool, Self::Error> {
-        Ok(self.0.now().home_high())
-    }
-    #[inline]
-    fn is_low(&mut self) -> Result<bool, Self::Error> {
-        Ok(!self.0.now().home_high())
-    }
-}
-
-impl embedded_hal::digital::ErrorType for EndSwitch {
-    type Error = core::convert::Infallible;
-}
-
-impl embedded_hal::digital::InputPin for EndSwitch {
-    #[inline]
-    fn is_high(&mut self) -> Result<bool, Self::Error> {
-        Ok(self.0.now().end_high())
-    }
-    #[inline]
-    fn is_low(&mut self) -> Result<bool, Self::Error> {
-        Ok(!self.0.now().end_high())
-    }
-}
+input_line!(HomeSwitch, |a| a.now().home_high());
+input_line!(EndSwitch, |a| a.now().end_high());
 
 #[cfg(test)]
 mod tests {

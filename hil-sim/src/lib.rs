@@ -22,6 +22,29 @@
 #![cfg_attr(target_os = "none", no_std)]
 #![cfg(not(target_os = "none"))]
 
+/// An input line of a simulated device as its own type (a role fixed by the type, so
+/// the controller's read compiles to the check itself): `input_line!(Type, |dev| high)`
+/// implements embedded-hal's `InputPin` for `Type(Dev)` with `is_high` = `high`.
+macro_rules! input_line {
+    ($t:ty, |$d:ident| $high:expr) => {
+        impl embedded_hal::digital::ErrorType for $t {
+            type Error = core::convert::Infallible;
+        }
+
+        impl embedded_hal::digital::InputPin for $t {
+            #[inline]
+            fn is_high(&mut self) -> Result<bool, Self::Error> {
+                let $d = &self.0;
+                Ok($high)
+            }
+            #[inline]
+            fn is_low(&mut self) -> Result<bool, Self::Error> {
+                self.is_high().map(|h| !h)
+            }
+        }
+    };
+}
+
 pub mod accuracy;
 pub mod axis;
 pub mod cli;

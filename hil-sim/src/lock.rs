@@ -196,35 +196,9 @@ impl SimLock {
     }
 }
 
-impl embedded_hal::digital::ErrorType for LockedSwitch {
-    type Error = core::convert::Infallible;
-}
-
-impl embedded_hal::digital::InputPin for LockedSwitch {
-    #[inline]
-    fn is_high(&mut self) -> Result<bool, Self::Error> {
-        Ok(self.0.now().pos_nm.get() < LOCK_TRAVEL_UM * 1_000)
-    }
-    #[inline]
-    fn is_low(&mut self) -> Result<bool, Self::Error> {
-        self.is_high().map(|h| !h)
-    }
-}
-
-impl embedded_hal::digital::ErrorType for ReleasedSwitch {
-    type Error = core::convert::Infallible;
-}
-
-impl embedded_hal::digital::InputPin for ReleasedSwitch {
-    #[inline]
-    fn is_high(&mut self) -> Result<bool, Self::Error> {
-        Ok(self.0.now().pos_nm.get() > 0)
-    }
-    #[inline]
-    fn is_low(&mut self) -> Result<bool, Self::Error> {
-        self.is_high().map(|h| !h)
-    }
-}
+input_line!(LockedSwitch, |l| l.now().pos_nm.get()
+    < LOCK_TRAVEL_UM * 1_000);
+input_line!(ReleasedSwitch, |l| l.now().pos_nm.get() > 0);
 
 #[cfg(test)]
 mod tests {
