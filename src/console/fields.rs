@@ -17,7 +17,8 @@
 //! | [`Fields::records`] | a line per record: `a=1 b=2` | `"key":[{"a":1,"b":2},…]` |
 //!
 //! Text: the report's own fields on its first line, each object and record on a line of
-//! its own after it; lines end with CR LF. JSON: one line.
+//! its own after it (a field of the report's own written after one starts a new line);
+//! lines end with CR LF. JSON: one line.
 //!
 //! ```
 //! use docking_controller::console::fields::{Fields, JsonFields, TextFields};
@@ -86,6 +87,9 @@ pub struct TextFields<'w> {
     on_line: bool,
     /// Any line begun (the next object or record starts a new line).
     started: bool,
+    /// The current line is an object's or a record's: a field of the report's own
+    /// written after it starts a line of its own.
+    nested: bool,
 }
 
 impl<'w> TextFields<'w> {
@@ -95,6 +99,7 @@ impl<'w> TextFields<'w> {
             w,
             on_line: false,
             started: false,
+            nested: false,
         }
     }
 
@@ -104,6 +109,7 @@ impl<'w> TextFields<'w> {
         }
         self.on_line = false;
         self.started = true;
+        self.nested = false;
         Ok(())
     }
 
@@ -118,6 +124,9 @@ impl<'w> TextFields<'w> {
 
 impl Fields for TextFields<'_> {
     fn value(&mut self, key: &str) -> Result<&mut dyn Write, fmt::Error> {
+        if self.nested {
+            self.new_line()?;
+        }
         if self.on_line {
             self.w.write_char(' ')?;
         }
@@ -152,13 +161,16 @@ impl Fields for TextFields<'_> {
         self.new_line()?;
         self.w.write_str(key)?;
         self.on_line = true;
-        f(self)
+        f(self)?;
+        self.nested = true;
+        Ok(())
     }
 
     fn records(&mut self, _key: &str, n: usize, item: &mut Record<'_>) -> fmt::Result {
         for i in 0..n {
             self.new_line()?;
             item(i, self)?;
+            self.nested = true;
         }
         Ok(())
     }
@@ -280,6 +292,23 @@ mod tests {
         assert_eq!(
             j,
             r#"{"state":"idle","force_n":-0.005,"phase":null,"pc":134261709,"resets":{"power_on":1,"watchdog":0},"list":[{"i":0,"odd":false},{"i":1,"odd":true}]}"#
+        );
+    }
+
+    /// `faults` put `last_crash=none` on its `resets …` line: a report's own field after
+    /// an object or a record starts a line of its own.
+    #[test]
+    fn a_field_after_an_object_starts_its_own_line() {
+        let (t, _) = both(&|f| {
+            f.u64("count", 0)?;
+            f.object("resets", &mut |r| r.u64("power_on", 1))?;
+            f.none("last_crash")?;
+            f.records("faults", 1, &mut |_, r| r.str("kind", "overload"))?;
+            f.u64("after", 2)
+        });
+        assert_eq!(
+            t,
+            "count=0\r\nresets power_on=1\r\nlast_crash=none\r\nkind=overload\r\nafter=2\r\n"
         );
     }
 
