@@ -29,7 +29,7 @@ fn main() {
         None => fs::write(
             &tuning,
             "/// The paper's machine: the library's defaults.\n\
-             pub fn apply(_cfg: &mut docking_controller::controller::ControllerConfig) {}\n",
+             pub fn apply(_cfg: &mut docking_logic::controller::ControllerConfig) {}\n",
         )
         .expect("write the default tuning"),
     }

@@ -82,14 +82,14 @@ use core::sync::atomic::{AtomicBool, Ordering};
 
 use cortex_m_rt::{exception, ExceptionFrame};
 use defmt_rtt as _;
-use docking_controller::console::service::Console;
-use docking_controller::controller::{Bsp, Controller, ControllerConfig, Parts};
-use docking_controller::controller::{Handshake, Timed};
-use docking_controller::diag::{file_tail, Crash, CrashKind, ResetCause};
-use docking_controller::hal::StopLatch;
-use docking_controller::hal::Watchdog;
-use docking_controller::hx711::{Calibration, Gain, Hx711};
-use docking_controller::safety::{EstopEdges, GatedEn, GatedHigh, KernelEvent, SafetyKernel};
+use docking_logic::console::service::Console;
+use docking_logic::controller::{Bsp, Controller, ControllerConfig, Parts};
+use docking_logic::controller::{Handshake, Timed};
+use docking_logic::diag::{file_tail, Crash, CrashKind, ResetCause};
+use docking_logic::hal::StopLatch;
+use docking_logic::hal::Watchdog;
+use docking_logic::hx711::{Calibration, Gain, Hx711};
+use docking_logic::safety::{EstopEdges, GatedEn, GatedHigh, KernelEvent, SafetyKernel};
 use stm32f4xx_hal::gpio::{
     Input, Output, PinState, PB0, PB1, PC0, PC1, PC2, PC3, PC4, PC5, PD0, PD1, PD12, PD13, PD2,
     PD3, PE10, PE11,
@@ -102,6 +102,10 @@ use step::{BoardStepPulses, BoardStop};
 
 /// The machine's tuning, generated at build time (build.rs).
 mod tuning {
+    // Tuning files written before the logic had its own crate name it
+    // `docking_controller`; they keep building.
+    #[allow(unused_imports)]
+    use docking_logic as docking_controller;
     include!(concat!(env!("OUT_DIR"), "/tuning.rs"));
 }
 
@@ -365,7 +369,7 @@ mod app {
     struct Local {
         modbus_isr: modbus::ModbusIsr,
         modbus_line: modbus::ModbusLine,
-        modbus_settings: docking_controller::modbus::ModbusSettings,
+        modbus_settings: docking_logic::modbus::ModbusSettings,
         stop: BoardStop,
         events_tx: Producer<'static, KernelEvent>,
         events_rx: Consumer<'static, KernelEvent>,
@@ -539,7 +543,7 @@ mod app {
         let (tx_in, tx_out) = cx.local.tx_ring.split();
 
         // 12. The Modbus line on USART3 (settings as stored, else 19200 8E1 unit 1).
-        let modbus_settings = docking_controller::modbus::ModbusSettings::stored(ctrl);
+        let modbus_settings = docking_logic::modbus::ModbusSettings::stored(ctrl);
         let _de = gpiob.pb14.into_push_pull_output_in_state(PinState::Low);
         let mb_serial = match dp.USART3.serial(
             (gpiob.pb10, gpiob.pb11),
@@ -749,8 +753,8 @@ mod app {
         log_rx,
         // In a static (616 bytes), all-zero so that it is in `.bss` (not copied from
         // flash): its settings are set first thing in `idle`.
-        server: docking_controller::modbus::Server =
-            docking_controller::modbus::Server::unconfigured(),
+        server: docking_logic::modbus::Server =
+            docking_logic::modbus::Server::unconfigured(),
         // In a static (it holds the 8 KiB output ring): returned from init it would be
         // moved through init's stack.
         console: Console = Console::new([0; 32]),
@@ -771,7 +775,7 @@ mod app {
             let _ = cx
                 .local
                 .server
-                .set_settings(docking_controller::modbus::ModbusSettings::DEFAULT);
+                .set_settings(docking_logic::modbus::ModbusSettings::DEFAULT);
         }
         // The unit's serial for Modbus device identification: the chip's unique ID.
         let serial_hex = unit_serial();

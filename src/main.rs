@@ -1,6 +1,6 @@
 //! Firmware entry point for the STM32F407VGTx controller board.
 //!
-//! The control logic is the `docking_controller` library; this binary is the thin board
+//! The control logic is the `docking_logic` library; this binary is the thin board
 //! layer (`board.rs`): safe outputs, clocks, pins, drivers, and the control loop. It is
 //! compiled only for `target_os = "none"`; on the host the binary is a stub that says so.
 #![cfg_attr(target_os = "none", no_std)]

@@ -57,14 +57,14 @@
 
 use std::time::Instant;
 
-use docking_controller::controller::PollResult;
-use docking_controller::estimate::{Fit, Reading};
-use docking_controller::material::Material;
-use docking_controller::odometer::{
+use docking_logic::controller::PollResult;
+use docking_logic::estimate::{Fit, Reading};
+use docking_logic::material::Material;
+use docking_logic::odometer::{
     depth_nm, e_at_depth_q32, equivalent_cycles_q32, wear_factor_q32, WearConfig, W_NOM_MN_UM,
     W_NOM_Q1,
 };
-use docking_controller::sequencer::{Request, State};
+use docking_logic::sequencer::{Request, State};
 
 use crate::rig::{Rig, RigOptions};
 
@@ -769,7 +769,7 @@ impl AccuracyReport {
 // ---------------------------------------------------------------------------------------
 
 use crate::plant::{Contact, Plant, PlantParams, REFERENCE_TABLE, TILT_MAX_ITER, TILT_TOL_RAD};
-use docking_controller::profile::forces_at_time;
+use docking_logic::profile::forces_at_time;
 
 /// Sampling step of the plant's residuals against Eq. 7, s.
 pub const PLANT_RESIDUAL_STEP_S: f64 = 0.001;
@@ -1262,7 +1262,7 @@ impl PlantStudy {
         }
         s += &format!(
             "# ∫N3 dt over 0–25 s, N·s (reference {PLANT_N3_INTEGRAL_REF_NS}; Eq. 7 {:.2}); default t3: {:.4}\n  step s | per phase      | uniform grid (across the jumps)\n",
-            docking_controller::profile::N3_STROKE_INTEGRAL_NS,
+            docking_logic::profile::N3_STROKE_INTEGRAL_NS,
             self.integral_geometric_ns
         );
         for r in &self.integral {

@@ -23,8 +23,8 @@
 use std::cell::{Cell, RefCell};
 use std::rc::Rc;
 
-use docking_controller::config::MachineConfig;
-use docking_controller::hal::StepPulses;
+use docking_logic::config::MachineConfig;
+use docking_logic::hal::StepPulses;
 
 use crate::clock::SimClock;
 

@@ -86,7 +86,7 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
             };
             let variant = format!("{machine}, {config}");
             let (report, trace) = crate::scene::run_traced(name, opts).map_err(UsageError)?;
-            let guard = tuning.map_or(docking_controller::guard::GuardConfig::DEFAULT, |t| t.guard);
+            let guard = tuning.map_or(docking_logic::guard::GuardConfig::DEFAULT, |t| t.guard);
             crate::plot::scene(path.as_ref(), &report, &trace, &guard, &variant)?;
             report
         }
@@ -394,8 +394,8 @@ impl Opts {
 }
 
 /// `--material NAME` (default ZQSn5-2), case-insensitive.
-fn material(o: &Opts) -> Result<docking_controller::material::Material, UsageError> {
-    use docking_controller::material::Material;
+fn material(o: &Opts) -> Result<docking_logic::material::Material, UsageError> {
+    use docking_logic::material::Material;
     match o.get("material") {
         None => Ok(Material::ZQSn5_2),
         Some(m) => Material::from_name(m).ok_or_else(|| {
@@ -683,11 +683,7 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         "odometer-reference" => {
             let o = Opts::parse(rest, &["cycles"], &[])?;
             let cycles = o.num("cycles", 300u32, 1, 1_000_000)?;
-            let _ = writeln!(
-                out,
-                "{}",
-                docking_controller::odometer::reference_run(cycles)
-            );
+            let _ = writeln!(out, "{}", docking_logic::odometer::reference_run(cycles));
             Ok(())
         }
         "help" | "--help" | "-h" => {

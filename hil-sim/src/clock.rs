@@ -4,7 +4,7 @@
 use std::cell::Cell;
 use std::rc::Rc;
 
-use docking_controller::hal::Monotonic;
+use docking_logic::hal::Monotonic;
 
 /// A shared virtual clock, nanoseconds since simulated power-on.
 #[derive(Clone, Debug, Default)]

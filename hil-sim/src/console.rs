@@ -5,7 +5,7 @@
 
 use std::collections::VecDeque;
 
-use docking_controller::hal::ConsoleIo;
+use docking_logic::hal::ConsoleIo;
 
 /// Receive ring of the board's console UART, bytes.
 pub const RX_RING: usize = 256;

@@ -441,10 +441,10 @@ impl MultiwriteNorFlash for SharedFlash {}
 /// the controller's next idle moment erases that sector. For tests and scenes of the
 /// sector erase.
 pub fn fill_log_to_maintenance(flash: &SharedFlash) -> Result<(), String> {
-    use docking_controller::material::Material;
-    use docking_controller::odometer::{self, kind, StateRecord, WearConfig};
+    use docking_logic::material::Material;
+    use docking_logic::odometer::{self, kind, StateRecord, WearConfig};
     let (mut log, _) =
-        docking_controller::odometer::open_log(flash.clone()).map_err(|e| format!("open: {e}"))?;
+        docking_logic::odometer::open_log(flash.clone()).map_err(|e| format!("open: {e}"))?;
     let cone = odometer::Cone::new(1, Material::ZQSn5_2, "SN-1", 0);
     log.append(kind::CONE, &odometer::cone_to_bytes(&cone))
         .map_err(|e| format!("append: {e}"))?;

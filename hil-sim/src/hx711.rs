@@ -446,7 +446,7 @@ impl<S: ForceSource> SimHx711<S> {
 
     /// Word-level read: the whole 24-bit readout (with 25 gain pulses) in one call,
     /// taking the same virtual time as the firmware's driver's delays
-    /// (`docking_controller::hx711::readout_ns`). Same
+    /// (`docking_logic::hx711::readout_ns`). Same
     /// data-ready and power-down semantics as the pins; for long runs where the
     /// bit-level protocol has been proven by the driver tests.
     pub fn read_word(&self) -> Option<i32> {
@@ -467,7 +467,7 @@ impl<S: ForceSource> SimHx711<S> {
         m.mark_read(t);
         drop(m);
         self.clock
-            .advance_ns(docking_controller::hx711::readout_ns(25) as u64);
+            .advance_ns(docking_logic::hx711::readout_ns(25) as u64);
         Some(code)
     }
 }

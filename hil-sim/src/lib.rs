@@ -1,7 +1,7 @@
 //! # hil-sim — the simulated HAL of the docking controller
 //!
 //! Host-side devices that behave like their datasheets, faults included, in virtual
-//! time, so that `cargo test` exercises the real control code of `docking-controller`:
+//! time, so that `cargo test` exercises the real control code of `docking-logic`:
 //!
 //! * [`hx711`]: the HX711 24-bit load-cell ADC at pin level, whose force is the Eq. 7
 //!   contact profile at the simulated axis position;
@@ -16,11 +16,6 @@
 //! the emulated STM32F407 running the firmware image. One model of each device.
 //!
 //! [`cli`] is the `hil-sim` command line.
-//!
-//! On bare metal (`target_os = "none"`) the crate is empty, so that a thumb build of
-//! the whole workspace (`cargo build --target thumbv7em-none-eabihf` at the root) works.
-#![cfg_attr(target_os = "none", no_std)]
-#![cfg(not(target_os = "none"))]
 
 /// An input line of a simulated device as its own type (a role fixed by the type, so
 /// the controller's read compiles to the check itself): `input_line!(Type, |dev| high)`

@@ -3,9 +3,9 @@
 
 use std::time::Instant;
 
-use docking_controller::material::Material;
-use docking_controller::odometer::WearLevel;
-use docking_controller::sequencer::{Request, State};
+use docking_logic::material::Material;
+use docking_logic::odometer::WearLevel;
+use docking_logic::sequencer::{Request, State};
 
 use crate::rig::{Rig, RigOptions};
 
@@ -45,7 +45,7 @@ pub struct LifePoint {
     /// Remaining life, nominal cycles.
     pub remaining_cycles: u32,
     /// The estimate taught by the readings so far (with `--readings`).
-    pub estimate: Option<docking_controller::estimate::Estimate>,
+    pub estimate: Option<docking_logic::estimate::Estimate>,
 }
 
 /// The run's result.

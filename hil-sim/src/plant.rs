@@ -1,7 +1,7 @@
 //! A quasi-static plant model of the docking contact forces: the equilibrium systems
 //! behind Eq. 7 (He et al. 2025, Eqs. 3–6), solved at an insertion depth.
 //!
-//! Eq. 7 ([`docking_controller::profile`]) is a curve fit of one machine at one speed. This module
+//! Eq. 7 ([`docking_logic::profile`]) is a curve fit of one machine at one speed. This module
 //! solves the equations it came from, so that other masses, friction coefficients,
 //! cone angles and tilts can be simulated. The printed Eqs. 3–5 lost terms in
 //! typesetting; what is implemented is the reconstruction "R" of
@@ -114,7 +114,7 @@ use libm::{cos, fabs, sin, sqrt};
 pub const DEFAULT_V_MODEL_MM_S: f64 = 4.0;
 
 /// Duration of one stroke on Eq. 7's time axis, s.
-pub const STROKE_S: f64 = docking_controller::profile::STROKE_S;
+pub const STROKE_S: f64 = docking_logic::profile::STROKE_S;
 
 /// The paper's printed phase 3→4 boundary, s (Eqs. 5–6), used by the reference's table.
 pub const PAPER_T3_S: f64 = 12.445;
@@ -1016,7 +1016,7 @@ impl PlantPoint {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use docking_controller::profile::forces_at_time;
+    use docking_logic::profile::forces_at_time;
 
     fn reference() -> Plant {
         Plant::new(PlantParams::REFERENCE).unwrap()

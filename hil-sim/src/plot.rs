@@ -22,8 +22,8 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use docking_controller::guard::{GuardConfig, OverloadGuard};
-use docking_controller::profile::{BOUNDARY_UM, STROKE_UM};
+use docking_logic::guard::{GuardConfig, OverloadGuard};
+use docking_logic::profile::{BOUNDARY_UM, STROKE_UM};
 
 use crate::scene::{SceneReport, TraceEvent, TraceEventKind, TraceSample, TraceStroke};
 
@@ -601,7 +601,7 @@ pub fn plant_profile(
             let t = k as f64 / rate_hz;
             let t_ins = match stroke {
                 Stroke::Insert => t,
-                Stroke::Extract => docking_controller::profile::STROKE_S - t,
+                Stroke::Extract => docking_logic::profile::STROKE_S - t,
             };
             let p = plant.at_time(t_ins);
             (t, p.phase, [p.n1_n, p.n2_n, p.n3_n, p.n4_n])
@@ -799,7 +799,7 @@ pub fn life(
     report: &crate::life::LifeReport,
     curve: &[crate::life::LifePoint],
 ) -> Result<(), PlotError> {
-    use docking_controller::odometer::{wear_factor_q32, WearConfig};
+    use docking_logic::odometer::{wear_factor_q32, WearConfig};
     let mm = |nm: u32| nm as f64 / 1e6;
     let baseline = opts.readings.first().map_or(0, |r| r.1);
     let c = WearCurves {

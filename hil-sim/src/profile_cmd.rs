@@ -14,7 +14,7 @@
 use std::io::Write;
 
 use crate::plant::{Contact, Param, Plant, PlantParams};
-use docking_controller::profile::{forces_at_time, ContactPhase, STROKE_S};
+use docking_logic::profile::{forces_at_time, ContactPhase, STROKE_S};
 
 use crate::cli::{Opts, UsageError};
 
@@ -35,7 +35,7 @@ pub fn row(
     k: u64,
     rate_hz: f64,
     stroke: Stroke,
-) -> (f64, ContactPhase, docking_controller::profile::Forces) {
+) -> (f64, ContactPhase, docking_logic::profile::Forces) {
     let t = k as f64 / rate_hz;
     let t_ins = match stroke {
         Stroke::Insert => t,
@@ -73,7 +73,7 @@ pub fn write_csv(out: &mut impl Write, rate_hz: f64, stroke: Stroke) -> std::io:
 // One per command run: boxing the plant would buy nothing.
 #[allow(clippy::large_enum_variant)]
 pub enum Model {
-    /// Eq. 7 as printed (`src/profile.rs`), the default.
+    /// Eq. 7 as printed (`logic/src/profile.rs`), the default.
     Eq7,
     /// The equilibrium systems of Eqs. 3–6 (`hil-sim/src/plant.rs`).
     Plant(Plant),

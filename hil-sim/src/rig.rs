@@ -1,15 +1,15 @@
 //! A complete simulated docking machine: the devices of this crate wired to the real
-//! `docking_controller::Controller`, in virtual time.
+//! `docking_logic::Controller`, in virtual time.
 
 use std::cell::{Cell, RefCell};
 use std::rc::Rc;
 
-use docking_controller::config::MachineConfig;
-use docking_controller::controller::{Bsp, Controller, ControllerConfig, Parts};
-use docking_controller::hal::{LoadCellAdc, StepPulses, StopLatch, Watchdog};
-use docking_controller::hx711::{Calibration, Gain, Hx711};
-use docking_controller::profile::STROKE_UM;
-use docking_controller::safety::{GatedEn, GatedHigh, SafetyKernel};
+use docking_logic::config::MachineConfig;
+use docking_logic::controller::{Bsp, Controller, ControllerConfig, Parts};
+use docking_logic::hal::{LoadCellAdc, StepPulses, StopLatch, Watchdog};
+use docking_logic::hx711::{Calibration, Gain, Hx711};
+use docking_logic::profile::STROKE_UM;
+use docking_logic::safety::{GatedEn, GatedHigh, SafetyKernel};
 
 use crate::axis::{AxisPin, AxisPulses, EndSwitch, HomeSwitch, SimAxis};
 use crate::clock::SimClock;
@@ -18,7 +18,7 @@ use crate::flash::{SharedFlash, SimFlash};
 use crate::hx711::{ForceSource, Hx711Config, Hx711Dout, Hx711Sck, SimHx711};
 use crate::line::SimLine;
 use crate::lock::{LockPin, LockedSwitch, ReleasedSwitch, SimLock};
-use docking_controller::console::service::{Console, ConsolePoll};
+use docking_logic::console::service::{Console, ConsolePoll};
 
 /// The shortest time the board's watchdog may bite after a feed, ns: the firmware sets a
 /// nominal 500 ms at the LSI's typical 32 kHz, and the LSI may run at up to 47 kHz
@@ -179,7 +179,7 @@ pub struct SimOptions {
     pub locked: Rc<Cell<bool>>,
 }
 
-impl docking_controller::hal::OptionBytes for SimOptions {
+impl docking_logic::hal::OptionBytes for SimOptions {
     fn bor_level(&self) -> u8 {
         self.bor.get()
     }
@@ -446,7 +446,7 @@ pub struct RigOptions {
     /// How the load cell is read.
     pub adc: AdcMode,
     /// Cone material of a new machine (no cone record in flash).
-    pub material: docking_controller::material::Material,
+    pub material: docking_logic::material::Material,
     /// Load-cell RMS noise in counts (`None` = the part's default, ≈ 0.3 N).
     pub noise_counts: Option<f64>,
     /// A technician has calibrated the load cell: a new machine's flash gets the
@@ -458,7 +458,7 @@ pub struct RigOptions {
     /// build's defaults (the paper's machine).
     pub tuning: Option<crate::machine::Tuning>,
     /// Device identification's names (a commissioning file's `cfg.identity`).
-    pub identity: docking_controller::controller::Identity,
+    pub identity: docking_logic::controller::Identity,
 }
 
 impl RigOptions {
@@ -468,12 +468,12 @@ impl RigOptions {
             rate_sps,
             seed: 1,
             adc: AdcMode::Word,
-            material: docking_controller::material::Material::ZQSn5_2,
+            material: docking_logic::material::Material::ZQSn5_2,
             noise_counts: None,
             commissioned: true,
             force_model: crate::machine::ForceModel::Eq7,
             tuning: None,
-            identity: docking_controller::controller::Identity::DEFAULT,
+            identity: docking_logic::controller::Identity::DEFAULT,
         }
     }
 }
@@ -481,9 +481,9 @@ impl RigOptions {
 /// Commission `flash` as a technician does at installation: store the calibration of the
 /// simulated cell's front end `hx` and its rate, unless they are stored already.
 pub fn commission(flash: &SharedFlash, hx: &Hx711Config) {
-    use docking_controller::controller::{calibration_to_bytes, Settings};
-    use docking_controller::odometer::kind;
-    if let Ok((mut log, _)) = docking_controller::odometer::open_log(flash.clone()) {
+    use docking_logic::controller::{calibration_to_bytes, Settings};
+    use docking_logic::odometer::kind;
+    if let Ok((mut log, _)) = docking_logic::odometer::open_log(flash.clone()) {
         if log.latest(kind::CALIBRATION).ok().flatten().is_none() {
             let _ = log.append(
                 kind::CALIBRATION,
@@ -540,7 +540,7 @@ pub struct Rig {
     pub estop_line: SimLine,
     estop_was_open: bool,
     /// The board's E-STOP interrupt's record of edges (the firmware's own type).
-    pub estop_edges: docking_controller::safety::EstopEdges,
+    pub estop_edges: docking_logic::safety::EstopEdges,
     /// The MCU's option bytes (the BOR level).
     pub options: SimOptions,
     /// What the last console poll did.
@@ -653,7 +653,7 @@ impl Rig {
             dock_line: dock_request,
             estop_line: estop,
             estop_was_open: false,
-            estop_edges: docking_controller::safety::EstopEdges::new(),
+            estop_edges: docking_logic::safety::EstopEdges::new(),
             options,
             last_console: ConsolePoll::default(),
         }
@@ -663,7 +663,7 @@ impl Rig {
     /// what the board runs there: the safety kernel on the sample (it stops the
     /// propulsion itself if it must), then the control step, then the kernel's new
     /// configuration.
-    pub fn tick(&mut self) -> docking_controller::controller::PollResult {
+    pub fn tick(&mut self) -> docking_logic::controller::PollResult {
         let next = self
             .hx
             .next_conversion_ns()
@@ -692,7 +692,7 @@ impl Rig {
         let r = if ev.is_some() || self.ctrl.step_due(now_us) {
             self.ctrl.step(now_us, ev)
         } else {
-            docking_controller::controller::PollResult::default()
+            docking_logic::controller::PollResult::default()
         };
         self.kernel.configure(self.ctrl.kernel_config(), now_us);
         self.ctrl.background();

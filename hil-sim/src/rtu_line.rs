@@ -1,5 +1,5 @@
 //! A simulated RS-485 line into the controller's Modbus RTU server
-//! ([`docking_controller::modbus::Server`]), as `hil-sim serve --modbus-pty|--modbus-tcp`
+//! ([`docking_logic::modbus::Server`]), as `hil-sim serve --modbus-pty|--modbus-tcp`
 //! drives it.
 //!
 //! The outside (a pty, or a loopback TCP port acting as a transparent serial-to-Ethernet
@@ -44,8 +44,8 @@
 
 use std::collections::VecDeque;
 
-use docking_controller::controller::{Bsp, Controller};
-use docking_controller::modbus::{ModbusSettings, ModbusStats, Server};
+use docking_logic::controller::{Bsp, Controller};
+use docking_logic::modbus::{ModbusSettings, ModbusStats, Server};
 
 /// The simulated unit's serial number: device identification object 0x80 (the board
 /// passes its own, from the MCU's unique id).
@@ -183,7 +183,7 @@ impl RtuLine {
 mod tests {
     use super::*;
     use crate::rig::{Rig, RigOptions};
-    use docking_controller::modbus::crc16;
+    use docking_logic::modbus::crc16;
 
     fn frame(body: &[u8]) -> Vec<u8> {
         let mut f = body.to_vec();

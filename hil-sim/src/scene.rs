@@ -25,9 +25,9 @@
 
 use std::time::Instant;
 
-use docking_controller::controller::{Event, Refusal, Status};
-use docking_controller::profile::ContactPhase;
-use docking_controller::sequencer::{Request, SeqEvent, State, BACK_OFF_UM};
+use docking_logic::controller::{Event, Refusal, Status};
+use docking_logic::profile::ContactPhase;
+use docking_logic::sequencer::{Request, SeqEvent, State, BACK_OFF_UM};
 
 use std::cell::RefCell;
 
@@ -1215,7 +1215,7 @@ impl<'a> Stepper<'a> {
     /// The PLC sends `pdu` to unit 1 over Modbus (the server's own frame handling);
     /// the reply's PDU (empty: none). A command is acted on in the next control step.
     fn modbus(&mut self, pdu: &[u8]) -> Vec<u8> {
-        use docking_controller::modbus::{crc16, handle_frame, MAX_FRAME};
+        use docking_logic::modbus::{crc16, handle_frame, MAX_FRAME};
         let mut f = vec![1u8];
         f.extend_from_slice(pdu);
         let crc = crc16(&f);
@@ -1334,7 +1334,7 @@ fn estop_bounce(
         let h = r.ctrl.handshake();
         if r.ctrl.state()
             == (State::Faulted {
-                fault: docking_controller::sequencer::FaultKind::EmergencyStop,
+                fault: docking_logic::sequencer::FaultKind::EmergencyStop,
             })
             && h.fault
             && !h.ready
@@ -1370,7 +1370,7 @@ fn maintenance_lockout(
     opts: SceneOptions,
     each_tick: &mut dyn FnMut(&mut Rig, &mut Rng),
 ) -> Result<SceneReport, String> {
-    use docking_controller::modbus::{ir, status};
+    use docking_logic::modbus::{ir, status};
     let mut x = Stepper::new(opts, each_tick);
     let mut rep = PlcReport::default();
     x.run_until(10, Stepper::ready);

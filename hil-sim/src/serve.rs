@@ -52,7 +52,7 @@
 //! the machine docks when the PLC commands it (Modbus, or DOCK on stdin), and the
 //! scene's disturbance comes in the first docking.
 //!
-//! [`Controller::handshake`]: docking_controller::controller::Controller::handshake
+//! [`Controller::handshake`]: docking_logic::controller::Controller::handshake
 
 use std::collections::VecDeque;
 use std::io::{BufRead, Write};
@@ -60,9 +60,9 @@ use std::net::SocketAddr;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use docking_controller::controller::Handshake;
-use docking_controller::modbus::ModbusSettings;
-use docking_controller::sequencer::{Request, State};
+use docking_logic::controller::Handshake;
+use docking_logic::modbus::ModbusSettings;
+use docking_logic::sequencer::{Request, State};
 
 use crate::console::RX_RING;
 use crate::link::{Bridge, Pty};
@@ -223,7 +223,7 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
     });
     // A board's boot: the reset cause counted and shown (`status`, `faults`).
     rig.ctrl
-        .boot(docking_controller::diag::ResetCause::PowerOn, None, &[]);
+        .boot(docking_logic::diag::ResetCause::PowerOn, None, &[]);
     rig.console_enabled = true;
     driver.setup(rig.devices(), 1, opts.rate_sps, 1_000);
     // Control steps run, and the count at the last PLC input change.

@@ -2,10 +2,10 @@
 //! fixed-point odometer against an `f64` reference. Library API only (the full `run()`
 //! times hundreds of cycles: too slow for a dev-profile test).
 
-use docking_controller::config::MachineConfig;
-use docking_controller::odometer::W_NOM_Q1;
-use docking_controller::profile::{forces_at_depth_um, STROKE_UM};
-use docking_controller::propulsion::ARRIVAL_TOLERANCE_STEPS;
+use docking_logic::config::MachineConfig;
+use docking_logic::odometer::W_NOM_Q1;
+use docking_logic::profile::{forces_at_depth_um, STROKE_UM};
+use docking_logic::propulsion::ARRIVAL_TOLERANCE_STEPS;
 use hil_sim::accuracy::{
     e_limit_f64, estimate_study, fixed_vs_f64, fixed_vs_f64_from, measure_strokes,
     perturbed_cycles, q1_to_n_mm, stroke_err_pct, stroke_integrals, AccuracyReport, RateRow,

@@ -10,6 +10,32 @@ mod example {
     include!("../../docs/tuning-example-18kg.rs");
 }
 
+/// A tuning file as `hil-sim commission` wrote it before the logic had its own crate
+/// (its paths say `docking_controller::`), included the way the board's `tuning` module
+/// includes one (src/board.rs).
+mod before_crate_split {
+    #[allow(unused_imports)]
+    use docking_logic as docking_controller;
+    include!("fixtures/tuning-before-crate-split.rs");
+}
+
+#[test]
+fn a_tuning_file_written_before_the_crate_split_still_builds_and_sets_the_same() {
+    let new = || {
+        docking_logic::controller::ControllerConfig::new(
+            80,
+            docking_logic::hx711::Calibration::SIM_DEFAULT,
+        )
+    };
+    let (mut old_cfg, mut new_cfg) = (new(), new());
+    before_crate_split::apply(&mut old_cfg);
+    example::apply(&mut new_cfg);
+    assert_eq!(
+        hil_sim::machine::Tuning::of(&old_cfg),
+        hil_sim::machine::Tuning::of(&new_cfg)
+    );
+}
+
 fn heavy() -> hil_sim::plant::PlantParams {
     hil_sim::plant::PlantParams {
         mass_kg: 18.0,
@@ -20,9 +46,9 @@ fn heavy() -> hil_sim::plant::PlantParams {
 
 #[test]
 fn the_generated_tuning_compiles_and_sets_what_commissioning_computed() {
-    let mut cfg = docking_controller::controller::ControllerConfig::new(
+    let mut cfg = docking_logic::controller::ControllerConfig::new(
         80,
-        docking_controller::hx711::Calibration::SIM_DEFAULT,
+        docking_logic::hx711::Calibration::SIM_DEFAULT,
     );
     example::apply(&mut cfg);
     let want = hil_sim::machine::Tuning::for_plant(heavy()).unwrap();

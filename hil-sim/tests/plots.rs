@@ -230,7 +230,7 @@ fn an_unwritable_plot_path_is_one_line_and_exit_2() {
 
 #[test]
 fn the_drawn_envelope_is_the_guards_limit_at_every_depth() {
-    use docking_controller::guard::{GuardConfig, OverloadGuard};
+    use docking_logic::guard::{GuardConfig, OverloadGuard};
     let g = OverloadGuard::new(GuardConfig::DEFAULT);
     let env = hil_sim::plot::guard_envelope();
     assert_eq!(env.first().map(|p| p.0), Some(0.0));

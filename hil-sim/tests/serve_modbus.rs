@@ -9,7 +9,7 @@ use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use docking_controller::modbus::{crc16, ir, status, PRODUCT_CODE, REVISION, VENDOR_NAME};
+use docking_logic::modbus::{crc16, ir, status, PRODUCT_CODE, REVISION, VENDOR_NAME};
 use rmodbus::client::ModbusRequest;
 use rmodbus::{ErrorKind, ModbusProto};
 
@@ -323,7 +323,7 @@ fn a_plc_identifies_the_unit_and_gets_its_errors_over_modbus_rtu() {
 
     // (b) The counters of a new machine: no cycles yet, a new cone, wear not at a level.
     let fw = plc.inputs(ir::FW_MAJOR, 4);
-    assert_eq!(fw[3], docking_controller::modbus::MAP_VERSION);
+    assert_eq!(fw[3], docking_logic::modbus::MAP_VERSION);
     assert_eq!(plc.input_u32(ir::LIFETIME_CYCLES), 0);
     let wear = plc.inputs(
         ir::LIFETIME_CYCLES,
@@ -361,7 +361,7 @@ fn a_plc_identifies_the_unit_and_gets_its_errors_over_modbus_rtu() {
     // The line still works after all that.
     assert_eq!(
         plc.inputs(ir::MAP_VERSION, 1),
-        [docking_controller::modbus::MAP_VERSION]
+        [docking_logic::modbus::MAP_VERSION]
     );
 }
 

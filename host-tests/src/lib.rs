@@ -1,16 +1,9 @@
-//! Host tests live in `tests/`; this crate holds only what several of them share (and is
-//! an empty `no_std` crate on bare metal, so a workspace-wide thumb build works).
-#![no_std]
+//! Host tests live in `tests/`; this crate holds only what several of them share.
 
-#[cfg(not(target_os = "none"))]
-extern crate std;
-
-#[cfg(not(target_os = "none"))]
 mod shared {
-    use docking_controller::sequencer::{Request, State};
+    use docking_logic::sequencer::{Request, State};
     use hil_sim::rig::Rig;
     use std::path::PathBuf;
-    use std::vec::Vec;
 
     /// Run `n` more test cycles on `r` (each started when idle and persisted); panics if
     /// they do not complete.
@@ -65,5 +58,4 @@ mod shared {
     }
 }
 
-#[cfg(not(target_os = "none"))]
 pub use shared::{corpus_files, run_cycles, run_until, run_without_motion};

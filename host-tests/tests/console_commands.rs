@@ -1,7 +1,7 @@
 //! The technician console end to end: commands typed on the simulated serial link,
 //! executed by the real console service against the real controller.
 
-use docking_controller::odometer::kind;
+use docking_logic::odometer::kind;
 use hil_sim::rig::{Rig, RigOptions};
 use hil_sim::scene::{run, SceneOptions};
 use serde_json::Value;
@@ -251,7 +251,7 @@ fn state_changing_commands_need_maintenance_and_a_machine_at_rest() {
     );
     assert!(r.command("clear-fault", 10).contains("no fault to clear"));
     // Refused while moving.
-    use docking_controller::sequencer::{Request, State};
+    use docking_logic::sequencer::{Request, State};
     r.ctrl.request(Request::StartCycle);
     for _ in 0..400 {
         r.tick();
@@ -292,9 +292,7 @@ fn clear_fault_recovers_and_is_audited() {
     assert_eq!(json(&r.command("status --json", 10))["state"], "idle");
     let mut audits = 0;
     r.ctrl
-        .records(docking_controller::odometer::kind::AUDIT, 10, |_| {
-            audits += 1
-        });
+        .records(docking_logic::odometer::kind::AUDIT, 10, |_| audits += 1);
     assert_eq!(audits, 2, "pin set and clear-fault are audited");
 }
 
@@ -350,7 +348,7 @@ fn console_flood_does_not_delay_the_overload_stop() {
 
 #[test]
 fn dock_undock_stop_from_the_console_with_their_gates() {
-    use docking_controller::sequencer::State;
+    use docking_logic::sequencer::State;
     let mut r = rig();
     assert!(r.command("pin set 1357", 10).starts_with("ok"));
     // dock and undock need maintenance mode; stop never does.
@@ -391,7 +389,7 @@ fn dock_undock_stop_from_the_console_with_their_gates() {
     // Stop without maintenance mode, mid-docking: latched `stopped`.
     assert!(r.command("maint exit", 10).starts_with("ok"));
     r.ctrl
-        .command(docking_controller::sequencer::Request::Dock)
+        .command(docking_logic::sequencer::Request::Dock)
         .unwrap();
     for _ in 0..200 {
         r.tick();
@@ -449,13 +447,13 @@ fn modbus_settings_are_stored_checked_and_shown() {
 /// masked for up to 2 s) with the driver energised. Now it waits for the rest.
 #[test]
 fn audit_record_waits_for_rest_while_the_axis_is_held() {
-    use docking_controller::odometer::kind::AUDIT;
-    use docking_controller::sequencer::{FaultKind, State};
+    use docking_logic::odometer::kind::AUDIT;
+    use docking_logic::sequencer::{FaultKind, State};
     let mut r = rig();
     assert!(r.command("pin set 1357", 10).starts_with("ok"));
     assert!(r.command("maint 1357", 10).starts_with("ok"));
     r.ctrl
-        .command(docking_controller::sequencer::Request::Dock)
+        .command(docking_logic::sequencer::Request::Dock)
         .unwrap();
     assert!(host_tests::run_until(&mut r, 6_000, |r| r
         .ctrl
@@ -516,16 +514,12 @@ fn bor_is_programmed_only_by_an_explicit_maintenance_step() {
     r.options.locked.set(false);
     let mut audits = 0;
     r.ctrl
-        .records(docking_controller::odometer::kind::AUDIT, 10, |_| {
-            audits += 1
-        });
+        .records(docking_logic::odometer::kind::AUDIT, 10, |_| audits += 1);
     assert!(r.command("bor set", 10).starts_with("ok: BOR level 3"));
     assert_eq!(r.options.bor.get(), 3);
     let mut after = 0;
     r.ctrl
-        .records(docking_controller::odometer::kind::AUDIT, 10, |_| {
-            after += 1
-        });
+        .records(docking_logic::odometer::kind::AUDIT, 10, |_| after += 1);
     assert_eq!(after, audits + 1, "audited");
     assert!(r.command("bor", 10).contains("level=3 (2.70 V)"));
     assert!(r.command("bor set", 10).contains("set already"));

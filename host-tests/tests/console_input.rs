@@ -15,14 +15,14 @@
 
 use std::fmt;
 
-use docking_controller::console::auth::{
+use docking_logic::console::auth::{
     make_pin_record, AuthError, MaintenanceAuth, PinRecord, LOCKOUT_MS, MAX_FAILURES,
     PIN_HASH_ROUNDS, SESSION_IDLE_MS,
 };
-use docking_controller::console::json::{write_fixed, write_str_escaped, JsonObject};
-use docking_controller::console::line::{LineError, LineEvent, LineReader, MAX_BYTES_PER_POLL};
-use docking_controller::console::parse::{parse, Command, ParseError};
-use docking_controller::material::Material;
+use docking_logic::console::json::{write_fixed, write_str_escaped, JsonObject};
+use docking_logic::console::line::{LineError, LineEvent, LineReader, MAX_BYTES_PER_POLL};
+use docking_logic::console::parse::{parse, Command, ParseError};
+use docking_logic::material::Material;
 use proptest::prelude::*;
 use proptest::test_runner::TestCaseError;
 

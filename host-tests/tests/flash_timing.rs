@@ -2,7 +2,7 @@
 //! time in virtual time, and the watchdog sees it (the virtual board found the reset
 //! loop a sector erase caused; the rig's flash used to erase in zero time).
 
-use docking_controller::sequencer::State;
+use docking_logic::sequencer::State;
 use hil_sim::flash::{fill_log_to_maintenance, SharedFlash, SimFlash};
 use hil_sim::rig::{Rig, RigOptions, ERASE_FEED_LIMIT_NS};
 

@@ -4,9 +4,9 @@
 //! controller and safety kernel against the simulated machine; each test is named for
 //! the defect it pins.
 
-use docking_controller::controller::{Event, STORAGE_ATTEMPTS};
-use docking_controller::diag::ResetCause;
-use docking_controller::sequencer::{FaultKind, Request, State};
+use docking_logic::controller::{Event, STORAGE_ATTEMPTS};
+use docking_logic::diag::ResetCause;
+use docking_logic::sequencer::{FaultKind, Request, State};
 use hil_sim::axis::AxisFault;
 use hil_sim::flash::{SharedFlash, SimFlash};
 use hil_sim::hx711::Hx711Fault;

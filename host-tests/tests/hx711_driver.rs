@@ -1,4 +1,4 @@
-//! The HX711 driver (`docking_controller::hx711`) against the simulated part
+//! The HX711 driver (`docking_logic::hx711`) against the simulated part
 //! (`hil_sim::hx711`) at pin level in virtual time, plus a tiny mock part for the
 //! exact pulse counts and the pin-error path.
 
@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use docking_controller::hx711::{
+use docking_logic::hx711::{
     settling_time_us, sign_extend_24, Calibration, Gain, Hx711, Hx711Error, CODE_MAX, CODE_MIN,
     POWER_DOWN_NS, T3_SCK_HIGH_MAX_NS,
 };

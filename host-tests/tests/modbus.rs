@@ -21,13 +21,13 @@
 
 use std::cell::RefCell;
 
-use docking_controller::controller::{FaultRecord, Status};
-use docking_controller::material::Material;
-use docking_controller::modbus::{
+use docking_logic::controller::{FaultRecord, Status};
+use docking_logic::material::Material;
+use docking_logic::modbus::{
     handle_frame, ir, status, Command, ModbusSettings, Server, BROADCAST, MAX_FRAME,
 };
-use docking_controller::odometer::{Cone, Lifetime, WearLevel};
-use docking_controller::sequencer::{FaultKind, Request, State};
+use docking_logic::odometer::{Cone, Lifetime, WearLevel};
+use docking_logic::sequencer::{FaultKind, Request, State};
 use hil_sim::rig::{Rig, RigOptions};
 use proptest::prelude::*;
 use proptest::test_runner::TestCaseError;
@@ -1375,7 +1375,7 @@ fn corpus_frames_keep_invariants() {
 /// technician was in maintenance mode at the console, and no register showed the mode.
 #[test]
 fn maintenance_mode_locks_out_plc_motion() {
-    use docking_controller::controller::Refusal;
+    use docking_logic::controller::Refusal;
     let mut r = rig();
     assert!(r.command("pin set 1357", 10).starts_with("ok"));
     assert!(r.command("maint 1357", 10).starts_with("ok"));
@@ -1389,7 +1389,7 @@ fn maintenance_mode_locks_out_plc_motion() {
     assert_eq!(coil(&mut r, Command::Dock, true), Err(0x01));
     assert_eq!(
         r.ctrl
-            .command_from(docking_controller::controller::Source::Plc, Request::Dock),
+            .command_from(docking_logic::controller::Source::Plc, Request::Dock),
         Err(Refusal::MaintenanceMode)
     );
     assert_eq!(Refusal::MaintenanceMode.code(), 9);
@@ -1400,7 +1400,7 @@ fn maintenance_mode_locks_out_plc_motion() {
     // A stop is never refused, whoever sends it.
     assert!(r
         .ctrl
-        .command_from(docking_controller::controller::Source::Plc, Request::Stop)
+        .command_from(docking_logic::controller::Source::Plc, Request::Stop)
         .is_ok());
     // Maintenance ends: READY again after the stop is cleared, and the PLC docks.
     r.dock_line.set(true);
@@ -1421,7 +1421,7 @@ fn maintenance_mode_locks_out_plc_motion() {
 #[test]
 fn device_identification_names_come_from_the_commissioning_config() {
     let mut r = rig_with(RigOptions {
-        identity: docking_controller::controller::Identity {
+        identity: docking_logic::controller::Identity {
             vendor: "ACME Docking GmbH",
             product: "AutoDock 18",
         },
@@ -1433,5 +1433,5 @@ fn device_identification_names_come_from_the_commissioning_config() {
     // Without one: the defaults.
     let mut r = rig();
     let (_, _, objs) = objects(&ask(&mut r, UNIT, &[0x2B, 0x0E, 0x02, 0x00]).unwrap());
-    assert_eq!(objs[0].1, docking_controller::modbus::VENDOR_NAME);
+    assert_eq!(objs[0].1, docking_logic::modbus::VENDOR_NAME);
 }

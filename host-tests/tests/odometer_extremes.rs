@@ -1,4 +1,4 @@
-//! Extreme cases of the wear odometer (`docking_controller::odometer`): zero load,
+//! Extreme cases of the wear odometer (`docking_logic::odometer`): zero load,
 //! full-scale load on every sample, 10^7 cycles and u64/u32 saturation, loads far below
 //! one state LSB, a single 1000× nominal cycle, irregular sampling, materials, and the
 //! persisted record's determinism.
@@ -10,9 +10,9 @@
 //! `ten_million_cycles_loop` is `#[ignore]`d (10^7 real `complete_cycle()` calls): run
 //! it with `cargo test --release -p host-tests --test odometer_extremes -- --ignored`.
 
-use docking_controller::fixed::ONE_Q32;
-use docking_controller::material::Material;
-use docking_controller::odometer::{
+use docking_logic::fixed::ONE_Q32;
+use docking_logic::material::Material;
+use docking_logic::odometer::{
     cone_from_bytes, cone_to_bytes, depth_nm, e_at_depth_q32, equivalent_cycles_q32, restore,
     wear_factor_q32, Cone, Lifetime, Odometer, StateRecord, StrokeIntegrator, WearConfig,
     WearLevel, STATE_LEN, W_NOM_MN_UM, W_NOM_Q1,

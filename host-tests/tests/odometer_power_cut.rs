@@ -11,7 +11,7 @@
 //! the last committed cycle or the cycle in flight — never older, never garbage — and
 //! never decrease; and it always boots.
 
-use docking_controller::sequencer::{Request, State};
+use docking_logic::sequencer::{Request, State};
 use hil_sim::flash::{SharedFlash, SimFlash};
 use hil_sim::rig::{Rig, RigOptions};
 use hil_sim::rng::Rng;
@@ -81,7 +81,7 @@ fn power_cut_at_every_byte_of_a_window_and_randomly_elsewhere_loses_nothing_comm
     // Age the log: leave ~180 free slots in the first sector so that the move to the
     // second sector happens around cycle 180.
     {
-        let (mut log, _) = docking_controller::odometer::open_log(flash.clone()).unwrap();
+        let (mut log, _) = docking_logic::odometer::open_log(flash.clone()).unwrap();
         while log.slots_free_in_sector() > 180 {
             log.append(FILLER_KIND, &[0xA5; 40]).unwrap();
         }

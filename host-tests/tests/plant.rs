@@ -4,7 +4,7 @@
 //! valid parameters and times, and `hil-sim profile --model plant` / `accuracy` in
 //! process.
 
-use docking_controller::profile::forces_at_time;
+use docking_logic::profile::forces_at_time;
 use hil_sim::plant::{Contact, Plant, PlantParams, STROKE_S};
 use proptest::prelude::*;
 

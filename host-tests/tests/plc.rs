@@ -1,7 +1,7 @@
 //! The PLC handshake on the host rig: DOCK (level, filtered, edges), E-STOP (normally
 //! closed), READY / MATED / FAULT / MAINTENANCE.
 
-use docking_controller::sequencer::State;
+use docking_logic::sequencer::State;
 use hil_sim::rig::{Rig, RigOptions};
 
 fn rig() -> Rig {
@@ -16,11 +16,11 @@ use host_tests::run_until;
 
 /// The machine is latched in `fault`; with the PLC's DOCK released, a clear brings it
 /// home to idle, and the next DOCK mates.
-fn recovers_from(r: &mut Rig, fault: docking_controller::sequencer::FaultKind) {
+fn recovers_from(r: &mut Rig, fault: docking_logic::sequencer::FaultKind) {
     assert_eq!(r.ctrl.state(), State::Faulted { fault });
     r.dock_line.set(true);
     r.ctrl
-        .command(docking_controller::sequencer::Request::ClearFault)
+        .command(docking_logic::sequencer::Request::ClearFault)
         .unwrap();
     assert!(run_until(r, 8_000, |r| r.ctrl.state() == State::Idle));
     r.dock_line.set(false);
@@ -84,13 +84,13 @@ fn outputs_follow_the_machine() {
     assert!(h.fault && h.estop && !h.ready, "{h:?}");
     assert!(r
         .ctrl
-        .command(docking_controller::sequencer::Request::ClearFault)
+        .command(docking_logic::sequencer::Request::ClearFault)
         .is_err());
 }
 
 #[test]
 fn a_pending_stop_is_not_replaced_by_a_later_request() {
-    use docking_controller::sequencer::{FaultKind, Request};
+    use docking_logic::sequencer::{FaultKind, Request};
     let mut r = rig();
     // Stop, then (before the next step) a dock: the stop wins.
     r.ctrl.command(Request::Stop).unwrap();
@@ -113,7 +113,7 @@ fn a_pending_stop_is_not_replaced_by_a_later_request() {
 /// had nothing to clear.
 #[test]
 fn short_estop_pulse_latches_a_fault_and_the_machine_recovers() {
-    use docking_controller::sequencer::{FaultKind, Request};
+    use docking_logic::sequencer::{FaultKind, Request};
     let mut r = rig();
     assert!(r.ctrl.handshake().ready);
     r.estop_pulse(300);
@@ -143,7 +143,7 @@ fn short_estop_pulse_latches_a_fault_and_the_machine_recovers() {
 /// every edge stops, the fault latches, the clear works once the input stays closed.
 #[test]
 fn estop_release_bounce_is_latched_and_recoverable() {
-    use docking_controller::sequencer::FaultKind;
+    use docking_logic::sequencer::FaultKind;
     let mut r = rig();
     r.dock_line.set(false);
     assert!(run_until(&mut r, 6_000, |r| matches!(
@@ -168,8 +168,8 @@ fn estop_release_bounce_is_latched_and_recoverable() {
 /// refused re-enable is a named fault within two steps, and a clear recovers.
 #[test]
 fn a_stop_never_reported_is_a_fault_not_a_stall() {
-    use docking_controller::hal::StopLatch;
-    use docking_controller::sequencer::FaultKind;
+    use docking_logic::hal::StopLatch;
+    use docking_logic::sequencer::FaultKind;
     let mut r = rig();
     r.stop.stop_now(); // latched, no event, no E-STOP edge
     r.dock_line.set(false);
@@ -184,7 +184,7 @@ fn a_stop_never_reported_is_a_fault_not_a_stall() {
 /// it off (the fault takes the E-STOP's place), not be re-armed by the next step.
 #[test]
 fn estop_during_a_hold_force_fault_turns_the_axis_off() {
-    use docking_controller::sequencer::FaultKind;
+    use docking_logic::sequencer::FaultKind;
     let mut r = rig();
     r.dock_line.set(false);
     assert!(run_until(&mut r, 6_000, |r| r.ctrl.handshake().mated));

@@ -1,9 +1,9 @@
 //! The simulated devices working together: the load cell sees the force of the axis
 //! **position**, not of wall time.
 
-use docking_controller::config::MachineConfig;
-use docking_controller::hal::StepPulses;
-use docking_controller::profile::forces_at_depth_um;
+use docking_logic::config::MachineConfig;
+use docking_logic::hal::StepPulses;
+use docking_logic::profile::forces_at_depth_um;
 use embedded_hal::digital::OutputPin;
 use hil_sim::axis::SimAxis;
 use hil_sim::clock::SimClock;

@@ -1,4 +1,4 @@
-//! The power-cut-safe record log (`docking_controller::storage`) on the simulated NOR
+//! The power-cut-safe record log (`docking_logic::storage`) on the simulated NOR
 //! flash: round trips, every power-cut point of a scripted run, bit flips, garbage,
 //! wear levelling on the board's 2 × 128 KiB, and pre-erasing by `maintain`.
 //!
@@ -11,7 +11,7 @@
 use std::fmt::Debug;
 use std::ops::Range;
 
-use docking_controller::storage::{
+use docking_logic::storage::{
     Keep, OpenReport, RecordLog, StorageError, ERASED_KIND, MAX_KINDS, MIN_SLOTS_PER_SECTOR,
     PAYLOAD_MAX, SLOT_SIZE,
 };

@@ -2,9 +2,9 @@
 //! scale, a running-in phase. Readings are generated from the true law, rounded to the
 //! micrometer's 1 µm, with 3 µm of noise (seeded), at nominal load (E = cycles).
 
-use docking_controller::estimate::{Fit, Reading};
-use docking_controller::material::Material;
-use docking_controller::odometer::depth_nm;
+use docking_logic::estimate::{Fit, Reading};
+use docking_logic::material::Material;
+use docking_logic::odometer::depth_nm;
 
 const LIMIT_NM: u32 = 800_000;
 
@@ -154,9 +154,9 @@ fn the_remaining_life_follows_the_fitted_curve() {
 // --- through the controller and its flash ------------------------------------------
 
 mod rig {
-    use docking_controller::controller::{Event, MaintError};
-    use docking_controller::odometer::{kind, RetiredCone};
-    use docking_controller::sequencer::{Request, State};
+    use docking_logic::controller::{Event, MaintError};
+    use docking_logic::odometer::{kind, RetiredCone};
+    use docking_logic::sequencer::{Request, State};
     use hil_sim::rig::{Rig, RigOptions};
 
     fn idle(rig: &mut Rig) {
@@ -188,7 +188,7 @@ mod rig {
         idle(&mut rig);
         rig.ctrl
             .replace_cone_measured(
-                docking_controller::material::Material::ZQSn5_2,
+                docking_logic::material::Material::ZQSn5_2,
                 "B-1",
                 Some(25_990),
             )
@@ -221,7 +221,7 @@ mod rig {
         assert_eq!(rig.ctrl.baseline_or_nominal(), 25_995);
         // A used cone without a baseline cannot get one.
         rig.ctrl
-            .replace_cone(docking_controller::material::Material::ZQSn5_2, "B-2")
+            .replace_cone(docking_logic::material::Material::ZQSn5_2, "B-2")
             .unwrap();
         cycle(&mut rig);
         assert_eq!(
@@ -261,11 +261,11 @@ mod rig {
         rig.ctrl.add_measurement(26_790, false).unwrap();
         assert_eq!(
             rig.ctrl.odometer().level(),
-            docking_controller::odometer::WearLevel::Ok
+            docking_logic::odometer::WearLevel::Ok
         );
         assert_eq!(
             rig.ctrl.wear_level(),
-            docking_controller::odometer::WearLevel::Limit,
+            docking_logic::odometer::WearLevel::Limit,
             "{:?}",
             rig.ctrl.wear_estimate()
         );

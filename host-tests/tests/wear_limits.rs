@@ -1,17 +1,17 @@
 //! The odometer's limits acting on the machine: a worn-out cone is refused, a cone past
 //! the warning level warns on every cycle; and the watchdog is not fed by a late step.
 
-use docking_controller::controller::Event;
-use docking_controller::material::Material;
-use docking_controller::odometer::{self, Cone, Lifetime, StateRecord, WearLevel, W_NOM_Q1};
-use docking_controller::sequencer::{Request, State};
+use docking_logic::controller::Event;
+use docking_logic::material::Material;
+use docking_logic::odometer::{self, Cone, Lifetime, StateRecord, WearLevel, W_NOM_Q1};
+use docking_logic::sequencer::{Request, State};
 use hil_sim::flash::{SharedFlash, SimFlash};
 use hil_sim::rig::{Rig, RigOptions};
 
 /// A flash holding one cone with `nominal_cycles` of nominal wear.
 fn flash_with_wear(nominal_cycles: u64) -> SharedFlash {
     let flash = SharedFlash::new(SimFlash::stm32f407_odometer());
-    let (mut log, _) = docking_controller::odometer::open_log(flash.clone()).unwrap();
+    let (mut log, _) = docking_logic::odometer::open_log(flash.clone()).unwrap();
     let cone = Cone::new(1, Material::ZQSn5_2, "OLD-1", 0);
     log.append(odometer::kind::CONE, &odometer::cone_to_bytes(&cone))
         .unwrap();

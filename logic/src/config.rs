@@ -15,7 +15,7 @@ use crate::profile::{STROKE_UM, V0_UM_PER_S};
 
 /// Why a configuration is refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub enum ConfigError {
     /// Docking speed zero or above v0 = 1.2 mm/s (the force model holds only to v0).

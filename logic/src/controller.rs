@@ -208,7 +208,7 @@ impl Settings {
 
 /// A latched fault as recorded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FaultRecord {
     /// What.
     pub kind: FaultKind,
@@ -224,7 +224,7 @@ pub struct FaultRecord {
 
 /// Something that happened, for logs and the console.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Event {
     /// Sequencer event.
     Seq(SeqEvent),
@@ -257,7 +257,7 @@ pub enum Event {
 
 /// An event with its time.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Timed {
     /// ms since boot.
     pub t_ms: u64,
@@ -350,7 +350,7 @@ pub const HOLD_TOLERANCE_MN: i32 = 40_000;
 /// broken wire — is a stop). Outputs, active high (a dead controller reads as not
 /// ready, not mated):
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Handshake {
     /// DOCK input, as filtered.
     pub dock: bool,
@@ -558,7 +558,7 @@ struct Step {
 
 /// Why a command ([`Controller::command`]) was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Refusal {
     /// The E-STOP input is open.
     EstopOpen,
@@ -583,7 +583,7 @@ pub enum Refusal {
 
 /// Who asks for something ([`Controller::command_from`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Source {
     /// The technician's console (beside the machine).
     Console,
@@ -620,7 +620,7 @@ impl core::fmt::Display for Refusal {
 
 /// Why a maintenance action was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub enum MaintError {
     /// A docking is moving (only `idle` and `faulted` accept maintenance).
@@ -671,7 +671,7 @@ impl core::fmt::Display for MaintError {
 
 /// Why a calibration was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub enum CalibrateError {
     /// A docking is moving.
@@ -738,7 +738,7 @@ pub struct HistoryEntry {
 
 /// Errors that stop the controller from starting.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum StartError {
     /// A motor output could not be put into its safe state.
     Pin,

@@ -32,7 +32,7 @@
 
 /// Why the MCU reset.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ResetCause {
     /// Power applied (POR/PDR).
     PowerOn,
@@ -148,7 +148,7 @@ impl ResetCounts {
 
 /// What crashed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum CrashKind {
     /// A Rust panic.
     Panic,
@@ -171,7 +171,7 @@ impl CrashKind {
 
 /// A crash record.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Crash {
     /// What.
     pub kind: CrashKind,

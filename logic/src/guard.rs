@@ -198,7 +198,7 @@ const NOMINAL_MAX_MN: [i32; ENV_LEN] = {
 
 /// What the guard says about one sample.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Verdict {
     /// Within limits.
     Ok,
@@ -333,7 +333,7 @@ impl OverloadGuard {
 
 /// Load-cell faults.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum SensorFault {
     /// No sample for 3 sample periods.
     Disconnected,

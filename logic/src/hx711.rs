@@ -135,7 +135,7 @@ pub const fn sign_extend_24(raw: u32) -> i32 {
 /// Channel and gain of the **next** conversion, selected by the number of PD_SCK
 /// pulses that end a readout (datasheet Table 3). The part starts on A/128 after reset.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[repr(u8)]
 pub enum Gain {
     /// Channel A, gain 128 (±20 mV input at 5 V AVDD): 25 pulses.
@@ -155,7 +155,7 @@ impl Gain {
 
 /// Driver error.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub enum Hx711Error<E> {
     /// A DOUT or PD_SCK pin operation failed (the HAL's error, unchanged).
@@ -285,7 +285,7 @@ where
 
 /// Why a calibration could not be made.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub enum CalError {
     /// Tare of zero samples.
@@ -328,7 +328,7 @@ impl core::error::Error for CalError {}
 /// exactly −100 N on [`Calibration::SIM_DEFAULT`] gives −100 001 mN), saturated into
 /// `i32`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Calibration {
     /// Code at zero force (the tare), counts.
     pub offset_counts: i32,

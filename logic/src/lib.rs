@@ -1,8 +1,11 @@
-//! # docking-controller — control logic of the automatic connector docking controller
+//! # docking-logic — control logic of the automatic connector docking controller
 //!
-//! This library is the whole control loop of the docking controller, written `no_std`
-//! and hardware-free so that the same code runs on the STM32F407 board (`src/main.rs`,
-//! `src/board.rs`) and on the host against the simulated HAL in `hil-sim`.
+//! This crate is the whole control loop of the docking controller, written `no_std`
+//! and hardware-free so that the same code runs on the STM32F407 board (the firmware
+//! package at the repository's root: `src/main.rs`, `src/board.rs`) and on the host
+//! against the simulated HAL in `hil-sim`. No HAL and no RTIC are in its dependency
+//! tree; its logging goes to `defmt` with the `defmt` feature (the board's) and to the
+//! `log` facade without it.
 //!
 //! It talks to hardware only through traits: embedded-hal 1.0 (`OutputPin`, `InputPin`,
 //! `DelayNs`), `embedded-storage`'s `NorFlash`, and the small traits in [`hal`] for what
@@ -11,7 +14,7 @@
 //!
 //! The physics (machine, four contact phases, the Eq. 7 force profile, the wear model)
 //! is restated from He et al., *Polymers* 2025, 17, 2091 in
-//! `../shared/reference/guide-cone-wear.md`; [`profile`] implements Eq. 7.
+//! `docs/physics.md`; [`profile`] implements Eq. 7.
 //!
 //! Units are in names: `_um` micrometres, `_mn` millinewtons, `_us` microseconds,
 //! `_steps` motor steps. Fixed-point formats are stated where they are defined.

@@ -6,7 +6,7 @@ use embedded_hal::digital::OutputPin;
 
 /// What the lock motor is asked to do.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum LockCmd {
     /// Motor off (both bridge inputs low).
     Off,
@@ -18,7 +18,7 @@ pub enum LockCmd {
 
 /// The H-bridge could not be driven.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct LockPinError;
 
 /// The lock motor.

@@ -5,7 +5,7 @@
 
 /// Cone material.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[repr(u8)]
 pub enum Material {
     /// ZQSn5-2 tin bronze, the baseline (Km = 3.3e-5, HV 213.77).

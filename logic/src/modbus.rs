@@ -263,7 +263,7 @@ pub mod exception {
 /// The unit's serial-line settings (stored by a technician; see the module doc for the
 /// record). The character format is fixed at 8E1.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ModbusSettings {
     /// Unit (server) address, 1–247.
     pub unit: u8,
@@ -653,7 +653,7 @@ pub mod status {
 
 /// Commands (coil address = code − 1; holding register 0 value = code).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Command {
     /// Dock and hold until undock (accepted when READY).
     Dock,
@@ -1410,7 +1410,7 @@ pub fn handle_frame<B: Bsp>(
 
 /// The server's counters since boot (saturating).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ModbusStats {
     /// Frames with a good CRC for this unit or broadcast.
     pub frames_ok: u32,

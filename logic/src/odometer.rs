@@ -145,7 +145,7 @@ pub const fn equivalent_cycles_q32(w_q1: u64, material: Material) -> u64 {
 
 /// How worn the cone is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum WearLevel {
     /// Below the warning level.
     Ok,
@@ -269,7 +269,7 @@ impl StrokeIntegrator {
 
 /// What a completed cycle did.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct CycleSummary {
     /// Lifetime cycle number.
     pub lifetime_cycle: u32,

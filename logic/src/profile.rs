@@ -24,7 +24,7 @@ pub const BOUNDARY_UM: [i32; 3] = [4_500, 8_700, 14_934];
 
 /// One of the four contact phases of a compliant insertion (reference §2).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[repr(u8)]
 pub enum ContactPhase {
     /// 1: the rod slides on the cone's first fillet (0–4.5 mm).

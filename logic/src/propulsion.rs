@@ -17,7 +17,7 @@ use crate::hal::StepPulses;
 
 /// Errors of the propulsion driver.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub enum PropulsionError {
     /// An EN or DIR line could not be driven.

@@ -37,7 +37,7 @@ use crate::hx711::{Calibration, CODE_MAX, CODE_MIN};
 
 /// Which limit applies to the next samples.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum GuardMode {
     /// Outside the cone: the hard limits (compression and tension).
     Free,
@@ -76,7 +76,7 @@ pub struct KernelConfig {
 
 /// A judged sample.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Sample {
     /// Raw HX711 code.
     pub code: i32,
@@ -96,7 +96,7 @@ pub struct Sample {
 
 /// What the kernel hands to the controller.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum KernelEvent {
     /// A sample.
     Sample(Sample),

@@ -61,7 +61,7 @@ use crate::lock::LockCmd;
 
 /// A latched fault.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub enum FaultKind {
     /// Contact force over the hard limit or the phase envelope.
@@ -177,7 +177,7 @@ pub struct Switches {
 
 /// Requests from outside the control loop (console, scene, start button).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Request {
     /// Run one test cycle: dock, hold `hold_ms`, undock (accepted in `Idle` only; life
     /// and endurance runs).
@@ -216,7 +216,7 @@ pub struct Inputs {
 
 /// What the propulsion must do.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum AxisCmd {
     /// Power stage off.
     Disabled,
@@ -233,7 +233,7 @@ pub enum AxisCmd {
 
 /// Something worth logging and counting.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum SeqEvent {
     /// The home switch closed: the counted position is now 0.
     Homed,
@@ -265,7 +265,7 @@ pub struct Outputs {
 
 /// Where a lock motion leads.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum AfterLock {
     /// Power-up: then idle.
     Idle,
@@ -275,7 +275,7 @@ pub enum AfterLock {
 
 /// Sequencer state. Every moving state carries its deadline (ms since boot).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum State {
     /// Just booted: position unknown; nothing moves until a home or dock request.
     PowerUp,

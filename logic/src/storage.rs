@@ -203,7 +203,7 @@ const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
 /// One record as read back from flash.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Record {
     /// Global record number (strictly increasing; a carried copy gets a new one).
     pub seq: u32,
@@ -226,7 +226,7 @@ impl Record {
 
 /// What [`RecordLog::open`] found in flash.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct OpenReport {
     /// Valid records (committed, CRC good), in all sectors.
     pub valid: u32,
@@ -243,7 +243,7 @@ pub struct OpenReport {
 
 /// Why a log operation failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub enum StorageError<E> {
     /// The flash driver failed (the log stays consistent; a retry may succeed).

@@ -1,15 +1,14 @@
-//! Runs `docking_controller::odometer::reference_run` on a Cortex-M4 and prints its
+//! Runs `docking_logic::odometer::reference_run` on a Cortex-M4 and prints its
 //! result through semihosting; `.ci/run` compares it with the host's.
 #![no_std]
 #![no_main]
 
 use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hprintln};
-use stm32f4xx_hal as _;
 
 #[entry]
 fn main() -> ! {
-    let r = docking_controller::odometer::reference_run(300);
+    let r = docking_logic::odometer::reference_run(300);
     hprintln!("{}", r);
     debug::exit(debug::EXIT_SUCCESS);
     loop {

@@ -59,7 +59,7 @@
 use core::cell::UnsafeCell;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
-use docking_controller::hal::ConsoleIo;
+use docking_logic::hal::ConsoleIo;
 use embedded_hal_nb::serial::Write as _;
 use heapless::spsc::{Consumer, Producer};
 use stm32f4xx_hal::pac;

@@ -19,7 +19,7 @@
 //! left to the board's pull resistors for the 2-3 ms `init` takes at 16 MHz.
 //!
 //! The odometer's journal ([`ODO_JOURNAL`], format in
-//! `docking_controller::odometer::Journal`) keeps the counters of the cycle in progress
+//! `docking_logic::odometer::Journal`) keeps the counters of the cycle in progress
 //! through a reset; the flash snapshot is written only at rest.
 //!
 //! Layout of the crash block (`#[repr(C)]`, words):
@@ -36,8 +36,8 @@
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 
-use docking_controller::diag::{Crash, CrashKind, CRASH_LEN};
-use docking_controller::odometer::{Journal, JOURNAL_WORDS};
+use docking_logic::diag::{Crash, CrashKind, CRASH_LEN};
+use docking_logic::odometer::{Journal, JOURNAL_WORDS};
 
 /// A crash is recorded.
 const MAGIC: u32 = 0xC4A5_4BAD;

@@ -59,7 +59,7 @@ fn program_from_ram(optcr: u32, max_cycles: u32) -> u32 {
 #[derive(Debug, Default)]
 pub struct BoardOptions;
 
-impl docking_controller::hal::OptionBytes for BoardOptions {
+impl docking_logic::hal::OptionBytes for BoardOptions {
     fn bor_level(&self) -> u8 {
         bor_level()
     }

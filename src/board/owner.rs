@@ -43,8 +43,8 @@
 use core::cell::UnsafeCell;
 use core::sync::atomic::{AtomicBool, AtomicU32, AtomicU8, Ordering};
 
-use docking_controller::controller::Controller;
-use docking_controller::sequencer::State;
+use docking_logic::controller::Controller;
+use docking_logic::sequencer::State;
 
 use super::Board;
 

@@ -14,12 +14,12 @@
 //!
 //! [`BoardStop::stop_now`] is what the safety path calls from the HX711's interrupt:
 //! one store to GPIOE's set/reset register (EN high, no read-modify-write), the DDS
-//! increment to zero, the latch set. [`GatedEn`](docking_controller::safety::GatedEn)
+//! increment to zero, the latch set. [`GatedEn`](docking_logic::safety::GatedEn)
 //! keeps EN from going low again until the controller re-arms the latch.
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
-use docking_controller::hal::{StepPulses, StopLatch};
+use docking_logic::hal::{StepPulses, StopLatch};
 use stm32f4xx_hal::gpio::{Output, PE9};
 
 /// Step tick rate, Hz.

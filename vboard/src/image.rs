@@ -143,14 +143,16 @@ impl Image {
     }
 }
 
-/// A source of the image (under `root`: `src/`, the manifest and lock file, the build
-/// script, the linker scripts) changed after the image `elf` was built; `None` when
+/// A source of the image (under `root`: `src/` and the logic crate's `logic/src/`, the
+/// manifests and lock file, the build script, the linker scripts) changed after the
+/// image `elf` was built; `None` when
 /// the image is newer than all of them, or when it is missing (the load says so).
 pub fn newer_source(elf: &std::path::Path, root: &std::path::Path) -> Option<std::path::PathBuf> {
     let built = std::fs::metadata(elf).and_then(|m| m.modified()).ok()?;
-    let mut stack: Vec<std::path::PathBuf> = vec![root.join("src")];
+    let mut stack: Vec<std::path::PathBuf> = vec![root.join("src"), root.join("logic/src")];
     let mut files: Vec<std::path::PathBuf> = [
         "Cargo.toml",
+        "logic/Cargo.toml",
         "Cargo.lock",
         "build.rs",
         "memory.x",
@@ -209,7 +211,7 @@ mod stale_tests {
                 .unwrap();
         };
         let elf = root.join("image.elf");
-        touch(&root.join("src/lib.rs"), t0);
+        touch(&root.join("src/main.rs"), t0);
         touch(&root.join("Cargo.toml"), t0);
         touch(&elf, t0 + Duration::from_secs(10));
         assert_eq!(newer_source(&elf, &root), None);
@@ -219,6 +221,13 @@ mod stale_tests {
         assert_eq!(newer_source(&elf, &root), Some(changed));
         // Rebuilt: fresh again.
         touch(&elf, t0 + Duration::from_secs(30));
+        assert_eq!(newer_source(&elf, &root), None);
+        // A logic file edited after the build: stale too (the image links the logic).
+        std::fs::create_dir_all(root.join("logic/src")).unwrap();
+        let logic = root.join("logic/src/guard.rs");
+        touch(&logic, t0 + Duration::from_secs(40));
+        assert_eq!(newer_source(&elf, &root), Some(logic));
+        touch(&elf, t0 + Duration::from_secs(50));
         assert_eq!(newer_source(&elf, &root), None);
         // No image at all: the load reports that, not staleness.
         assert_eq!(newer_source(&root.join("missing.elf"), &root), None);

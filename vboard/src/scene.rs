@@ -193,14 +193,13 @@ impl Session {
         board.power_on();
         Ok(Self {
             board,
-            engage_um: docking_controller::config::MachineConfig::DEFAULT.engage_um,
+            engage_um: docking_logic::config::MachineConfig::DEFAULT.engage_um,
             opts,
             seen: Observed::default(),
             dock: false,
             dock_changed_ps: None,
             mated_since_ps: None,
-            hold_ps: u64::from(docking_controller::config::MachineConfig::DEFAULT.hold_ms)
-                * PS_PER_MS,
+            hold_ps: u64::from(docking_logic::config::MachineConfig::DEFAULT.hold_ms) * PS_PER_MS,
             test_cycle: false,
             estop_open: false,
             estop_edges: Vec::new(),
@@ -572,7 +571,7 @@ impl Session {
 pub fn rtu(unit: u8, pdu: &[u8]) -> Vec<u8> {
     let mut f = vec![unit];
     f.extend_from_slice(pdu);
-    let crc = docking_controller::modbus::crc16(&f);
+    let crc = docking_logic::modbus::crc16(&f);
     f.extend_from_slice(&crc.to_le_bytes());
     f
 }
@@ -687,7 +686,7 @@ impl Session {
 
 /// The firmware's fault names, as `'static` strings.
 fn docking_controller_fault_name(s: &str) -> &'static str {
-    use docking_controller::sequencer::FaultKind;
+    use docking_logic::sequencer::FaultKind;
     (0..=255u8)
         .filter_map(FaultKind::from_code)
         .map(FaultKind::name)
@@ -1643,8 +1642,8 @@ pub type Newest = Vec<Option<(u32, Vec<u8>)>>;
 
 fn read_newest(flash: &SharedFlash) -> Result<Newest, String> {
     let (mut log, _) =
-        docking_controller::odometer::open_log(flash.clone()).map_err(|e| format!("open: {e}"))?;
-    Ok((0..docking_controller::storage::MAX_KINDS)
+        docking_logic::odometer::open_log(flash.clone()).map_err(|e| format!("open: {e}"))?;
+    Ok((0..docking_logic::storage::MAX_KINDS)
         .map(|k| {
             log.latest(k)
                 .ok()
@@ -1874,7 +1873,7 @@ fn maintenance_lockout(
     checks: &mut Vec<(String, bool, String)>,
 ) -> Result<PlcReport, Halt> {
     use crate::world::Signal;
-    use docking_controller::modbus::{ir, status};
+    use docking_logic::modbus::{ir, status};
     let mut rep = PlcReport::default();
     let deadline = s.now() + 10 * PS_PER_S;
     let ready_at_boot = s.run_until(deadline, Session::home_and_ready)?;

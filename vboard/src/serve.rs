@@ -46,7 +46,7 @@ use std::io::Write;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use docking_controller::controller::Handshake;
+use docking_logic::controller::Handshake;
 use hil_sim::link::Bridge;
 use hil_sim::serve::{Link, PlcCommand};
 

@@ -151,7 +151,7 @@ fn through_a_sector_erase(ignore_cache_resets: bool, dock: bool) -> EraseRun {
     let flash = SharedFlash::new(SimFlash::stm32f407_odometer());
     hil_sim::flash::fill_log_to_maintenance(&flash).expect("prefill");
     let expected_cycles = {
-        use docking_controller::odometer::{kind, open_log, StateRecord};
+        use docking_logic::odometer::{kind, open_log, StateRecord};
         let (mut log, _) = open_log(flash.clone()).expect("open");
         let rec = log.latest(kind::STATE).expect("read").expect("a state");
         StateRecord::from_bytes(rec.data())

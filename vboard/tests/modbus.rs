@@ -2,7 +2,7 @@
 //! the PLC's frames at their line rate, the replies as they reach the bus. Build the
 //! image first: `cargo build --release --target thumbv7em-none-eabihf`.
 
-use docking_controller::modbus::{crc16, ir, status};
+use docking_logic::modbus::{crc16, ir, status};
 use vboard::scene::{rtu, Options, Session, PS_PER_MS};
 use vboard::time::PS_PER_S;
 

@@ -216,7 +216,7 @@ fn ask_modbus(s: &mut std::net::TcpStream, req: &[u8], len: usize) -> Vec<u8> {
 
 #[test]
 fn a_plc_reads_input_registers_over_modbus_tcp() {
-    use docking_controller::modbus::{ir, MAP_VERSION};
+    use docking_logic::modbus::{ir, MAP_VERSION};
     let (_board, console, modbus) =
         Plc::start(&["--tcp", "127.0.0.1:0", "--modbus-tcp", "127.0.0.1:0"]);
     assert!(console.starts_with("127.0.0.1:"), "{console}");
@@ -230,7 +230,7 @@ fn a_plc_reads_input_registers_over_modbus_tcp() {
         .chunks(2)
         .map(|c| u16::from_be_bytes([c[0], c[1]]))
         .collect();
-    let version: Vec<u16> = docking_controller::modbus::REVISION
+    let version: Vec<u16> = docking_logic::modbus::REVISION
         .split('.')
         .map(|x| x.parse().unwrap())
         .collect();
@@ -280,7 +280,7 @@ fn a_plc_reads_input_registers_over_modbus_tcp() {
 
 #[test]
 fn a_plc_docks_the_firmware_over_modbus_and_over_the_dock_line() {
-    use docking_controller::modbus::{ir, status};
+    use docking_logic::modbus::{ir, status};
     let (mut board, _console, modbus) = Plc::start(&[
         "--tcp",
         "127.0.0.1:0",

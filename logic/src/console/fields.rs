@@ -21,7 +21,7 @@
 //! lines end with CR LF. JSON: one line.
 //!
 //! ```
-//! use docking_controller::console::fields::{Fields, JsonFields, TextFields};
+//! use docking_logic::console::fields::{Fields, JsonFields, TextFields};
 //! use core::fmt::Write;
 //! fn report(f: &mut dyn Fields) -> core::fmt::Result {
 //!     f.u64("cycles_completed", 3)?;

@@ -8,7 +8,7 @@
 //! called. Keys are not checked for duplicates.
 //!
 //! ```
-//! use docking_controller::console::json::JsonObject;
+//! use docking_logic::console::json::JsonObject;
 //! let mut s = heapless::String::<128>::new();
 //! let mut o = JsonObject::new(&mut s);
 //! o.str("cone", "cf-peek")?.fixed("bore_mm", 26050, 3)?;
