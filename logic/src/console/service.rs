@@ -1,7 +1,7 @@
 //! Console service: runs technician commands against the controller.
 //!
 //! [`Console::poll`] is called from the main loop after the controller's poll. Per call it
-//! reads at most [`MAX_BYTES_PER_POLL`](super::line::MAX_BYTES_PER_POLL) bytes and runs
+//! reads at most [`super::line::MAX_BYTES_PER_POLL`] bytes and runs
 //! at most one command, so a flood of input costs the control loop a bounded slice of
 //! time per iteration and is otherwise absorbed by the UART's receive buffer. Replies go
 //! to an output ring that is drained into the [`ConsoleIo`] as fast as it takes them; a

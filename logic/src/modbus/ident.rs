@@ -1,0 +1,115 @@
+//! # Device identification (0x2B / MEI 0x0E)
+//!
+//! Conformity level 0x83 (basic, regular and extended objects; stream and individual
+//! access). Read device id codes 1 (basic stream: objects 0–2), 2 (regular stream:
+//! 0–0x7F), 3 (extended stream: all), 4 (one object). Objects: 0 VendorName
+//! [`VENDOR_NAME`], 1 ProductCode [`PRODUCT_CODE`], 2 MajorMinorRevision (the firmware
+//! version), 4 ProductName [`PRODUCT_NAME`], 5 ModelName [`MODEL_NAME`], 0x80 the unit's
+//! serial number (as passed to [`Server::poll`](super::Server::poll), at most [`SERIAL_OBJECT_MAX`] bytes). A
+//! stream that does not fit one reply sets "more follows" and the next object id; a
+//! stream request for an object id that does not exist restarts at object 0 (the spec's
+//! rule); an individual request for one is exception 02; any other read device id code
+//! is exception 03.
+
+use super::pdu::Reply;
+use super::{exception, MAX_FRAME};
+
+/// Object 0, VendorName, unless the commissioning file names the machine's builder
+/// ([`crate::controller::Identity`]).
+pub const VENDOR_NAME: &str = "docking-controller project";
+/// Object 1, ProductCode (the firmware package).
+pub const PRODUCT_CODE: &str = "docking-controller";
+/// Object 2, MajorMinorRevision (the firmware version).
+pub const REVISION: &str = env!("CARGO_PKG_VERSION");
+/// Object 4, ProductName, unless the commissioning file names the product.
+pub const PRODUCT_NAME: &str = "Automatic connector docking controller";
+/// Object 5, ModelName.
+pub const MODEL_NAME: &str = "STM32F407";
+/// Object 0x80 (private): the unit's serial number.
+pub const OBJECT_SERIAL: u8 = 0x80;
+/// The unit serial's longest length in object 0x80, bytes (longer is cut).
+pub const SERIAL_OBJECT_MAX: usize = 32;
+/// The conformity level: basic, regular and extended, stream and individual access.
+pub const CONFORMITY: u8 = 0x83;
+/// The objects, in stream order.
+const OBJECTS: [u8; 6] = [0, 1, 2, 4, 5, OBJECT_SERIAL];
+
+fn device_object(id: u8, serial: &str, names: crate::controller::Identity) -> Option<&[u8]> {
+    Some(match id {
+        0 => names.vendor.as_bytes(),
+        1 => PRODUCT_CODE.as_bytes(),
+        2 => REVISION.as_bytes(),
+        4 => names.product.as_bytes(),
+        5 => MODEL_NAME.as_bytes(),
+        OBJECT_SERIAL => {
+            let b = serial.as_bytes();
+            b.get(..SERIAL_OBJECT_MAX).unwrap_or(b)
+        }
+        _ => return None,
+    })
+}
+
+/// Function 0x2B: `pdu` is the request's (function included); the reply goes to
+/// `out` (the unit address is there already); returns its length without the CRC.
+pub(super) fn device_identification(
+    pdu: &[u8],
+    serial: &str,
+    names: crate::controller::Identity,
+    out: &mut [u8; MAX_FRAME],
+) -> Reply {
+    const HEAD: usize = 8; // unit, 0x2B, 0x0E, code, conformity, more, next, count
+    let &[_, mei, code, object] = pdu else {
+        return match pdu.get(1) {
+            Some(&0x0E) | None => Reply::Exception(exception::ILLEGAL_DATA_VALUE),
+            Some(_) => Reply::Exception(exception::ILLEGAL_FUNCTION),
+        };
+    };
+    if mei != 0x0E {
+        return Reply::Exception(exception::ILLEGAL_FUNCTION);
+    }
+    let last_id = match code {
+        1 => 0x02,
+        2 => 0x7F,
+        3 | 4 => 0xFF,
+        _ => return Reply::Exception(exception::ILLEGAL_DATA_VALUE),
+    };
+    let known = device_object(object, serial, names).is_some();
+    if code == 4 && !known {
+        return Reply::Exception(exception::ILLEGAL_DATA_ADDRESS);
+    }
+    let first = if known && object <= last_id {
+        object
+    } else {
+        0
+    };
+    let mut pos = HEAD;
+    let mut count: u8 = 0;
+    let (mut more, mut next) = (0x00, 0x00);
+    for &id in OBJECTS.iter().filter(|&&id| id >= first && id <= last_id) {
+        if code == 4 && id != object {
+            continue;
+        }
+        let value = device_object(id, serial, names).unwrap_or(&[]);
+        let end = pos + 2 + value.len();
+        // Room for the CRC after it.
+        match out.get_mut(pos..end).filter(|_| end + 2 <= MAX_FRAME) {
+            Some(dst) => {
+                if let Some((hdr, body)) = dst.split_first_chunk_mut::<2>() {
+                    *hdr = [id, value.len() as u8];
+                    body.copy_from_slice(value);
+                }
+            }
+            None => {
+                more = 0xFF;
+                next = id;
+                break;
+            }
+        }
+        pos = end;
+        count += 1;
+    }
+    if let Some(h) = out.get_mut(1..HEAD) {
+        h.copy_from_slice(&[0x2B, 0x0E, code, CONFORMITY, more, next, count]);
+    }
+    Reply::Normal(pos)
+}

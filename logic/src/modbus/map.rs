@@ -1,0 +1,459 @@
+//! # The register map
+//!
+//! Addresses are the PDU's (0-based; a PLC's "30001"/"40001"/"00001" numbering is the
+//! address + 1 in its table). The map is stable: registers may be added, in reserved
+//! addresses or at the end, never moved, rescaled or reused ([`MAP_VERSION`] counts
+//! additions). Reserved addresses inside a block read 0, so a PLC can read a block in
+//! one request; addresses past the end of a block are exception 02. 32-bit values are
+//! two registers, **high word first** (at the lower address). Signed values are two's
+//! complement `i16`, saturating at ±32 767 (±3276.7 N). Forces are rounded to the
+//! nearest 0.1 N.
+//!
+//! **Input registers** (0x04), read-only, a consistent snapshot per request:
+//!
+//! | addr | name | unit, scaling | type |
+//! |---|---|---|---|
+//! | 0 | status word | bits below | u16 |
+//! | 1 | sequencer state | code below | u16 |
+//! | 2 | contact phase | 0 none, 1–4 | u16 |
+//! | 3 | force | 0.1 N | i16 |
+//! | 4 | force limit at the present depth | 0.1 N | i16 |
+//! | 5 | axis position from home | 0.01 mm | i16 |
+//! | 6 | active fault | fault code, 0xFFFF none | u16 |
+//! | 7 | peak force since boot | 0.1 N | i16 |
+//! | 8 | last command written here | command code (below), 0 none | u16 |
+//! | 9 | its result | 0 accepted, else the refusal code (below) | u16 |
+//! | 10 | maintenance mode at the console (map version 2) | 1 on: PLC motion refused, READY low; 0 off | u16 |
+//! | 11–15 | reserved | | |
+//! | 16–17 | lifetime cycles | cycles | u32 |
+//! | 18–19 | cone cycles | cycles | u32 |
+//! | 20–21 | cone wear (odometer model) | nm | u32 |
+//! | 22 | cone wear (odometer model) | µm, rounded down | u16 |
+//! | 23 | wear level (the one acted on) | 0 ok, 1 warning, 2 limit | u16 |
+//! | 24–25 | remaining cone life | nominal cycles | u32 |
+//! | 26 | wear of the limit | 0.1 % | u16 |
+//! | 27 | wear limit | µm | u16 |
+//! | 28–29 | overload events, lifetime | events | u32 |
+//! | 30–31 | faults, lifetime | faults | u32 |
+//! | 32–33 | faults since boot | faults | u32 |
+//! | 34–35 | overload trips since boot | trips | u32 |
+//! | 36–39 | reserved | | |
+//! | 40 | last fault | fault code, 0xFFFF none | u16 |
+//! | 41–42 | last fault's cycle | cycle number (0: before the first) | u32 |
+//! | 43 | last fault's peak force | 0.1 N | i16 |
+//! | 44 | last fault's contact phase | 0 none, 1–4 | u16 |
+//! | 45–47 | reserved | | |
+//! | 48 | cone id | installation number (1 = first) | u16 |
+//! | 49 | cone material | 0 ZQSn5-2, 1 QSn6-6-3, 2 CF-PEEK | u16 |
+//! | 50–59 | cone serial | ASCII, 2 chars a register (first in the high byte), NUL padded, 20 chars | 10 × u16 |
+//! | 60–63 | reserved | | |
+//! | 64 | firmware major | | u16 |
+//! | 65 | firmware minor | | u16 |
+//! | 66 | firmware patch | | u16 |
+//! | 67 | register map version | [`MAP_VERSION`] | u16 |
+//!
+//! Status word (and **discrete inputs** 0–11, 0x02, the same bits): 0 READY, 1 MATED,
+//! 2 moving, 3 FAULT, 4 force warning, 5 MAINTENANCE (cone past its warning level),
+//! 6 load cell calibrated, 7 E-STOP open, 8 DOCK input asserted (as filtered), 9 cone
+//! worn out (wear level limit: docking refused), 10 docking (under way or mated),
+//! 11 maintenance mode at the console (map version 2).
+//!
+//! Sequencer state codes: 0 power-up, 1 homing, 2 locking, 3 idle, 4 pre-align,
+//! 5 releasing, 6 inserting, 7 holding, 8 extracting, 9 returning, 10 backing off,
+//! 11 faulted, 12 recovering.
+//!
+//! Fault codes ([`crate::sequencer::FaultKind::code`]): 0 overload, 1 sensor
+//! disconnected, 2 sensor saturated, 3 sensor stuck, 4 implausible tare, 5 axis stall,
+//! 6 overtravel, 7 lock not released, 8 lock not locked, 9 switch conflict, 10 I/O,
+//! 11 tension, 12 storage, 13 emergency stop, 14 stopped, 15 hold force, 16 unseen stop
+//! (the stop latch held the driver off for a stop never reported).
+//!
+//! **Coils** (0x01 / 0x05 / 0x0F), momentary commands, read back 0:
+//!
+//! | addr | command | accepted when (else exception 01, the reason in input register 9) |
+//! |---|---|---|
+//! | 0 | dock (and hold until undock) | READY: idle, homed and locked, calibrated, cone not worn out, E-STOP closed |
+//! | 1 | undock | a docking under way or mated |
+//! | 2 | clear fault (starts the recovery to home) | a latched fault, E-STOP closed |
+//! | 3 | stop (latches the `stopped` fault) | always |
+//! | 4 | home (after a reset) | power-up, E-STOP closed |
+//!
+//! **Holding register** (0x03 / 0x06 / 0x10) 0: command register, write 1 dock, 2 undock,
+//! 3 clear fault, 4 stop, 5 home (the coil's address + 1); reads 0.
+//!
+//! The rules are the controller's own, the same for every source
+//! ([`Controller::command`]); an accepted command is acted on in the next control step.
+//! Input registers 8–9 hold the last command written to this server and its result: 0
+//! accepted, or the refusal's code ([`crate::controller::Refusal::code`]: 1 E-STOP open,
+//! 2 not idle, 3 not calibrated, 4 cone worn out, 5 not homed and locked, 6 nothing to
+//! undock, 7 no fault to clear, 8 already homed, 9 maintenance mode: a technician is at
+//! the console, and every command but stop is refused to the PLC).
+//!
+//! Writing 0 (a coil off, register value 0) is a no-op answered normally. One command a
+//! request: a multiple write with more than one command is exception 03 and runs none
+//! of them — except stop, which runs whenever it is written (a stop is never refused;
+//! the exception still tells the PLC the rest did not run). **Broadcast** (unit 0): stop
+//! runs on every unit; dock, undock, clear fault and home move the machine and are
+//! **unicast only** (a broadcast one is ignored). Reads are never broadcast.
+
+use crate::controller::{Bsp, Controller};
+use crate::odometer::WearLevel;
+use crate::sequencer::{Request, State};
+
+/// The register map's version: bumped when registers are added (never moved or
+/// reused).
+pub const MAP_VERSION: u16 = 2;
+
+/// Input register addresses (function 0x04); see the module doc for units.
+pub mod ir {
+    /// Status word ([`super::status`] bits).
+    pub const STATUS: u16 = 0;
+    /// Sequencer state code ([`super::state_code`]).
+    pub const STATE: u16 = 1;
+    /// Contact phase, 0 none, 1–4.
+    pub const PHASE: u16 = 2;
+    /// Force, 0.1 N, i16.
+    pub const FORCE: u16 = 3;
+    /// Force limit at the present depth, 0.1 N, i16.
+    pub const FORCE_LIMIT: u16 = 4;
+    /// Axis position from home, 0.01 mm, i16.
+    pub const POSITION: u16 = 5;
+    /// Active fault code, 0xFFFF none.
+    pub const ACTIVE_FAULT: u16 = 6;
+    /// Peak force since boot, 0.1 N, i16.
+    pub const PEAK_FORCE: u16 = 7;
+    /// The last command written to this server (its code, [`super::Command::code`]),
+    /// 0 none since boot.
+    pub const LAST_COMMAND: u16 = 8;
+    /// Its result: 0 accepted, else why it was refused
+    /// ([`crate::controller::Refusal::code`]).
+    pub const LAST_COMMAND_RESULT: u16 = 9;
+    /// Maintenance mode at the console: 1 on (PLC motion refused), 0 off.
+    pub const MAINTENANCE_MODE: u16 = 10;
+    /// Lifetime cycles, u32 (high word first).
+    pub const LIFETIME_CYCLES: u16 = 16;
+    /// Cone cycles, u32.
+    pub const CONE_CYCLES: u16 = 18;
+    /// Cone wear (the odometer's model), nm, u32.
+    pub const WEAR_NM: u16 = 20;
+    /// Cone wear (the odometer's model), µm (rounded down), u16.
+    pub const WEAR_UM: u16 = 22;
+    /// Wear level acted on: 0 ok, 1 warning, 2 limit.
+    pub const WEAR_LEVEL: u16 = 23;
+    /// Remaining cone life, nominal cycles, u32.
+    pub const REMAINING_CYCLES: u16 = 24;
+    /// Wear as a share of the limit, 0.1 %.
+    pub const WEAR_PERMILLE: u16 = 26;
+    /// Wear limit, µm.
+    pub const WEAR_LIMIT_UM: u16 = 27;
+    /// Overload events over the machine's life, u32.
+    pub const OVERLOAD_EVENTS: u16 = 28;
+    /// Faults over the machine's life, u32.
+    pub const FAULTS_LIFETIME: u16 = 30;
+    /// Faults latched since boot, u32.
+    pub const FAULTS_SINCE_BOOT: u16 = 32;
+    /// Overload trips since boot, u32.
+    pub const OVERLOAD_TRIPS_SINCE_BOOT: u16 = 34;
+    /// Last fault's code, 0xFFFF none.
+    pub const LAST_FAULT_CODE: u16 = 40;
+    /// Last fault's cycle number, u32.
+    pub const LAST_FAULT_CYCLE: u16 = 41;
+    /// Last fault's peak force, 0.1 N, i16.
+    pub const LAST_FAULT_PEAK_FORCE: u16 = 43;
+    /// Last fault's contact phase, 0 none, 1–4.
+    pub const LAST_FAULT_PHASE: u16 = 44;
+    /// Cone id (installation number).
+    pub const CONE_ID: u16 = 48;
+    /// Cone material code.
+    pub const CONE_MATERIAL: u16 = 49;
+    /// Cone serial, [`CONE_SERIAL_REGS`] registers of ASCII.
+    pub const CONE_SERIAL: u16 = 50;
+    /// Registers of the cone serial (2 characters each).
+    pub const CONE_SERIAL_REGS: u16 = 10;
+    /// Firmware version: major.
+    pub const FW_MAJOR: u16 = 64;
+    /// Firmware version: minor.
+    pub const FW_MINOR: u16 = 65;
+    /// Firmware version: patch.
+    pub const FW_PATCH: u16 = 66;
+    /// [`super::MAP_VERSION`].
+    pub const MAP_VERSION: u16 = 67;
+    /// Input registers in the map (addresses 0..COUNT).
+    pub const COUNT: u16 = 68;
+}
+
+/// Status word bits (input register 0), and the discrete inputs (bit n = input n).
+pub mod status {
+    /// READY: idle, homed, locked, calibrated, cone not worn out, E-STOP closed.
+    pub const READY: u16 = 1 << 0;
+    /// MATED: connectors engaged, force in the hold envelope.
+    pub const MATED: u16 = 1 << 1;
+    /// The propulsion may be moving.
+    pub const MOVING: u16 = 1 << 2;
+    /// FAULT: a latched fault or the overload back-off.
+    pub const FAULT: u16 = 1 << 3;
+    /// Force above the warning level.
+    pub const WARNING: u16 = 1 << 4;
+    /// MAINTENANCE: the cone past its warning level.
+    pub const MAINTENANCE: u16 = 1 << 5;
+    /// A technician's load-cell calibration is stored.
+    pub const CALIBRATED: u16 = 1 << 6;
+    /// The E-STOP input is open.
+    pub const ESTOP_OPEN: u16 = 1 << 7;
+    /// The DOCK input is asserted (as filtered).
+    pub const DOCK_INPUT: u16 = 1 << 8;
+    /// The cone is worn out (docking refused until it is replaced).
+    pub const WORN_OUT: u16 = 1 << 9;
+    /// A docking is under way or mated.
+    pub const DOCKING: u16 = 1 << 10;
+    /// A technician has the machine in maintenance mode at the console: motion
+    /// commands from the PLC are refused (refusal 9) and READY is low.
+    pub const MAINTENANCE_MODE: u16 = 1 << 11;
+    /// Discrete inputs in the map (the bits above).
+    pub const COUNT: u16 = 12;
+}
+
+/// Commands (coil address = code − 1; holding register 0 value = code).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Command {
+    /// Dock and hold until undock (accepted when READY).
+    Dock,
+    /// Undock (accepted while docking or mated).
+    Undock,
+    /// Clear the latched fault and recover to home (accepted when faulted, E-STOP
+    /// closed).
+    ClearFault,
+    /// Stop all motion, latching the `stopped` fault (always accepted; also broadcast).
+    Stop,
+    /// Find home and lock after a reset (accepted at power-up).
+    Home,
+}
+
+impl Command {
+    /// Every command, in coil order.
+    pub const ALL: [Self; 5] = [
+        Self::Dock,
+        Self::Undock,
+        Self::ClearFault,
+        Self::Stop,
+        Self::Home,
+    ];
+
+    /// The command register's value (1–5).
+    pub const fn code(self) -> u16 {
+        match self {
+            Self::Dock => 1,
+            Self::Undock => 2,
+            Self::ClearFault => 3,
+            Self::Stop => 4,
+            Self::Home => 5,
+        }
+    }
+
+    /// From the command register's value.
+    pub const fn from_code(code: u16) -> Option<Self> {
+        match code {
+            1 => Some(Self::Dock),
+            2 => Some(Self::Undock),
+            3 => Some(Self::ClearFault),
+            4 => Some(Self::Stop),
+            5 => Some(Self::Home),
+            _ => None,
+        }
+    }
+
+    /// The command's coil.
+    pub const fn coil(self) -> u16 {
+        self.code() - 1
+    }
+
+    /// What is asked of the controller.
+    pub const fn request(self) -> Request {
+        match self {
+            Self::Dock => Request::Dock,
+            Self::Undock => Request::Undock,
+            Self::ClearFault => Request::ClearFault,
+            Self::Stop => Request::Stop,
+            Self::Home => Request::Home,
+        }
+    }
+
+    /// Whether it moves the machine (unicast only).
+    pub const fn moves(self) -> bool {
+        !matches!(self, Self::Stop)
+    }
+}
+
+/// Command coils in the map (addresses 0..COIL_COUNT).
+pub const COIL_COUNT: u16 = 5;
+/// Holding registers in the map: 0, the command register.
+pub const HOLDING_COUNT: u16 = 1;
+
+/// The sequencer state's code (input register 1).
+pub const fn state_code(s: &State) -> u16 {
+    match s {
+        State::PowerUp => 0,
+        State::Homing { .. } => 1,
+        State::Locking { .. } => 2,
+        State::Idle => 3,
+        State::PreAlign { .. } => 4,
+        State::Releasing { .. } => 5,
+        State::Inserting { .. } => 6,
+        State::Holding { .. } => 7,
+        State::Extracting { .. } => 8,
+        State::Returning { .. } => 9,
+        State::BackingOff { .. } => 10,
+        State::Faulted { .. } => 11,
+        State::Recovering { .. } => 12,
+    }
+}
+
+/// Decimal digits at the start of `s`, saturating.
+pub(super) const fn parse_u16(s: &str) -> u16 {
+    let mut b = s.as_bytes();
+    let mut v: u16 = 0;
+    while let [d, rest @ ..] = b {
+        if !d.is_ascii_digit() {
+            break;
+        }
+        v = v.saturating_mul(10).saturating_add((*d - b'0') as u16);
+        b = rest;
+    }
+    v
+}
+
+/// The firmware version (major, minor, patch), from `Cargo.toml` at build time.
+pub const FIRMWARE_VERSION: [u16; 3] = [
+    parse_u16(env!("CARGO_PKG_VERSION_MAJOR")),
+    parse_u16(env!("CARGO_PKG_VERSION_MINOR")),
+    parse_u16(env!("CARGO_PKG_VERSION_PATCH")),
+];
+
+/// mN → 0.1 N, rounded to the nearest, saturating to `i16`, as a register.
+pub(super) fn decinewtons(mn: i32) -> u16 {
+    let mn = i64::from(mn);
+    let dn = (mn + if mn >= 0 { 50 } else { -50 }) / 100;
+    dn.clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16 as u16
+}
+
+/// µm → 0.01 mm, rounded to the nearest, saturating to `i16`, as a register.
+pub(super) fn centimillimetres(um: i32) -> u16 {
+    let um = i64::from(um);
+    let v = (um + if um >= 0 { 5 } else { -5 }) / 10;
+    v.clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16 as u16
+}
+
+fn sat_u16(v: u64) -> u16 {
+    u16::try_from(v).unwrap_or(u16::MAX)
+}
+
+/// The status word (input register 0; discrete inputs 0–11).
+pub fn status_word<B: Bsp>(ctrl: &Controller<B>) -> u16 {
+    let s = ctrl.status();
+    let h = s.handshake;
+    let bits = [
+        (h.ready, status::READY),
+        (h.mated, status::MATED),
+        (s.state.is_moving(), status::MOVING),
+        (h.fault, status::FAULT),
+        (s.warning, status::WARNING),
+        (h.maintenance, status::MAINTENANCE),
+        (ctrl.calibrated(), status::CALIBRATED),
+        (h.estop, status::ESTOP_OPEN),
+        (h.dock, status::DOCK_INPUT),
+        (s.wear_level == WearLevel::Limit, status::WORN_OUT),
+        (s.state.is_docking(), status::DOCKING),
+        (ctrl.maintenance_mode(), status::MAINTENANCE_MODE),
+    ];
+    bits.iter()
+        .filter(|(on, _)| *on)
+        .fold(0, |w, (_, bit)| w | bit)
+}
+
+/// The input registers now, 0..[`ir::COUNT`] (reserved addresses 0; the last command
+/// and its result, 8–9, are the [`Server`](super::Server)'s and read 0 here).
+pub fn input_registers<B: Bsp>(ctrl: &Controller<B>) -> [u16; ir::COUNT as usize] {
+    let mut r = [0u16; ir::COUNT as usize];
+    let mut set = |addr: u16, v: u16| {
+        if let Some(x) = r.get_mut(usize::from(addr)) {
+            *x = v;
+        }
+    };
+    let s = ctrl.status();
+    let odo = ctrl.odometer();
+    let life = odo.lifetime();
+    let cone = odo.cone();
+    let limit_nm = odo.config().limit_nm;
+    let phase = |p: Option<crate::profile::ContactPhase>| p.map_or(0, |p| u16::from(p.number()));
+
+    set(ir::STATUS, status_word(ctrl));
+    set(ir::STATE, state_code(&s.state));
+    set(ir::PHASE, phase(s.phase));
+    set(ir::FORCE, decinewtons(s.force_mn));
+    set(ir::FORCE_LIMIT, decinewtons(s.limit_mn));
+    set(ir::POSITION, centimillimetres(s.pos_um));
+    set(
+        ir::ACTIVE_FAULT,
+        s.fault.map_or(0xFFFF, |f| u16::from(f.code())),
+    );
+    set(ir::PEAK_FORCE, decinewtons(s.peak_force_mn));
+
+    let mut set32 = |addr: u16, v: u32| {
+        set(addr, (v >> 16) as u16);
+        set(addr.saturating_add(1), v as u16);
+    };
+    set32(ir::LIFETIME_CYCLES, life.cycles);
+    set32(ir::CONE_CYCLES, cone.cycles);
+    set32(ir::WEAR_NM, odo.wear_nm());
+    set32(ir::REMAINING_CYCLES, odo.remaining_cycles());
+    set32(ir::OVERLOAD_EVENTS, life.overload_events);
+    set32(ir::FAULTS_LIFETIME, life.faults);
+    set32(ir::FAULTS_SINCE_BOOT, ctrl.fault_count());
+    set32(ir::OVERLOAD_TRIPS_SINCE_BOOT, ctrl.overload_trips());
+    let last = ctrl.faults().last().copied();
+    set32(ir::LAST_FAULT_CYCLE, last.map_or(0, |f| f.cycle));
+
+    set(ir::WEAR_UM, sat_u16(u64::from(odo.wear_nm() / 1_000)));
+    set(
+        ir::WEAR_LEVEL,
+        match s.wear_level {
+            WearLevel::Ok => 0,
+            WearLevel::Warning => 1,
+            WearLevel::Limit => 2,
+        },
+    );
+    set(
+        ir::WEAR_PERMILLE,
+        sat_u16(u64::from(odo.wear_nm()) * 1_000 / u64::from(limit_nm.max(1))),
+    );
+    set(ir::WEAR_LIMIT_UM, sat_u16(u64::from(limit_nm / 1_000)));
+    set(
+        ir::LAST_FAULT_CODE,
+        last.map_or(0xFFFF, |f| u16::from(f.kind.code())),
+    );
+    set(
+        ir::LAST_FAULT_PEAK_FORCE,
+        last.map_or(0, |f| decinewtons(f.peak_force_mn)),
+    );
+    set(ir::LAST_FAULT_PHASE, last.map_or(0, |f| phase(f.phase)));
+    set(ir::CONE_ID, cone.id);
+    set(ir::CONE_MATERIAL, u16::from(cone.material.code()));
+    let serial = cone
+        .serial
+        .get(..usize::from(cone.serial_len))
+        .unwrap_or(&[]);
+    let serial_regs = ir::CONE_SERIAL..ir::CONE_SERIAL + ir::CONE_SERIAL_REGS;
+    for (addr, pair) in serial_regs.zip(serial.chunks(2)) {
+        let hi = pair.first().copied().unwrap_or(0);
+        let lo = pair.get(1).copied().unwrap_or(0);
+        set(addr, u16::from_be_bytes([hi, lo]));
+    }
+    let [major, minor, patch] = FIRMWARE_VERSION;
+    set(ir::FW_MAJOR, major);
+    set(ir::FW_MINOR, minor);
+    set(ir::FW_PATCH, patch);
+    set(ir::MAP_VERSION, MAP_VERSION);
+    set(ir::MAINTENANCE_MODE, u16::from(ctrl.maintenance_mode()));
+    r
+}
