@@ -25,4 +25,5 @@ pub mod fields;
 pub mod json;
 pub mod line;
 pub mod parse;
+mod reports;
 pub mod service;

@@ -1,0 +1,314 @@
+//! The console's reports (`status`, `wear`, `faults`, `measurements`, `history`): each
+//! one field list ([`Fields`]), rendered as `key=value` text or as one JSON line by the
+//! service, so the two name every field the same way (docs/console.md lists them).
+//!
+//! A report's data is copied from the controller into a view (`*_view`, while the
+//! console holds the controller) and written out later from the view (`*_fields`),
+//! so the control step never waits for formatting.
+
+use core::fmt;
+
+use super::fields::Fields;
+use crate::controller::{Bsp, Controller, HistoryEntry};
+
+/// The entries of one `history` reply.
+pub(super) type HistoryEntries =
+    heapless::Vec<HistoryEntry, { super::parse::HISTORY_MAX as usize }>;
+
+/// `status`.
+pub(super) struct StatusView {
+    s: crate::controller::Status,
+    calibrated: bool,
+    reset: Option<crate::diag::ResetCause>,
+    stack: Option<(u32, u32)>,
+    maint: bool,
+}
+
+/// `wear`.
+pub(super) struct WearView {
+    cone: crate::odometer::Cone,
+    life: crate::odometer::Lifetime,
+    wear_nm: u32,
+    remaining: u32,
+    limit_nm: u64,
+    warn_nm: i64,
+    level: crate::odometer::WearLevel,
+    est: crate::estimate::Estimate,
+    base: u32,
+    measured: Option<i64>,
+    /// The cone's load–distance, thousandths of N·mm.
+    cone_nmm_milli: i64,
+    /// The cycle in progress (counted into the cone at its end), same unit.
+    in_cycle_nmm_milli: i64,
+    readings: usize,
+}
+
+/// `faults`.
+pub(super) struct FaultsView {
+    active: Option<&'static str>,
+    count: u32,
+    overloads: u32,
+    recs: heapless::Vec<crate::controller::FaultRecord, 16>,
+    resets: crate::diag::ResetCounts,
+    queued: usize,
+    dropped: u32,
+    crash: Option<crate::diag::Crash>,
+}
+
+/// `measurements`.
+pub(super) struct MeasurementsView {
+    base: u32,
+    assumed: bool,
+    cone: u16,
+    list: heapless::Vec<crate::odometer::Measurement, { crate::odometer::READINGS_KEPT }>,
+}
+
+/// An optional value: the value, or `none` / `null`.
+fn opt(f: &mut dyn Fields, key: &str, v: Option<&str>) -> fmt::Result {
+    match v {
+        Some(v) => f.str(key, v),
+        None => f.none(key),
+    }
+}
+
+/// `phase`: the contact phase's number, or none outside the cone.
+fn phase_field(f: &mut dyn Fields, phase: Option<crate::profile::ContactPhase>) -> fmt::Result {
+    match phase {
+        Some(p) => f.u64("phase", p.number() as u64),
+        None => f.none("phase"),
+    }
+}
+
+/// `status` (docs/console.md).
+pub(super) fn status_fields(f: &mut dyn Fields, v: &StatusView) -> fmt::Result {
+    let StatusView {
+        s,
+        calibrated,
+        reset,
+        stack,
+        maint,
+    } = *v;
+    f.str("state", s.state.name())?;
+    phase_field(f, s.phase)?;
+    f.fixed("force_n", s.force_mn as i64, 3)?;
+    f.fixed("limit_n", s.limit_mn as i64, 3)?;
+    f.fixed("pos_mm", s.pos_um as i64, 3)?;
+    f.u64("cycles_completed", s.cycles_completed as u64)?;
+    opt(f, "fault", s.fault.map(|x| x.name()))?;
+    f.bool("warning", s.warning)?;
+    f.fixed("peak_force_n", s.peak_force_mn as i64, 3)?;
+    f.bool("maintenance", maint)?;
+    f.bool("calibrated", calibrated)?;
+    opt(f, "reset", reset.map(|r| r.name()))?;
+    match stack {
+        Some((used, size)) => {
+            f.u64("stack_used", used as u64)?;
+            f.u64("stack_size", size as u64)?;
+        }
+        None => {
+            f.none("stack_used")?;
+            f.none("stack_size")?;
+        }
+    }
+    let h = s.handshake;
+    f.bool("in_dock", h.dock)?;
+    f.bool("in_estop_open", h.estop)?;
+    f.bool("out_ready", h.ready)?;
+    f.bool("out_mated", h.mated)?;
+    f.bool("out_fault", h.fault)?;
+    f.bool("out_maintenance", h.maintenance)
+}
+
+/// `wear` (docs/console.md).
+pub(super) fn wear_fields(f: &mut dyn Fields, v: &WearView) -> fmt::Result {
+    let WearView {
+        ref cone,
+        ref life,
+        wear_nm,
+        remaining,
+        limit_nm,
+        warn_nm,
+        level,
+        ref est,
+        base,
+        measured,
+        cone_nmm_milli,
+        in_cycle_nmm_milli,
+        readings,
+    } = *v;
+    f.u64("cone", cone.id as u64)?;
+    f.str("material", cone.material.name())?;
+    f.str("serial", cone.serial_str())?;
+    f.u64("cycles", cone.cycles as u64)?;
+    f.fixed("load_distance_nmm", cone_nmm_milli, 3)?;
+    f.fixed("load_distance_in_cycle_nmm", in_cycle_nmm_milli, 3)?;
+    f.fixed("wear_mm", wear_nm as i64, 6)?;
+    f.u64("remaining_cycles", remaining as u64)?;
+    f.str("level", level.name())?;
+    f.fixed("limit_mm", limit_nm as i64, 6)?;
+    f.fixed("warn_mm", warn_nm, 6)?;
+    f.u64("lifetime_cycles", life.cycles as u64)?;
+    f.u64("cones_installed", life.cones_installed as u64)?;
+    f.u64("overload_events", life.overload_events as u64)?;
+    f.u64("faults", life.faults as u64)?;
+    f.fixed("peak_force_n", life.peak_force_mn as i64, 3)?;
+    match measured {
+        Some(m) => f.fixed("wear_measured_mm", m, 6)?,
+        None => f.none("wear_measured_mm")?,
+    }
+    f.fixed("wear_estimate_mm", est.wear_nm as i64, 6)?;
+    f.fixed("estimate_low_mm", est.low_nm as i64, 6)?;
+    f.fixed("estimate_high_mm", est.high_nm as i64, 6)?;
+    f.u64("remaining_estimate_cycles", est.remaining_cycles as u64)?;
+    f.fixed("baseline_bore_mm", base as i64, 3)?;
+    f.bool("baseline_assumed", cone.baseline().is_none())?;
+    f.u64("readings", readings as u64)
+}
+
+/// `faults` (docs/console.md).
+pub(super) fn faults_fields(f: &mut dyn Fields, v: &FaultsView) -> fmt::Result {
+    let FaultsView {
+        active,
+        count,
+        overloads,
+        ref recs,
+        ref resets,
+        queued,
+        dropped,
+        crash,
+    } = *v;
+    opt(f, "active", active)?;
+    f.u64("count_since_boot", count as u64)?;
+    f.u64("overload_events_lifetime", overloads as u64)?;
+    f.u64("records_queued", queued as u64)?;
+    f.u64("records_dropped", dropped as u64)?;
+    f.object("resets", &mut |r| {
+        for c in crate::diag::ResetCause::ALL {
+            r.u64(c.name(), resets.of(c) as u64)?;
+        }
+        Ok(())
+    })?;
+    match crash {
+        Some(c) => f.object("last_crash", &mut |x| {
+            x.str("kind", c.kind.name())?;
+            x.hex32("pc", c.pc)?;
+            x.hex32("lr", c.lr)?;
+            x.hex32("cfsr", c.cfsr)?;
+            x.hex32("hfsr", c.hfsr)?;
+            x.str("file", c.file_str())?;
+            x.u64("line", c.line as u64)
+        })?,
+        None => f.none("last_crash")?,
+    }
+    f.records("faults", recs.len(), &mut |i, x| {
+        let Some(r) = recs.get(i) else {
+            return Ok(());
+        };
+        x.str("kind", r.kind.name())?;
+        x.u64("cycle", r.cycle as u64)?;
+        phase_field(x, r.phase)?;
+        x.fixed("t_s", r.t_ms as i64, 3)?;
+        x.fixed("peak_force_n", r.peak_force_mn as i64, 3)
+    })
+}
+
+/// `measurements` (docs/console.md).
+pub(super) fn measurements_fields(f: &mut dyn Fields, v: &MeasurementsView) -> fmt::Result {
+    let MeasurementsView {
+        base,
+        assumed,
+        cone,
+        ref list,
+    } = *v;
+    f.u64("cone", cone as u64)?;
+    f.fixed("baseline_bore_mm", base as i64, 3)?;
+    f.bool("baseline_assumed", assumed)?;
+    f.records("readings", list.len(), &mut |i, x| {
+        let Some(m) = list.get(i) else {
+            return Ok(());
+        };
+        x.u64("cone_cycle", m.cone_cycle as u64)?;
+        x.u64("cycle", m.lifetime_cycle as u64)?;
+        x.fixed("bore_mm", m.bore_um as i64, 3)?;
+        x.fixed("wear_mm", m.wear_nm(base) as i64, 6)?;
+        x.fixed("model_wear_mm", m.model_nm as i64, 6)
+    })
+}
+
+/// `status`'s data (with the controller).
+pub(super) fn status_view<B: Bsp>(ctrl: &Controller<B>, maint: bool) -> StatusView {
+    StatusView {
+        s: ctrl.status(),
+        calibrated: ctrl.calibrated(),
+        reset: ctrl.last_reset(),
+        stack: ctrl.stack_usage(),
+        maint,
+    }
+}
+
+/// `wear`'s data (with the controller).
+pub(super) fn wear_view<B: Bsp>(ctrl: &Controller<B>) -> WearView {
+    let odo = ctrl.odometer();
+    let cone = *odo.cone();
+    let cfg = *odo.config();
+    // The level acted on (the estimate's band once measured), the estimate, the last
+    // reading.
+    let base = ctrl.baseline_or_nominal();
+    WearView {
+        cone,
+        life: *odo.lifetime(),
+        wear_nm: odo.wear_nm(),
+        remaining: odo.remaining_cycles(),
+        limit_nm: cfg.limit_nm as u64,
+        warn_nm: (cfg.limit_nm as u64 * cfg.warn_pct as u64 / 100) as i64,
+        level: ctrl.wear_level(),
+        est: ctrl.wear_estimate(),
+        base,
+        measured: ctrl.measurements().last().map(|m| m.wear_nm(base) as i64),
+        // The cone's load–distance (Q63.1 mN·µm) in thousandths of N·mm.
+        cone_nmm_milli: (cone.w_q1 / 2_000).min(i64::MAX as u64) as i64,
+        in_cycle_nmm_milli: (ctrl.journal().cone_w_q1.saturating_sub(cone.w_q1) / 2_000)
+            .min(i64::MAX as u64) as i64,
+        readings: ctrl.measurements().len(),
+    }
+}
+
+/// `faults`' data (with the controller).
+pub(super) fn faults_view<B: Bsp>(ctrl: &Controller<B>) -> FaultsView {
+    FaultsView {
+        active: ctrl.status().fault.map(|f| f.name()),
+        count: ctrl.fault_count(),
+        overloads: ctrl.odometer().lifetime().overload_events,
+        recs: ctrl.faults().copied().collect(),
+        resets: ctrl.reset_counts(),
+        // Records waiting for a rest to be written, and those the full queue dropped.
+        queued: ctrl.records_queued(),
+        dropped: ctrl.records_dropped(),
+        crash: ctrl.last_crash(),
+    }
+}
+
+/// `measurements`' data (with the controller).
+pub(super) fn measurements_view<B: Bsp>(ctrl: &Controller<B>) -> MeasurementsView {
+    MeasurementsView {
+        base: ctrl.baseline_or_nominal(),
+        assumed: ctrl.odometer().cone().baseline().is_none(),
+        cone: ctrl.odometer().cone().id,
+        list: ctrl.measurements().iter().copied().collect(),
+    }
+}
+
+/// `history` (docs/console.md): one record a completed cycle.
+pub(super) fn history_fields(f: &mut dyn Fields, entries: &HistoryEntries) -> fmt::Result {
+    // W in Q63.1 mN·µm → N·mm with 3 decimals: q1 / 2 / 1000 (mN·µm → 1e-3 N·mm units).
+    f.records("history", entries.len(), &mut |i, x| {
+        let Some(e) = entries.get(i) else {
+            return Ok(());
+        };
+        x.u64("cycle", e.lifetime_cycle as u64)?;
+        x.u64("cone", e.cone_id as u64)?;
+        x.u64("cone_cycle", e.cone_cycle as u64)?;
+        x.fixed("load_distance_nmm", (e.w_q1 / 2_000) as i64, 3)?;
+        x.fixed("wear_mm", e.wear_nm as i64, 6)
+    })
+}
