@@ -20,16 +20,7 @@
 //! `_steps` motor steps. Fixed-point formats are stated where they are defined.
 #![no_std]
 #![forbid(unsafe_code)]
-// Firmware paths must not panic on input (tests may).
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::indexing_slicing,
-        clippy::panic,
-        clippy::unwrap_used,
-        clippy::expect_used
-    )
-)]
+// Firmware paths must not panic on input (tests may): [workspace.lints.clippy].
 
 #[macro_use]
 mod fmt;
