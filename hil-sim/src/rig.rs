@@ -565,11 +565,24 @@ pub fn sim_calibration(hx: &Hx711Config) -> Calibration {
     }
 }
 
+/// Control steps [`Rig::booted`] runs: enough to come up, home and lock at 80 SPS.
+pub const BOOT_TICKS: usize = 100;
+
 impl Rig {
     /// A new machine (erased odometer flash, STM32F407 geometry) parked at home,
     /// locked, powered up at t = 0.
     pub fn new(opts: RigOptions) -> Self {
         Self::with_flash(opts, SharedFlash::new(SimFlash::stm32f407_odometer()))
+    }
+
+    /// A new machine ([`Self::new`]) run through its boot: 100 control steps, at rest
+    /// in `idle` (what most tests start from).
+    pub fn booted(opts: RigOptions) -> Self {
+        let mut r = Self::new(opts);
+        for _ in 0..BOOT_TICKS {
+            r.tick();
+        }
+        r
     }
 
     /// The machine booting on an existing odometer flash (a reboot: parked at home).

@@ -32,6 +32,21 @@ mod shared {
         false
     }
 
+    /// Tick `r` until `done` holds, checking before each tick (so nothing ticks if it
+    /// holds already); panics, naming the state, after `max_ticks`.
+    pub fn reach(r: &mut Rig, max_ticks: usize, mut done: impl FnMut(&Rig) -> bool) {
+        for _ in 0..max_ticks {
+            if done(r) {
+                return;
+            }
+            r.tick();
+        }
+        panic!(
+            "not reached in {max_ticks} ticks: state {:?}",
+            r.ctrl.state()
+        );
+    }
+
     /// Tick `r` `ticks` times; panics (saying `why`) if the propulsion or the lock is
     /// driven at any of them.
     pub fn run_without_motion(r: &mut Rig, ticks: usize, why: &str) {
@@ -58,4 +73,4 @@ mod shared {
     }
 }
 
-pub use shared::{corpus_files, run_cycles, run_until, run_without_motion};
+pub use shared::{corpus_files, reach, run_cycles, run_until, run_without_motion};

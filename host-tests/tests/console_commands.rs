@@ -10,7 +10,7 @@ fn rig() -> Rig {
     let mut r = Rig::new(RigOptions::new(80));
     r.console_enabled = true;
     // Boot to idle.
-    for _ in 0..100 {
+    for _ in 0..hil_sim::rig::BOOT_TICKS {
         r.tick();
     }
     r

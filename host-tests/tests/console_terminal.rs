@@ -7,7 +7,7 @@ use hil_sim::rig::{Rig, RigOptions};
 fn rig() -> Rig {
     let mut r = Rig::new(RigOptions::new(80));
     r.console_enabled = true;
-    for _ in 0..100 {
+    for _ in 0..hil_sim::rig::BOOT_TICKS {
         r.tick();
     }
     r

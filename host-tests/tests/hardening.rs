@@ -16,16 +16,7 @@ fn rig() -> Rig {
     Rig::new(RigOptions::new(80))
 }
 
-/// Tick until `done` holds; panics after `max` ticks.
-fn run_until(rig: &mut Rig, max: usize, mut done: impl FnMut(&mut Rig) -> bool) {
-    for _ in 0..max {
-        if done(rig) {
-            return;
-        }
-        rig.tick();
-    }
-    panic!("not reached in {max} ticks: state {:?}", rig.ctrl.state());
-}
+use host_tests::reach;
 
 fn inserting(rig: &Rig) -> bool {
     matches!(rig.ctrl.state(), State::Inserting { .. })
@@ -40,10 +31,10 @@ fn faulted_with(rig: &Rig) -> Option<FaultKind> {
 
 /// Start a cycle and run to `depth_um` of the insertion.
 fn dock_to_depth(rig: &mut Rig, depth_um: f64) {
-    run_until(rig, 2_000, |r| r.ctrl.state() == State::Idle);
+    reach(rig, 2_000, |r| r.ctrl.state() == State::Idle);
     rig.ctrl.request(Request::StartCycle);
     let engage = rig.ctrl.config().machine.engage_um as f64;
-    run_until(rig, 20_000, |r| {
+    reach(rig, 20_000, |r| {
         inserting(r) && r.axis.pos_um() >= engage + depth_um
     });
 }
@@ -52,9 +43,9 @@ fn dock_to_depth(rig: &mut Rig, depth_um: f64) {
 fn a_reversed_bridge_docked_with_zero_wear_and_no_trip() {
     let mut rig = rig();
     rig.script.borrow_mut().reversed = true;
-    run_until(&mut rig, 2_000, |r| r.ctrl.state() == State::Idle);
+    reach(&mut rig, 2_000, |r| r.ctrl.state() == State::Idle);
     rig.ctrl.request(Request::StartCycle);
-    run_until(&mut rig, 40_000, |r| faulted_with(r).is_some());
+    reach(&mut rig, 40_000, |r| faulted_with(r).is_some());
     assert_eq!(faulted_with(&rig), Some(FaultKind::Tension));
     assert!(!rig.axis.enabled(), "the propulsion is off");
     // Stopped early in the cone: at the first samples beyond the tension limit.
@@ -69,7 +60,7 @@ fn an_uncalibrated_load_cell_docked() {
         ..RigOptions::new(80)
     });
     assert!(!rig.ctrl.calibrated());
-    run_until(&mut rig, 2_000, |r| r.ctrl.state() == State::Idle);
+    reach(&mut rig, 2_000, |r| r.ctrl.state() == State::Idle);
     rig.ctrl.request(Request::StartCycle);
     let mut refused = false;
     for _ in 0..2_000 {
@@ -91,7 +82,7 @@ fn a_single_noisy_end_switch_reading_stopped_the_machine() {
     let mut rig = rig();
     dock_to_depth(&mut rig, 5_000.0);
     rig.axis.glitch_end_switch(1);
-    run_until(&mut rig, 40_000, |r| {
+    reach(&mut rig, 40_000, |r| {
         r.ctrl.state() == State::Idle && r.ctrl.odometer().lifetime().cycles == 1
     });
     assert!(
@@ -106,7 +97,7 @@ fn a_real_overtravel_stopped_more_than_one_sample_late() {
     dock_to_depth(&mut rig, 5_000.0);
     let t0 = rig.clock.now_ns();
     rig.axis.set_fault(AxisFault::EndSwitchClosed);
-    run_until(&mut rig, 100, |r| faulted_with(r).is_some());
+    reach(&mut rig, 100, |r| faulted_with(r).is_some());
     assert_eq!(faulted_with(&rig), Some(FaultKind::Overtravel));
     let off = rig
         .axis
@@ -129,12 +120,12 @@ fn a_real_overtravel_stopped_more_than_one_sample_late() {
 #[test]
 fn a_failing_flash_was_retried_at_every_step() {
     let mut rig = rig();
-    run_until(&mut rig, 2_000, |r| r.ctrl.state() == State::Idle);
+    reach(&mut rig, 2_000, |r| r.ctrl.state() == State::Idle);
     rig.ctrl.request(Request::StartCycle);
     // The cycle runs; it fails to write its snapshot at the end.
     rig.flash.with(|f| f.write_protect(true));
     let calls0 = rig.flash.with(|f| f.program_calls());
-    run_until(&mut rig, 40_000, |r| faulted_with(r).is_some());
+    reach(&mut rig, 40_000, |r| faulted_with(r).is_some());
     assert_eq!(faulted_with(&rig), Some(FaultKind::Storage));
     assert_eq!(rig.ctrl.odometer().lifetime().cycles, 1, "counted in RAM");
     assert_eq!(rig.ctrl.storage_errors(), u32::from(STORAGE_ATTEMPTS));
@@ -157,7 +148,7 @@ fn a_failing_flash_was_retried_at_every_step() {
     // writes what was kept in RAM.
     rig.flash.with(|f| f.write_protect(false));
     rig.ctrl.request(Request::ClearFault);
-    run_until(&mut rig, 20_000, |r| {
+    reach(&mut rig, 20_000, |r| {
         r.ctrl.state() == State::Idle && !r.ctrl.persist_pending()
     });
     let flash = rig.flash.clone();
@@ -174,9 +165,9 @@ fn a_cycle_cut_short_by_a_fault_lost_its_load_distance() {
     assert!(pending > 0, "load–distance so far");
     let w_before = rig.ctrl.odometer().cone().w_q1;
     rig.hx.set_fault(Hx711Fault::Disconnected);
-    run_until(&mut rig, 2_000, |r| faulted_with(r).is_some());
+    reach(&mut rig, 2_000, |r| faulted_with(r).is_some());
     assert_eq!(faulted_with(&rig), Some(FaultKind::SensorDisconnected));
-    run_until(&mut rig, 2_000, |r| !r.ctrl.persist_pending());
+    reach(&mut rig, 2_000, |r| !r.ctrl.persist_pending());
     let o = rig.ctrl.odometer();
     assert!(o.cone().w_q1 >= w_before + pending, "in the cone's total");
     assert_eq!(o.cone().cycles, 0, "no cycle counted");
@@ -209,7 +200,7 @@ fn a_reset_mid_cycle_lost_its_load_distance() {
     rig.ctrl.boot(ResetCause::Watchdog, None, &[journal]);
     assert_eq!(rig.ctrl.odometer().cone().w_q1, pending);
     // Written at the first rest (power-up: nothing moves), so a power cut keeps it.
-    run_until(&mut rig, 2_000, |r| !r.ctrl.persist_pending());
+    reach(&mut rig, 2_000, |r| !r.ctrl.persist_pending());
     drop(rig);
     let rebooted = Rig::with_flash(RigOptions::new(80), flash);
     assert_eq!(rebooted.ctrl.odometer().cone().w_q1, pending);

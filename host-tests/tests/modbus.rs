@@ -215,11 +215,7 @@ fn dn(mn: i32) -> i16 {
 }
 
 fn rig_with(opts: RigOptions) -> Rig {
-    let mut r = Rig::new(opts);
-    for _ in 0..100 {
-        r.tick();
-    }
-    r
+    Rig::booted(opts)
 }
 
 fn rig() -> Rig {

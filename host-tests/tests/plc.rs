@@ -5,11 +5,7 @@ use docking_logic::sequencer::State;
 use hil_sim::rig::{Rig, RigOptions};
 
 fn rig() -> Rig {
-    let mut r = Rig::new(RigOptions::new(80));
-    for _ in 0..100 {
-        r.tick();
-    }
-    r
+    Rig::booted(RigOptions::new(80))
 }
 
 use host_tests::run_until;
