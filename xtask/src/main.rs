@@ -1,0 +1,418 @@
+//! `cargo xtask`: the project's tasks in one place (the cargo-xtask convention: a plain
+//! Rust program in the workspace, run through the alias in `.cargo/config.toml`).
+//!
+//! ```text
+//! cargo xtask ci           what CI runs after .ci/run has installed the system packages:
+//!                          fmt, clippy (host, thumb, QEMU image, vboard), rustdoc, the
+//!                          README's test command, the firmware build and its size budget,
+//!                          the odometer on QEMU against the host, the virtual board
+//! cargo xtask size         build the image; flash and static RAM against the budgets,
+//!                          the biggest functions (tools/size-report.py)
+//! cargo xtask qemu         the odometer on a Cortex-M4 (QEMU) compared bit for bit
+//! cargo xtask vboard       the virtual board's clippy, tests and boot scene
+//! cargo xtask measure      docs/measurements.md (tools/figures.sh; --sweep for the sweep)
+//! cargo xtask opt-levels   the opt-level measurement (tools/opt-levels.sh)
+//! ```
+//!
+//! Every task exits non-zero when it fails; `ci` runs every step, then fails if any did,
+//! and ends with `N passed, N failed (Ts)` counted from the test binaries' summaries.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitCode, Stdio};
+use std::time::Instant;
+
+/// The firmware's target.
+const TARGET: &str = "thumbv7em-none-eabihf";
+/// Flash budget: sectors 0–4 (128 KiB); 5–9 stay free for an update slot.
+const FLASH_BUDGET: u64 = 128 * 1024;
+/// Static RAM budget (SRAM above the 24 KiB stack: 32 KiB for .data, .bss, .uninit).
+const RAM_BUDGET: u64 = 32 * 1024;
+
+const USAGE: &str =
+    "usage: cargo xtask <ci | size | qemu | vboard | measure [--sweep] | opt-levels [LEVELS...]>";
+
+fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let root = root();
+    let mut x = Xtask {
+        root,
+        t0: Instant::now(),
+        passed: 0,
+        failed: 0,
+    };
+    let ok = match args.first().map(String::as_str) {
+        Some("ci") if args.len() == 1 => x.ci(),
+        Some("size") if args.len() == 1 => x.size(),
+        Some("qemu") if args.len() == 1 => x.qemu(),
+        Some("vboard") if args.len() == 1 => x.vboard(),
+        Some("measure") => x.script("tools/figures.sh", &args[1..]),
+        Some("opt-levels") => x.script("tools/opt-levels.sh", &args[1..]),
+        Some("-h" | "--help" | "help") => {
+            println!("{USAGE}");
+            return ExitCode::SUCCESS;
+        }
+        _ => {
+            eprintln!("xtask: {USAGE}");
+            return ExitCode::from(2);
+        }
+    };
+    if ok {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    }
+}
+
+/// The repository's root (xtask's manifest is one level below it).
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| PathBuf::from("."))
+}
+
+struct Xtask {
+    root: PathBuf,
+    t0: Instant,
+    /// Tests passed and failed, summed over every `test result:` line seen.
+    passed: u64,
+    failed: u64,
+}
+
+impl Xtask {
+    fn step(&self, what: &str) {
+        println!("\n=== {what} ({}s)", self.t0.elapsed().as_secs());
+    }
+
+    /// A command in `dir` (relative to the root), its output shown as it comes.
+    fn run(&self, dir: &str, program: &str, args: &[&str], env: &[(&str, &str)]) -> bool {
+        let mut c = Command::new(program);
+        c.args(args).current_dir(self.root.join(dir));
+        for (k, v) in env {
+            c.env(k, v);
+        }
+        match c.status() {
+            Ok(s) => s.success(),
+            Err(e) => {
+                eprintln!("xtask: {program}: {e}");
+                false
+            }
+        }
+    }
+
+    /// A command's standard output (standard error shown), or `None` when it failed.
+    fn output(&self, dir: &str, program: &str, args: &[&str]) -> Option<String> {
+        let o = Command::new(program)
+            .args(args)
+            .current_dir(self.root.join(dir))
+            .stderr(Stdio::inherit())
+            .output()
+            .ok()?;
+        o.status
+            .success()
+            .then(|| String::from_utf8_lossy(&o.stdout).into_owned())
+    }
+
+    /// A test command: its output shown line by line and its summaries counted.
+    fn tests(&mut self, dir: &str, args: &[&str]) -> bool {
+        let child = Command::new("cargo")
+            .args(args)
+            .current_dir(self.root.join(dir))
+            .stdout(Stdio::piped())
+            .spawn();
+        let mut child = match child {
+            Ok(c) => c,
+            Err(e) => {
+                eprintln!("xtask: cargo: {e}");
+                return false;
+            }
+        };
+        if let Some(out) = child.stdout.take() {
+            for line in BufReader::new(out).lines().map_while(Result::ok) {
+                println!("{line}");
+                if let Some((p, f)) = test_summary(&line) {
+                    self.passed += p;
+                    self.failed += f;
+                }
+            }
+        }
+        child.wait().is_ok_and(|s| s.success())
+    }
+
+    fn ci(&mut self) -> bool {
+        let mut ok = true;
+        self.step("format");
+        ok &= self.run(".", "cargo", &["fmt", "--all", "--check"], &[]);
+        for dir in ["qemu-check", "vboard"] {
+            ok &= self.run(dir, "cargo", &["fmt", "--check"], &[]);
+        }
+
+        self.step("clippy (host, all targets)");
+        ok &= self.run(
+            ".",
+            "cargo",
+            &[
+                "clippy",
+                "--workspace",
+                "--all-targets",
+                "--",
+                "-D",
+                "warnings",
+            ],
+            &[],
+        );
+        self.step(&format!(
+            "clippy ({TARGET}, firmware and the QEMU check image)"
+        ));
+        ok &= self.run(
+            ".",
+            "cargo",
+            &[
+                "clippy",
+                "-p",
+                "docking-controller",
+                "-p",
+                "docking-logic",
+                "--target",
+                TARGET,
+                "--",
+                "-D",
+                "warnings",
+            ],
+            &[],
+        );
+        ok &= self.run(
+            "qemu-check",
+            "cargo",
+            &["clippy", "--release", "--", "-D", "warnings"],
+            &[],
+        );
+
+        self.step("rustdoc of the logic (-D warnings: a broken intra-doc link fails)");
+        ok &= self.run(
+            ".",
+            "cargo",
+            &["doc", "--no-deps", "-p", "docking-logic"],
+            &[("RUSTDOCFLAGS", "-D warnings")],
+        );
+
+        self.step("tests: cargo test --workspace (the README's test command)");
+        ok &= self.tests(".", &["test", "--workspace"]);
+
+        ok &= self.size();
+        ok &= self.qemu();
+        ok &= self.vboard();
+
+        println!(
+            "\n{} passed, {} failed ({}s)",
+            self.passed,
+            self.failed,
+            self.t0.elapsed().as_secs()
+        );
+        ok
+    }
+
+    /// The README's firmware build, then its size against the budgets.
+    fn size(&mut self) -> bool {
+        self.step("firmware release build (the README's command)");
+        if !self.run(
+            ".",
+            "cargo",
+            &["build", "--release", "--target", TARGET],
+            &[],
+        ) {
+            return false;
+        }
+        let elf = format!("target/{TARGET}/release/docking-controller");
+        self.step(&format!("size report ({elf})"));
+        let Some(report) = self.output(".", "size", &["-A", &elf]) else {
+            return false;
+        };
+        let s = Sections::of(&report);
+        println!(
+            "text {}  data {}  bss {}  =>  flash {} / {} bytes, static RAM {} / {} bytes",
+            s.text,
+            s.data,
+            s.bss,
+            s.flash(),
+            FLASH_BUDGET,
+            s.ram(),
+            RAM_BUDGET
+        );
+        // Where it goes (issue 20): the 20 biggest symbols.
+        self.run(
+            ".",
+            "python3",
+            &["tools/size-report.py", "-n", "20", "--no-groups", &elf],
+            &[],
+        );
+        let mut ok = true;
+        if s.flash() > FLASH_BUDGET {
+            println!("FAIL: flash use over budget");
+            ok = false;
+        }
+        if s.ram() > RAM_BUDGET {
+            println!("FAIL: static RAM use over budget");
+            ok = false;
+        }
+        ok
+    }
+
+    fn qemu(&mut self) -> bool {
+        self.step("odometer bit for bit: host vs Cortex-M4 (QEMU mps2-an386)");
+        let host = self.output(
+            ".",
+            "cargo",
+            &[
+                "run",
+                "-q",
+                "--release",
+                "-p",
+                "hil-sim",
+                "--",
+                "odometer-reference",
+                "--cycles",
+                "300",
+            ],
+        );
+        let m4 = self.output(
+            "qemu-check",
+            "timeout",
+            &["300", "cargo", "run", "-q", "--release"],
+        );
+        let host = host.unwrap_or_default();
+        let m4 = m4.unwrap_or_default();
+        let host = host.lines().next().unwrap_or("").trim();
+        let m4 = m4
+            .lines()
+            .find(|l| l.starts_with("odometer reference:"))
+            .unwrap_or("")
+            .trim();
+        println!("host: {host}");
+        println!("m4:   {m4}");
+        if m4.is_empty() || host != m4 {
+            println!("FAIL: the odometer differs between host and Cortex-M4");
+            return false;
+        }
+        true
+    }
+
+    fn vboard(&mut self) -> bool {
+        self.step("virtual board: clippy, then the release image against the simulated machine");
+        let mut ok = self.run(
+            "vboard",
+            "cargo",
+            &[
+                "clippy",
+                "--release",
+                "--all-targets",
+                "--",
+                "-D",
+                "warnings",
+            ],
+            &[],
+        );
+        ok &= self.tests("vboard", &["test", "--release"]);
+        ok &= self.run(
+            "vboard",
+            "cargo",
+            &["run", "-q", "--release", "--", "scene", "boot"],
+            &[],
+        );
+        ok
+    }
+
+    fn script(&self, path: &str, args: &[String]) -> bool {
+        let mut all = vec![path];
+        all.extend(args.iter().map(String::as_str));
+        self.run(".", "bash", &all, &[])
+    }
+}
+
+/// `(passed, failed)` of a libtest summary line
+/// (`test result: ok. 12 passed; 0 failed; 1 ignored; …`).
+fn test_summary(line: &str) -> Option<(u64, u64)> {
+    let rest = line.trim().strip_prefix("test result: ")?;
+    let count = |word: &str| -> Option<u64> {
+        let end = rest.find(&format!(" {word}"))?;
+        rest[..end].rsplit([' ', '.']).next()?.parse().ok()
+    };
+    Some((count("passed")?, count("failed")?))
+}
+
+/// The image's sections as `size -A` reports them, bytes.
+#[derive(Debug, Default, PartialEq)]
+struct Sections {
+    /// .vector_table, .text, .rodata: in flash.
+    text: u64,
+    /// .data: in flash (its load image) and in RAM.
+    data: u64,
+    /// .bss, .uninit: in RAM.
+    bss: u64,
+}
+
+impl Sections {
+    fn of(report: &str) -> Self {
+        let mut s = Self::default();
+        for line in report.lines() {
+            let mut w = line.split_whitespace();
+            let (Some(name), Some(bytes)) = (w.next(), w.next()) else {
+                continue;
+            };
+            let Ok(n) = bytes.parse::<u64>() else {
+                continue;
+            };
+            match name {
+                ".vector_table" | ".text" | ".rodata" => s.text += n,
+                ".data" => s.data += n,
+                ".bss" | ".uninit" => s.bss += n,
+                _ => {}
+            }
+        }
+        s
+    }
+
+    fn flash(&self) -> u64 {
+        self.text + self.data
+    }
+
+    fn ram(&self) -> u64 {
+        self.data + self.bss
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_test_summary_is_counted_and_other_lines_are_not() {
+        assert_eq!(
+            test_summary("test result: ok. 12 passed; 0 failed; 1 ignored; 0 measured"),
+            Some((12, 0))
+        );
+        assert_eq!(
+            test_summary("test result: FAILED. 23 passed; 1 failed; 1 ignored;"),
+            Some((23, 1))
+        );
+        assert_eq!(test_summary("running 12 tests"), None);
+        assert_eq!(test_summary("test a ... ok"), None);
+    }
+
+    #[test]
+    fn the_sections_of_a_size_report_add_up_as_the_budget_counts_them() {
+        let report = "docking-controller  :\nsection   size   addr\n.vector_table   392   134217728\n.text   90000   134218120\n.rodata   14000   0\n.data   476   536895488\n.bss   24000   0\n.uninit   604   0\n.debug_info 99999 0\nTotal 1\n";
+        let s = Sections::of(report);
+        assert_eq!(
+            s,
+            Sections {
+                text: 104_392,
+                data: 476,
+                bss: 24_604
+            }
+        );
+        assert_eq!(s.flash(), 104_868);
+        assert_eq!(s.ram(), 25_080);
+    }
+}
