@@ -89,7 +89,58 @@ pub enum Bridge {
         busy: &'static [u8],
         /// A client was let go since [`Bridge::departed`] was last asked.
         departed: bool,
+        /// A console's screen, replayed to each client as it connects (`None` on a
+        /// Modbus link, where nothing may be said unasked).
+        screen: Option<Screen>,
     },
+}
+
+/// The console's boot banner starts with this (the firmware's fixed prefix).
+pub const BANNER_PREFIX: &[u8] = b"# docking-controller ";
+
+/// Longest unfinished line kept for a replay; a longer one keeps its last bytes.
+const SCREEN_LINE_MAX: usize = 1024;
+
+/// What a terminal connected since the boot would show last: the boot banner
+/// (`# docking-controller VERSION reset=CAUSE; type 'help'`, the last one printed: the
+/// present boot's) and the line being written now (the prompt, and what was typed
+/// after it). The firmware prints them once, at boot and after each reply, whether a
+/// client is connected or not; a TCP client that connects later is sent this first, so
+/// it sees whom it talks to and where the console stands without pressing Enter.
+/// Nothing is made up and nothing is typed for it: with `echo off` (no prompt) the
+/// line is empty, and a line a previous client left half typed is shown as it stands.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Screen {
+    banner: Vec<u8>,
+    line: Vec<u8>,
+}
+
+impl Screen {
+    /// Follow the console's output.
+    pub fn observe(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.line.push(b);
+            if b == b'\n' {
+                // A reset may cut a line short: the banner then follows on it.
+                let line = core::mem::take(&mut self.line);
+                if let Some(at) = line
+                    .windows(BANNER_PREFIX.len())
+                    .position(|w| w == BANNER_PREFIX)
+                {
+                    self.banner = line[at..].to_vec();
+                }
+            }
+        }
+        if self.line.len() > SCREEN_LINE_MAX {
+            let cut = self.line.len() - SCREEN_LINE_MAX;
+            self.line.drain(..cut);
+        }
+    }
+
+    /// What a newly connected client is sent: the banner, then the unfinished line.
+    pub fn replay(&self) -> Vec<u8> {
+        [&self.banner[..], &self.line[..]].concat()
+    }
 }
 
 /// How long a client that half-closed is kept once the console is quiet: its last
@@ -112,11 +163,15 @@ impl Bridge {
                 closing,
                 busy,
                 departed,
+                screen,
             } => {
                 if let Ok((mut s, _)) = listener.accept() {
                     if client.is_none() {
                         let _ = s.set_nonblocking(true);
                         let _ = s.set_nodelay(true);
+                        if let Some(screen) = screen {
+                            let _ = write_blocking(&mut s, &screen.replay());
+                        }
                         *client = Some(s);
                         *closing = None;
                     } else {
@@ -148,10 +203,18 @@ impl Bridge {
         buf
     }
 
-    /// Write to the link (dropped when no client is connected).
+    /// Write to the link (dropped when no client is connected; a console's screen
+    /// follows it either way).
     pub fn write(&mut self, bytes: &[u8]) {
         if bytes.is_empty() {
             return;
+        }
+        if let Bridge::Tcp {
+            screen: Some(screen),
+            ..
+        } = self
+        {
+            screen.observe(bytes);
         }
         let _ = match self {
             Bridge::Pty(p) => p.master.write_all(bytes),
@@ -222,6 +285,7 @@ impl Bridge {
                     closing: None,
                     busy: BUSY,
                     departed: false,
+                    screen: Some(Screen::default()),
                 })
             }
         }
@@ -266,4 +330,50 @@ pub fn listen(addr: std::net::SocketAddr) -> Result<(TcpListener, std::net::Sock
     l.set_nonblocking(true).map_err(|e| e.to_string())?;
     let bound = l.local_addr().map_err(|e| e.to_string())?;
     Ok((l, bound))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Screen;
+
+    const BANNER: &[u8] = b"# docking-controller 0.1.0 reset=power_on; type 'help'\r\n";
+
+    #[test]
+    fn a_screen_replays_the_banner_and_the_unfinished_line() {
+        let mut s = Screen::default();
+        assert_eq!(s.replay(), b"");
+        s.observe(BANNER);
+        s.observe(b"idle> ");
+        assert_eq!(s.replay(), [BANNER, b"idle> "].concat());
+        // A command, its reply, a new prompt with something half typed.
+        s.observe(b"status\r\nstate=idle phase=0\r\nid");
+        s.observe(b"le> sta");
+        assert_eq!(s.replay(), [BANNER, b"idle> sta"].concat());
+        // `echo off`: no prompt, nothing unfinished.
+        s.observe(b"\x08 \x08\x08 \x08\x08 \x08echo off\r\nok: echo and prompt off\r\n");
+        assert_eq!(s.replay(), BANNER);
+    }
+
+    #[test]
+    fn a_reset_in_the_middle_of_a_line_brings_the_new_banner() {
+        let mut s = Screen::default();
+        s.observe(BANNER);
+        s.observe(b"idle> hist");
+        s.observe(b"# docking-controller 0.1.0 reset=watchdog; type 'help'\r\nready> ");
+        assert_eq!(
+            s.replay(),
+            b"# docking-controller 0.1.0 reset=watchdog; type 'help'\r\nready> "
+        );
+    }
+
+    #[test]
+    fn an_endless_line_keeps_its_last_bytes() {
+        let mut s = Screen::default();
+        s.observe(BANNER);
+        s.observe(&[b'x'; 5000]);
+        s.observe(b"idle> ");
+        let r = s.replay();
+        assert!(r.starts_with(BANNER) && r.ends_with(b"xidle> "));
+        assert_eq!(r.len(), BANNER.len() + super::SCREEN_LINE_MAX);
+    }
 }

@@ -166,6 +166,7 @@ pub fn open_modbus(link: &Link, out: &mut dyn Write) -> Result<Bridge, String> {
                 closing: None,
                 busy: b"",
                 departed: false,
+                screen: None,
             }
         }
     };

@@ -261,3 +261,57 @@ fn a_console_dock_is_not_undone_by_the_demo_cycling() {
     assert!(st.starts_with("state=holding"), "{st}");
     assert!(term.ask("undock").starts_with("ok: undocking"));
 }
+
+/// The console printed its banner and prompt at boot, to nobody: a technician who
+/// connected over TCP afterwards saw nothing until pressing Enter. Each client is now
+/// sent the boot banner and the line the console stands at, as it connects.
+#[test]
+fn a_terminal_that_connects_after_the_boot_sees_the_banner_and_the_prompt() {
+    let (_server, addr) = serve(&["--tcp", "127.0.0.1:0", "--speed", "20"]);
+    // Booted (20 s of machine time) before anyone connects.
+    std::thread::sleep(Duration::from_secs(1));
+    let stream = std::net::TcpStream::connect(&addr).unwrap();
+    let reader = stream.try_clone().unwrap();
+    let first = stream.try_clone().unwrap();
+    let mut term = Terminal::new(reader, stream);
+    let shown = term.read_until("> ");
+    assert!(
+        shown.starts_with("# docking-controller ")
+            && shown.contains(" reset=power_on; type 'help'\r\n"),
+        "{shown:?}"
+    );
+    // Then the console as usual: what is typed is echoed, the reply, a prompt.
+    term.tx.write_all(b"version\r").unwrap();
+    let reply = term.read_until("> ");
+    assert!(
+        reply.starts_with("version\r\ndocking-controller "),
+        "{reply:?}"
+    );
+    first.shutdown(std::net::Shutdown::Both).unwrap();
+    // The next technician, once the first has been let go, is greeted the same way.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let mut s = std::net::TcpStream::connect(&addr).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+        let mut got = Vec::new();
+        let mut buf = [0u8; 256];
+        while !(got.ends_with(b"> ") || got.starts_with(b"busy") && got.ends_with(b"\n")) {
+            match s.read(&mut buf) {
+                Ok(n) if n > 0 => got.extend_from_slice(&buf[..n]),
+                _ => break,
+            }
+        }
+        let got = String::from_utf8_lossy(&got).into_owned();
+        if got.starts_with("busy: ") {
+            assert!(
+                Instant::now() < deadline,
+                "the first client was never let go"
+            );
+            std::thread::sleep(Duration::from_millis(200));
+            continue;
+        }
+        assert!(got.starts_with("# docking-controller "), "{got:?}");
+        assert!(got.ends_with("> "), "{got:?}");
+        break;
+    }
+}

@@ -313,3 +313,32 @@ fn a_plc_docks_the_firmware_over_modbus_and_over_the_dock_line() {
     writeln!(board.stdin, "dock off").unwrap();
     board.plc_until("ready=1");
 }
+
+/// The console printed its banner and prompt at boot, to nobody: a technician who
+/// connected to `vboard serve --tcp` afterwards saw nothing until pressing Enter. Each
+/// client is now sent the image's boot banner and the line its console stands at.
+#[test]
+fn a_terminal_that_connects_after_the_boot_sees_the_banner_and_the_prompt() {
+    let (mut board, console, _modbus) =
+        Plc::start(&["--tcp", "127.0.0.1:0", "--modbus-tcp", "127.0.0.1:0"]);
+    // Booted and at rest (READY) before anyone connects.
+    board.plc_until("ready=1");
+    let mut s = std::net::TcpStream::connect(&console).expect("connect");
+    s.set_read_timeout(Some(Duration::from_millis(200)))
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let mut got = Vec::new();
+    while !got.ends_with(b"> ") && Instant::now() < deadline {
+        let mut buf = [0u8; 256];
+        if let Ok(n) = s.read(&mut buf) {
+            got.extend_from_slice(&buf[..n]);
+        }
+    }
+    let got = String::from_utf8_lossy(&got);
+    assert!(
+        got.starts_with("# docking-controller ")
+            && got.contains(" reset=power_on; type 'help'\r\n")
+            && got.ends_with("> "),
+        "nothing typed, got {got:?}"
+    );
+}
