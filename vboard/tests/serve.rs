@@ -314,6 +314,145 @@ fn a_plc_docks_the_firmware_over_modbus_and_over_the_dock_line() {
     board.plc_until("ready=1");
 }
 
+/// CRC-16/MODBUS (polynomial 0xA001 reflected, from 0xFFFF), written here from the
+/// serial line specification rather than taken from the firmware's library, so that
+/// the pty test below is a client of its own.
+fn crc16(bytes: &[u8]) -> u16 {
+    let mut crc = 0xFFFFu16;
+    for &b in bytes {
+        crc ^= u16::from(b);
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 {
+                (crc >> 1) ^ 0xA001
+            } else {
+                crc >> 1
+            };
+        }
+    }
+    crc
+}
+
+/// A serial Modbus RTU master on a pty: whole frames out, replies read back by a
+/// thread until the line has been quiet.
+struct PtyMaster {
+    port: std::fs::File,
+    rx: std::sync::mpsc::Receiver<Vec<u8>>,
+}
+
+impl PtyMaster {
+    /// Open `path` as a client opens a serial port: 19 200 baud, raw, 8 data bits, no
+    /// parity (a pty carries bytes: this kernel refuses PARENB on one, and the 8E1
+    /// framing is the board's own, emulated on USART3).
+    fn open(path: &str) -> Self {
+        let stty = Command::new("stty")
+            .args([
+                "-F", path, "19200", "raw", "-echo", "cs8", "-parenb", "-cstopb",
+            ])
+            .status()
+            .expect("stty runs");
+        assert!(stty.success(), "stty on {path}");
+        let port = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(path)
+            .expect("open the pty");
+        let mut reader = port.try_clone().unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 512];
+            while let Ok(n) = reader.read(&mut buf) {
+                if n == 0 || tx.send(buf[..n].to_vec()).is_err() {
+                    break;
+                }
+            }
+        });
+        Self { port, rx }
+    }
+
+    /// Send `pdu` to unit 1 until a reply comes (a request the booting board missed
+    /// gets none); returns the reply's PDU after checking its unit and CRC.
+    fn ask(&mut self, pdu: &[u8]) -> Vec<u8> {
+        let mut req = vec![1u8];
+        req.extend_from_slice(pdu);
+        req.extend_from_slice(&crc16(&req).to_le_bytes());
+        let deadline = Instant::now() + Duration::from_secs(40);
+        while Instant::now() < deadline {
+            self.port.write_all(&req).unwrap();
+            let mut r = Vec::new();
+            let mut wait = Duration::from_secs(2);
+            // A reply ends with a silence (at a third of real time a 141-byte one
+            // takes 0.25 s; its bytes come as each one's stop bit ends).
+            while let Ok(b) = self.rx.recv_timeout(wait) {
+                r.extend_from_slice(&b);
+                wait = Duration::from_millis(500);
+            }
+            if r.is_empty() {
+                continue;
+            }
+            let n = r.len();
+            assert!(n >= 4 && r[0] == 1, "{r:02x?}");
+            assert_eq!(
+                crc16(&r[..n - 2]).to_le_bytes(),
+                [r[n - 2], r[n - 1]],
+                "CRC of {r:02x?}"
+            );
+            return r[1..n - 2].to_vec();
+        }
+        panic!("no reply to {req:02x?}");
+    }
+}
+
+/// Registers from a read reply's PDU (function, byte count, values).
+fn registers(pdu: &[u8]) -> Vec<u16> {
+    assert_eq!(usize::from(pdu[1]), pdu.len() - 2, "{pdu:02x?}");
+    pdu[2..]
+        .chunks(2)
+        .map(|c| u16::from_be_bytes([c[0], c[1]]))
+        .collect()
+}
+
+#[test]
+fn a_plc_reads_the_firmware_over_modbus_rtu_on_a_pty() {
+    use docking_logic::modbus::{ir, status, REVISION};
+    let (mut board, _console, modbus) = Plc::start(&["--tcp", "127.0.0.1:0", "--modbus-pty"]);
+    assert!(modbus.starts_with("/dev/pts/"), "{modbus}");
+    let mut plc = PtyMaster::open(&modbus);
+    board.plc_until("ready=1");
+    // Input registers 0-1: the status word and the sequencer's state, at rest.
+    let r = plc.ask(&[0x04, 0, ir::STATUS as u8, 0, 2]);
+    assert_eq!(r[0], 0x04, "{r:02x?}");
+    let regs = registers(&r);
+    assert_ne!(regs[0] & status::READY, 0, "{regs:?}");
+    assert_eq!(regs[1], 3, "idle: {regs:?}");
+    // Holding register 0, the command register: reads 0.
+    assert_eq!(plc.ask(&[0x03, 0, 0, 0, 1]), [0x03, 2, 0, 0]);
+    // The firmware version, in input registers 64-66 and in device identification.
+    let version: Vec<u16> = REVISION.split('.').map(|x| x.parse().unwrap()).collect();
+    let r = plc.ask(&[0x04, 0, ir::FW_MAJOR as u8, 0, 3]);
+    assert_eq!(registers(&r), version);
+    // Read device identification (0x2B / MEI 0x0E), basic objects from 0: VendorName,
+    // ProductCode, MajorMinorRevision.
+    let r = plc.ask(&[0x2B, 0x0E, 1, 0]);
+    assert_eq!(r[..3], [0x2B, 0x0E, 1], "{r:02x?}");
+    let mut objects = Vec::new();
+    let mut at = 7; // function, MEI, code, conformity, more follows, next id, count
+    for _ in 0..r[6] {
+        let (id, len) = (r[at], usize::from(r[at + 1]));
+        objects.push((
+            id,
+            String::from_utf8(r[at + 2..at + 2 + len].to_vec()).unwrap(),
+        ));
+        at += 2 + len;
+    }
+    assert_eq!(at, r.len(), "{r:02x?}");
+    assert_eq!(
+        objects[1],
+        (1, "docking-controller".to_string()),
+        "{objects:?}"
+    );
+    assert_eq!(objects[2], (2, REVISION.to_string()), "{objects:?}");
+}
+
 /// The console printed its banner and prompt at boot, to nobody: a technician who
 /// connected to `vboard serve --tcp` afterwards saw nothing until pressing Enter. Each
 /// client is now sent the image's boot banner and the line its console stands at.
