@@ -36,7 +36,7 @@ use crate::periph::flash::{FlashTiming, FLASH_BASE, ODOMETER_BASE};
 use crate::periph::nvic::{exc, Masks};
 use crate::periph::rcc::ResetCause;
 use crate::rtt::{LogLine, Rtt, POLL_PS};
-use crate::soc::{Soc, ICACHE_FLASH};
+use crate::soc::{CodeEffect, Soc, ICACHE_FLASH};
 use crate::world::World;
 
 /// How executing costs time.
@@ -398,6 +398,7 @@ impl Board {
         // not executed (unicorn stops before it and runs it again on restart), so it is
         // counted only when it runs: the stop decision comes first.
         uc.add_block_hook(1, 0, |uc: &mut Unicorn<'_, Soc>, addr: u64, size: u32| {
+            restore_code(uc);
             let s = uc.get_data();
             let mut stop = s.stop || s.clock.mc() >= s.next_event_mc;
             // With PRIMASK set nothing but an NMI (none wired) can be taken: one register
@@ -470,6 +471,33 @@ impl Board {
             },
         )
         .map_err(|x| e("memory hook", x))?;
+        // A store to the code sectors (a bootloader's flash program): the region is
+        // read-only to the engine, so the store comes here first; it goes to the flash
+        // interface, and the engine's raw store that follows is undone before anything
+        // runs on (the array changes only when the program ends, `apply_done`).
+        for base in [0u64, FLASH_BASE as u64] {
+            uc.add_mem_hook(
+                HookType::MEM_WRITE_PROT,
+                base,
+                base + CODE_LEN as u64 - 1,
+                |uc: &mut Unicorn<'_, Soc>, _t: MemType, addr: u64, size: usize, v: i64| {
+                    let a = if addr < CODE_LEN as u64 {
+                        addr as u32 + FLASH_BASE
+                    } else {
+                        addr as u32
+                    };
+                    let mut old = vec![0u8; size];
+                    let _ = uc.mem_read(addr, &mut old);
+                    if let Some(d) = uc.get_data_mut().code_write(a, size, v as u32) {
+                        apply_done(uc, d);
+                        let _ = uc.mem_read(addr, &mut old);
+                    }
+                    uc.get_data_mut().code_restore.push((addr as u32, old));
+                    true
+                },
+            )
+            .map_err(|x| e("flash store hook", x))?;
+        }
 
         if art {
             // Data reads of the code sectors (literal pools, constants, `.data`'s load
@@ -544,11 +572,52 @@ fn store_dma(uc: &mut Unicorn<'_, Soc>) {
 /// Apply a finished flash operation; erased code sectors are erased in emulator memory
 /// too (the image would be destroyed, as on the part).
 fn apply_done(uc: &mut Unicorn<'_, Soc>, d: crate::periph::flash::Done) {
-    if let Some((addr, len)) = uc.get_data_mut().apply_flash(d) {
-        let ff = vec![0xFFu8; len as usize];
-        let _ = uc.mem_write(addr as u64, &ff);
-        let _ = uc.mem_write((addr - FLASH_BASE) as u64, &ff);
-        let _ = uc.ctl_remove_cache(addr as u64, (addr + len) as u64);
+    restore_code(uc);
+    match uc.get_data_mut().apply_flash(d) {
+        Some(CodeEffect::Erased { addr, len }) => {
+            let ff = vec![0xFFu8; len as usize];
+            code_changed(uc, addr, &ff);
+        }
+        Some(CodeEffect::Programmed { addr, n, value }) => {
+            let mut now = vec![0u8; n];
+            if uc.mem_read(addr as u64, &mut now).is_ok() {
+                for (b, v) in now.iter_mut().zip(value.to_le_bytes()) {
+                    *b &= v;
+                }
+                code_changed(uc, addr, &now);
+            }
+        }
+        None => {}
+    }
+}
+
+/// New contents of the code sectors at `addr` (both the flash and its alias at 0): the
+/// engine's translated blocks and the instruction counts there are dropped.
+fn code_changed(uc: &mut Unicorn<'_, Soc>, addr: u32, bytes: &[u8]) {
+    let len = bytes.len() as u32;
+    let _ = uc.mem_write(addr as u64, bytes);
+    let _ = uc.mem_write((addr - FLASH_BASE) as u64, bytes);
+    let _ = uc.ctl_remove_cache(addr as u64, (addr + len) as u64);
+    let _ = uc.ctl_remove_cache((addr - FLASH_BASE) as u64, (addr - FLASH_BASE + len) as u64);
+    if let (Some(from), Some(to)) = (
+        icache_index(addr as u64),
+        icache_index((addr + len.max(1) - 1) as u64),
+    ) {
+        let icache = &mut uc.get_data_mut().icache;
+        let from = from.saturating_sub(2048);
+        for c in icache.iter_mut().take(to + 1).skip(from) {
+            *c = 0;
+        }
+    }
+}
+
+/// Put back the code-sector bytes the engine stored raw (see `Soc::code_restore`).
+fn restore_code(uc: &mut Unicorn<'_, Soc>) {
+    if uc.get_data().code_restore.is_empty() {
+        return;
+    }
+    for (addr, old) in std::mem::take(&mut uc.get_data_mut().code_restore) {
+        let _ = uc.mem_write(addr as u64, &old);
     }
 }
 

@@ -129,6 +129,41 @@ impl Image {
             .map(|(name, _, _)| name.as_str())
     }
 
+    /// This image (an application linked behind the bootloader, at `0x0800_8000`) with the
+    /// bootloader image `boot` in sector 0, as a probe flashes the pair: sectors 0 and 1
+    /// (the bootloader and its state) must be blank in this image, and `boot` must load
+    /// nothing past them. The symbols (the RTT control block) stay this image's.
+    pub fn under_bootloader(mut self, boot: &Image) -> Result<Self, String> {
+        const BOOT_END: usize = 0x8000;
+        if self.flash[..BOOT_END].iter().any(|&b| b != 0xFF) {
+            return Err(format!(
+                "{}: the application loads into sectors 0-1 (linked at 0x08000000): link it behind the bootloader, at 0x08008000",
+                self.path
+            ));
+        }
+        if boot.flash_used as usize > BOOT_END {
+            return Err(format!(
+                "{}: the bootloader loads past sector 1 ({} B)",
+                boot.path, boot.flash_used
+            ));
+        }
+        self.flash[..BOOT_END].copy_from_slice(&boot.flash[..BOOT_END]);
+        Ok(self)
+    }
+
+    /// Write `bytes` into the flash at `addr` before the board runs (a state sector, an
+    /// update in the DFU partition, a test's application), as a probe would.
+    pub fn put(&mut self, addr: u32, bytes: &[u8]) -> Result<(), String> {
+        let start = addr
+            .checked_sub(FLASH_BASE)
+            .map(|s| s as usize)
+            .filter(|s| s + bytes.len() <= self.flash.len())
+            .ok_or_else(|| format!("{addr:#x} + {} B: outside the code flash", bytes.len()))?;
+        self.flash[start..start + bytes.len()].copy_from_slice(bytes);
+        self.flash_used = self.flash_used.max((start + bytes.len()) as u32);
+        Ok(())
+    }
+
     /// The initial stack pointer and reset vector (words 0 and 1 of the vector table).
     pub fn reset_vector(&self) -> (u32, u32) {
         let w = |i: usize| {

@@ -160,6 +160,28 @@ pub struct FnMeter {
     pub active: Option<(usize, u64, u32, u32)>,
 }
 
+/// What a flash operation did to the code sectors, for the board to apply to the
+/// emulator's memory.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CodeEffect {
+    /// `len` bytes from `addr` erased (0xFF).
+    Erased {
+        /// First address.
+        addr: u32,
+        /// Bytes.
+        len: u32,
+    },
+    /// The first `n` bytes of `value` (little-endian) programmed at `addr`: bits cleared.
+    Programmed {
+        /// Address.
+        addr: u32,
+        /// Bytes programmed (fewer than the store's when a reset cut it).
+        n: usize,
+        /// The stored value.
+        value: u64,
+    },
+}
+
 /// The SoC.
 pub struct Soc {
     /// Virtual time.
@@ -212,6 +234,13 @@ pub struct Soc {
     pub unmodelled: Option<(u32, bool)>,
     /// A reset is due (cause).
     pub reset_due: Option<ResetCause>,
+    /// Code-sector bytes the engine stored raw (a flash program through the CPU), to be
+    /// put back before anything reads them: the array changes when the program ends.
+    pub code_restore: Vec<(u32, Vec<u8>)>,
+    /// Programs and sector erases of the code sectors (0-9) completed or cut.
+    pub code_programs: u64,
+    /// See `code_programs`.
+    pub code_erases: u64,
     /// The emulation must stop after the current block.
     pub stop: bool,
     /// Milli-cycle count at which the next event is due (the block hook's compare).
@@ -322,6 +351,9 @@ impl Soc {
             diagnostics: Vec::new(),
             unmodelled: None,
             reset_due: None,
+            code_restore: Vec::new(),
+            code_programs: 0,
+            code_erases: 0,
             stop: false,
             next_event_mc: 0,
             next_event_ps: 0,
@@ -1004,8 +1036,8 @@ impl Soc {
     }
 
     /// Apply a finished (or cut) operation to the odometer sectors; code-sector effects
-    /// are returned for the board to apply to emulator memory (address, length, erased).
-    pub fn apply_flash(&mut self, d: Done) -> Option<(u32, u32)> {
+    /// are returned for the board to apply to emulator memory.
+    pub fn apply_flash(&mut self, d: Done) -> Option<CodeEffect> {
         // Lines the ART cached from an erased sector keep their pre-erase bytes until the
         // caches are reset.
         // (An erase cut short by a reset: the reset emptied the caches.)
@@ -1039,8 +1071,18 @@ impl Soc {
                     }
                     None
                 } else {
-                    self.diag(format!("program of code flash at {addr:#x}"));
-                    None
+                    // A bootloader's swap programs the code sectors (sectors 1-9);
+                    // nothing may program sector 0, the bootloader's own.
+                    if addr < flash::sector_base(1) {
+                        self.diag(format!("program of sector 0 at {addr:#x}"));
+                    }
+                    let n = if d.permille >= 1000 {
+                        size
+                    } else {
+                        size * d.permille as usize / 1000
+                    };
+                    self.code_programs += 1;
+                    Some(CodeEffect::Programmed { addr, n, value })
                 }
             }
             Op::Erase { sector } => {
@@ -1056,10 +1098,11 @@ impl Soc {
                     None
                 } else {
                     let len = flash::sector_kib(sector) * 1024;
-                    Some((
-                        flash::sector_base(sector),
-                        len * d.permille.min(1000) / 1000,
-                    ))
+                    self.code_erases += 1;
+                    Some(CodeEffect::Erased {
+                        addr: flash::sector_base(sector),
+                        len: len * d.permille.min(1000) / 1000,
+                    })
                 }
             }
             Op::MassErase => {
@@ -1067,7 +1110,10 @@ impl Soc {
                     let _ = f.erase_sector(0);
                     let _ = f.erase_sector(1);
                 });
-                Some((flash::FLASH_BASE, ODOMETER_BASE - flash::FLASH_BASE))
+                Some(CodeEffect::Erased {
+                    addr: flash::FLASH_BASE,
+                    len: ODOMETER_BASE - flash::FLASH_BASE,
+                })
             }
             Op::Options { .. } => None,
         }
@@ -1127,6 +1173,22 @@ impl Soc {
             self.diag(format!("odometer flash read at {off:#x} failed"));
         }
         (u32::from_le_bytes(b), done)
+    }
+
+    /// A CPU store to the code sectors (0-9; a bootloader's program, if the interface
+    /// allows it). The engine's own store into its memory is undone by the board
+    /// (`cpu.rs`, `code_restore`): the array changes only when the program ends.
+    pub fn code_write(&mut self, addr: u32, size: usize, value: u32) -> Option<Done> {
+        let done = if self.flash.busy_until().is_some() {
+            self.stall_for_flash()
+        } else {
+            None
+        };
+        let now = self.now();
+        let pending_before = self.nvic.pending_enabled();
+        self.flash.store(addr, size, value as u64, now);
+        self.after_access(pending_before);
+        done
     }
 
     /// A CPU store to the odometer sectors (a program, if the interface allows it).
