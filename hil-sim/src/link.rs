@@ -5,7 +5,7 @@
 
 use std::io::{self, Read, Write};
 use std::net::{TcpListener, TcpStream};
-use std::os::fd::{FromRawFd, OwnedFd};
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
 use std::time::{Duration, Instant};
 
 use crate::serve::Link;
@@ -16,7 +16,16 @@ pub struct Pty {
     master: std::fs::File,
     _slave: OwnedFd,
     path: String,
+    /// A console's screen, replayed when the terminal flushes what was waiting for it
+    /// (packet mode; `None`: a plain byte pipe, as the Modbus link is).
+    screen: Option<Screen>,
 }
+
+/// Packet mode's first byte of a read: data follows.
+const TIOCPKT_DATA: u8 = 0;
+/// Packet mode's status bit: the terminal side flushed its input (what the master wrote
+/// and nobody had read).
+const TIOCPKT_FLUSHREAD: u8 = 1;
 
 fn os_err(what: &str) -> String {
     format!("{what}: {}", io::Error::last_os_error())
@@ -65,8 +74,59 @@ impl Pty {
                 master,
                 _slave: slave,
                 path,
+                screen: None,
             })
         }
+    }
+
+    /// Follow the console's output and replay its [`Screen`] whenever the terminal
+    /// side flushes its input. picocom sets the port up with `TCSAFLUSH` and pyserial
+    /// flushes as it opens, so the banner and prompt the kernel kept for the first
+    /// reader were thrown away unseen; in packet mode the flush is reported, and what
+    /// it threw away is the screen sent again.
+    pub fn replay_on_flush(&mut self) -> Result<(), String> {
+        let on: libc::c_int = 1;
+        // SAFETY: TIOCPKT takes a pointer to an int, which lives across the call; the
+        // fd is the master we own.
+        if unsafe { libc::ioctl(self.master.as_raw_fd(), libc::TIOCPKT, &on) } != 0 {
+            return Err(os_err("ioctl TIOCPKT"));
+        }
+        self.screen = Some(Screen::default());
+        Ok(())
+    }
+
+    /// Read up to `buf.len()` bytes the terminal sent (0: none waiting); a flush
+    /// reported on the way replays the screen.
+    fn read(&mut self, buf: &mut [u8]) -> usize {
+        let Some(screen) = &self.screen else {
+            return self.master.read(buf).unwrap_or(0);
+        };
+        let mut packet = vec![0u8; buf.len() + 1];
+        // A status packet or two (a flush, a flow-control change) may come before data.
+        for _ in 0..4 {
+            let n = self.master.read(&mut packet).unwrap_or(0);
+            match packet[..n] {
+                [] => return 0,
+                [TIOCPKT_DATA, ref data @ ..] => {
+                    buf[..data.len()].copy_from_slice(data);
+                    return data.len();
+                }
+                [status, ..] => {
+                    if status & TIOCPKT_FLUSHREAD != 0 {
+                        let _ = self.master.write_all(&screen.replay());
+                    }
+                }
+            }
+        }
+        0
+    }
+
+    /// Write what the console printed.
+    fn write(&mut self, bytes: &[u8]) -> io::Result<()> {
+        if let Some(screen) = &mut self.screen {
+            screen.observe(bytes);
+        }
+        self.master.write_all(bytes)
     }
 }
 
@@ -105,8 +165,10 @@ const SCREEN_LINE_MAX: usize = 1024;
 /// (`# docking-controller VERSION reset=CAUSE; type 'help'`, the last one printed: the
 /// present boot's) and the line being written now (the prompt, and what was typed
 /// after it). The firmware prints them once, at boot and after each reply, whether a
-/// client is connected or not; a TCP client that connects later is sent this first, so
-/// it sees whom it talks to and where the console stands without pressing Enter.
+/// client is connected or not; a TCP client that connects later is sent this first,
+/// and so is a pty's terminal when it flushes what was waiting for it (picocom does as
+/// it opens the port), so it sees whom it talks to and where the console stands
+/// without pressing Enter.
 /// Nothing is made up and nothing is typed for it: with `echo off` (no prompt) the
 /// line is empty, and a line a previous client left half typed is shown as it stands.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -156,7 +218,7 @@ impl Bridge {
     pub fn read(&mut self, max: usize) -> Vec<u8> {
         let mut buf = vec![0u8; max];
         let n = match self {
-            Bridge::Pty(p) => p.master.read(&mut buf).unwrap_or(0),
+            Bridge::Pty(p) => p.read(&mut buf),
             Bridge::Tcp {
                 listener,
                 client,
@@ -217,7 +279,7 @@ impl Bridge {
             screen.observe(bytes);
         }
         let _ = match self {
-            Bridge::Pty(p) => p.master.write_all(bytes),
+            Bridge::Pty(p) => p.write(bytes),
             Bridge::Tcp {
                 client: Some(c),
                 closing,
@@ -272,7 +334,8 @@ impl Bridge {
     pub fn open(link: &Link, out: &mut dyn Write) -> Result<Self, String> {
         match link {
             Link::Pty => {
-                let p = Pty::open()?;
+                let mut p = Pty::open()?;
+                p.replay_on_flush()?;
                 let _ = writeln!(out, "{}", p.path);
                 Ok(Bridge::Pty(p))
             }

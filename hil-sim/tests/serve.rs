@@ -315,3 +315,44 @@ fn a_terminal_that_connects_after_the_boot_sees_the_banner_and_the_prompt() {
         break;
     }
 }
+
+/// picocom sets the port up with TCSAFLUSH (and pyserial flushes as it opens): the
+/// banner and prompt the kernel kept on the pty for the first reader were thrown away,
+/// and the technician saw nothing until pressing Enter. The flush is now answered with
+/// the banner and the line the console stands at.
+#[test]
+fn a_terminal_that_flushes_the_pty_as_it_opens_it_sees_the_banner_and_the_prompt() {
+    use std::os::fd::AsRawFd;
+    let (_server, path) = serve(&["--pty", "--speed", "20"]);
+    // Booted before anyone opens the port.
+    std::thread::sleep(Duration::from_secs(1));
+    let port = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(&path)
+        .unwrap();
+    // As picocom opens it: raw, 115 200 baud, applied with TCSAFLUSH.
+    // SAFETY: termios calls on an fd this test owns, into a struct it owns.
+    unsafe {
+        let fd = port.as_raw_fd();
+        let mut t: libc::termios = std::mem::zeroed();
+        assert_eq!(libc::tcgetattr(fd, &mut t), 0);
+        libc::cfmakeraw(&mut t);
+        libc::cfsetspeed(&mut t, libc::B115200);
+        assert_eq!(libc::tcsetattr(fd, libc::TCSAFLUSH, &t), 0);
+    }
+    let reader = port.try_clone().unwrap();
+    let mut term = Terminal::new(reader, port);
+    let shown = term.read_until("> ");
+    assert!(
+        shown.starts_with("# docking-controller ")
+            && shown.contains(" reset=power_on; type 'help'\r\n"),
+        "{shown:?}"
+    );
+    term.tx.write_all(b"version\r").unwrap();
+    let reply = term.read_until("> ");
+    assert!(
+        reply.starts_with("version\r\ndocking-controller "),
+        "{reply:?}"
+    );
+}
