@@ -10,12 +10,15 @@
 //!                          the biggest functions (tools/size-report.py)
 //! cargo xtask qemu         the odometer on a Cortex-M4 (QEMU) compared bit for bit
 //! cargo xtask vboard       the virtual board's clippy, tests and boot scene
+//! cargo xtask docs         every command the docs show, smoke-run with short arguments
 //! cargo xtask measure      docs/measurements.md (tools/figures.sh; --sweep for the sweep)
 //! cargo xtask opt-levels   the opt-level measurement (tools/opt-levels.sh)
 //! ```
 //!
 //! Every task exits non-zero when it fails; `ci` runs every step, then fails if any did,
 //! and ends with `N passed, N failed (Ts)` counted from the test binaries' summaries.
+
+mod docs;
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -46,6 +49,7 @@ fn main() -> ExitCode {
         Some("size") if args.len() == 1 => x.size(),
         Some("qemu") if args.len() == 1 => x.qemu(),
         Some("vboard") if args.len() == 1 => x.vboard(),
+        Some("docs") if args.len() == 1 => x.docs(),
         Some("measure") => x.script("tools/figures.sh", &args[1..]),
         Some("opt-levels") => x.script("tools/opt-levels.sh", &args[1..]),
         Some("-h" | "--help" | "help") => {
@@ -203,6 +207,7 @@ impl Xtask {
         ok &= self.size();
         ok &= self.qemu();
         ok &= self.vboard();
+        ok &= self.docs();
 
         println!(
             "\n{} passed, {} failed ({}s)",
@@ -321,6 +326,50 @@ impl Xtask {
             &[],
         );
         ok
+    }
+
+    /// Every command the docs show, run in its short form (see `docs.rs`).
+    fn docs(&mut self) -> bool {
+        self.step("the docs' commands, smoke-run with short arguments");
+        let mut failed = Vec::new();
+        let (mut ran, mut skipped) = (0, 0);
+        for (c, run) in docs::plan(&self.root) {
+            match run {
+                Err(why) => {
+                    skipped += 1;
+                    println!("skip {}: {} ({why})", c.at, c.shown);
+                }
+                Ok(cmd) => {
+                    ran += 1;
+                    println!("run  {} [{}]: {cmd}", c.at, c.dir);
+                    let status = Command::new("timeout")
+                        .args(["300", "bash", "-c", &cmd])
+                        .current_dir(self.root.join(&c.dir))
+                        .stdin(Stdio::null())
+                        .stdout(Stdio::null())
+                        .stderr(Stdio::piped())
+                        .output();
+                    match status {
+                        Ok(o) if o.status.success() => {}
+                        Ok(o) => {
+                            let err = String::from_utf8_lossy(&o.stderr);
+                            let last = err.lines().last().unwrap_or("").to_string();
+                            println!("FAIL {}: {cmd}: {last}", c.at);
+                            failed.push(c.at);
+                        }
+                        Err(e) => {
+                            println!("FAIL {}: {cmd}: {e}", c.at);
+                            failed.push(c.at);
+                        }
+                    }
+                }
+            }
+        }
+        println!(
+            "docs' commands: {ran} run, {} failed, {skipped} not run (reasons above)",
+            failed.len()
+        );
+        failed.is_empty()
     }
 
     fn script(&self, path: &str, args: &[String]) -> bool {
