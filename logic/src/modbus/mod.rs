@@ -89,6 +89,27 @@ mod tests {
     use super::*;
     use crate::sequencer::State;
 
+    /// docs/modbus-map.md is the map's one table (and map.rs's doc): its last input
+    /// register and its map version are the code's.
+    #[test]
+    fn the_register_map_page_ends_where_the_map_does() {
+        let page = include_str!("../../../docs/modbus-map.md");
+        // A row's cells as numbers (a cell that is not one: None).
+        let row = |name: &str| -> heapless::Vec<Option<u16>, 8> {
+            page.lines()
+                .find(|l| l.starts_with("| ") && l.contains(name))
+                .unwrap_or_else(|| panic!("no row {name}"))
+                .split('|')
+                .map(|c| c.trim().parse().ok())
+                .collect()
+        };
+        let version = row("register map version");
+        assert_eq!(version[1], Some(ir::COUNT - 1), "last input register");
+        assert_eq!(version[3], Some(MAP_VERSION), "map version");
+        let last_coil = row("home, after a reset");
+        assert_eq!(last_coil[1], Some(COIL_COUNT - 1), "last coil");
+    }
+
     #[test]
     fn settings_validate_and_round_trip() {
         assert_eq!(ModbusSettings::default(), ModbusSettings::DEFAULT);
