@@ -47,7 +47,7 @@ fn firmware(o: &Opts) -> Result<Option<String>, Failure> {
 /// `vboard COMMAND --help`: that command's synopsis.
 fn command_help(cmd: &str) -> Option<String> {
     if cmd == "sweep" {
-        return Some(SWEEP_USAGE.trim_start().to_string());
+        return Some(one_option_a_line(SWEEP_USAGE.trim_start()));
     }
     // USAGE's synopses, split at " | " before a command word (options have "|" too).
     let mut parts: Vec<String> = Vec::new();
@@ -64,7 +64,78 @@ fn command_help(cmd: &str) -> Option<String> {
     parts
         .into_iter()
         .find(|p| p.split_whitespace().next() == Some(cmd))
-        .map(|p| format!("vboard {p}"))
+        .map(|p| one_option_a_line(&format!("vboard {p}")))
+}
+
+/// What each option does, by its flag (shared by the commands that take it).
+const OPTION_HELP: [(&str, &str); 22] = [
+    ("--firmware", "the image to run (default: the release build at the root; refused if older than its sources)"),
+    ("--cycles", "docking cycles to run"),
+    ("--rate", "the HX711's output rate, samples a second (its RATE pin)"),
+    ("--cpi", "cycles per instruction of the emulated core (1-3; real silicon runs branchy code at 1.5-3)"),
+    ("--timing", "cpi: a fixed CPI; art: the flash accelerator's cache model"),
+    ("--lsi-hz", "the watchdog's LSI clock (17 000-47 000 Hz, the datasheet's spread)"),
+    ("--flash-timing", "flash program/erase times: the datasheet's maximum or typical"),
+    ("--seed", "the simulated devices' random seed"),
+    ("--seeds", "seeds to sweep over (a range or a list)"),
+    ("--flood", "a console and Modbus flood throughout"),
+    ("--log", "print the image's defmt log"),
+    ("--json", "one JSON object instead of text"),
+    ("--pty", "the console on a pty or on TCP (first stdout line: its path or address)"),
+    ("--modbus-pty", "USART3's Modbus RTU on a pty or TCP (stdout line: modbus ADDRESS); no demo cycles"),
+    ("--plc", "the PLC drives (stdin: dock on|off, estop open|close, plc); no demo cycles"),
+    ("--speed", "machine time per wall time"),
+    ("--for", "stop after this long"),
+    ("--readings", "micrometer readings the estimate is fitted to"),
+    ("--scene", "scenes to sweep (default overload,estop)"),
+    ("--jobs", "runs at once (default: the cores)"),
+    ("NAME", "the scene"),
+    ("--tcp", "the console on TCP (first stdout line: its address)"),
+];
+
+/// A synopsis as the command's line, then its options one a line with what each does.
+fn one_option_a_line(synopsis: &str) -> String {
+    // Split at top-level `[...]` groups.
+    let (mut head, mut groups) = (String::new(), Vec::<String>::new());
+    let mut depth = 0u32;
+    for ch in synopsis.chars() {
+        match ch {
+            '[' => {
+                if depth == 0 {
+                    groups.push(String::new());
+                }
+                depth += 1;
+                if depth > 1 {
+                    groups.last_mut().map(|g| g.push(ch));
+                }
+            }
+            ']' => {
+                depth = depth.saturating_sub(1);
+                if depth > 0 {
+                    groups.last_mut().map(|g| g.push(ch));
+                }
+            }
+            _ if depth == 0 => {
+                if groups.is_empty() {
+                    head.push(ch);
+                }
+            }
+            _ => {
+                groups.last_mut().map(|g| g.push(ch));
+            }
+        }
+    }
+    let mut out = format!("{} [OPTIONS]", head.trim_end());
+    for g in groups {
+        let flag = g.split_whitespace().next().unwrap_or("");
+        let what = OPTION_HELP
+            .iter()
+            .find(|(f, _)| *f == flag)
+            .map(|(_, w)| *w)
+            .unwrap_or("");
+        out += &format!("\n  {g:<44} {what}");
+    }
+    out
 }
 
 /// Session options from the common flags.
@@ -358,17 +429,29 @@ mod help_tests {
     }
 
     #[test]
-    fn every_command_answers_help_with_its_synopsis() {
+    fn every_command_answers_help_with_one_option_a_line() {
         for cmd in ["scene", "serve", "estimate-cost", "sweep"] {
             let (r, out) = run_args(&[cmd, "--help"]);
             assert!(r.is_ok(), "{cmd}");
             assert!(out.starts_with(&format!("vboard {cmd} ")), "{cmd}: {out}");
-            assert!(out.contains("--firmware ELF"), "{cmd}: {out}");
+            let firmware = out
+                .lines()
+                .find(|l| l.trim_start().starts_with("--firmware ELF"))
+                .unwrap_or_else(|| panic!("{cmd}: no --firmware line: {out}"));
+            assert!(firmware.contains("the image to run"), "{firmware}");
+            // Every option line says what it does.
+            for l in out.lines().skip(1) {
+                let words: Vec<&str> = l.split("  ").filter(|w| !w.is_empty()).collect();
+                assert!(
+                    words.len() >= 2,
+                    "{cmd}: an option without its meaning: {l:?}"
+                );
+            }
         }
         let (_, out) = run_args(&["serve", "--help"]);
-        assert!(out.contains("[--pty | --tcp 127.0.0.1:PORT]"), "{out}");
+        assert!(out.contains("\n  --pty | --tcp 127.0.0.1:PORT "), "{out}");
         assert!(
-            out.contains("[--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc]"),
+            out.contains("\n  --modbus-pty | --modbus-tcp 127.0.0.1:PORT "),
             "{out}"
         );
     }
