@@ -43,3 +43,4 @@ pub mod propulsion;
 pub mod safety;
 pub mod sequencer;
 pub mod storage;
+pub mod ymodem;
