@@ -35,6 +35,7 @@ fn main() {
     }
     println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rerun-if-changed=odometer-guard.x");
+    println!("cargo:rerun-if-changed=persist.x");
     println!("cargo:rerun-if-changed=build.rs");
     if env::var("CARGO_CFG_TARGET_OS").as_deref() != Ok("none") {
         return;
@@ -42,9 +43,11 @@ fn main() {
     let out = out_dir;
     fs::copy("memory.x", out.join("memory.x")).expect("copy memory.x");
     fs::copy("odometer-guard.x", out.join("odometer-guard.x")).expect("copy odometer-guard.x");
+    fs::copy("persist.x", out.join("persist.x")).expect("copy persist.x");
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rustc-link-arg-bins=--nmagic");
     println!("cargo:rustc-link-arg-bins=-Tlink.x");
     println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
     println!("cargo:rustc-link-arg-bins=-Todometer-guard.x");
+    println!("cargo:rustc-link-arg-bins=-Tpersist.x");
 }

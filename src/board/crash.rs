@@ -2,8 +2,10 @@
 //! deepest use.
 //!
 //! A panic or a HardFault writes a [`Crash`] (what and where) into [`CRASH_BLOCK`], in
-//! `.uninit` RAM that no reset initialises, then resets the MCU; the next boot finds it
-//! (checked by its CRC), reports it and stores it in flash.
+//! RAM that no reset initialises (`.persist`, at an address fixed across versions:
+//! `persist.x`, so that an image updated or rolled back to finds it; the bootloader never
+//! touches SRAM), then resets the MCU; the next boot finds it (checked by its CRC),
+//! reports it and stores it in flash.
 //!
 //! A stack overflow runs off the bottom of SRAM (the stack sits below the statics, see
 //! `memory.x`) and faults; exception entry cannot stack on an exhausted stack, so the
@@ -66,7 +68,7 @@ pub struct CrashBlock {
 
 /// The block, in RAM no reset initialises.
 #[no_mangle]
-#[link_section = ".uninit.CRASH_BLOCK"]
+#[link_section = ".persist.CRASH_BLOCK"]
 pub static mut CRASH_BLOCK: MaybeUninit<CrashBlock> = MaybeUninit::uninit();
 
 const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
@@ -202,9 +204,9 @@ pub fn stack_usage() -> (u32, u32) {
 
 /// The odometer's RAM journal ([`Journal`]): two slots, written alternately after every
 /// control step, so that a reset in the middle of one update leaves the other (one step
-/// older) whole. In `.uninit` RAM, like the crash block.
+/// older) whole. In `.persist` RAM (`persist.x`), like the crash block.
 #[no_mangle]
-#[link_section = ".uninit.ODO_JOURNAL"]
+#[link_section = ".persist.ODO_JOURNAL"]
 static mut ODO_JOURNAL: MaybeUninit<[[u32; JOURNAL_WORDS]; 2]> = MaybeUninit::uninit();
 
 /// The slot the next [`journal_write`] goes to.
@@ -214,7 +216,7 @@ static mut JOURNAL_NEXT: usize = 0;
 pub fn journal_write(j: &Journal) {
     let words = j.to_words();
     // SAFETY: the control task is the only writer (and `journal_take` runs in init,
-    // before it); raw volatile word writes into the `.uninit` block, no reference made.
+    // before it); raw volatile word writes into the `.persist` block, no reference made.
     unsafe {
         let next = addr_of_mut!(JOURNAL_NEXT);
         let slot = next.read() & 1;

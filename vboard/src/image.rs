@@ -39,6 +39,41 @@ impl Image {
         let elf = std::fs::read(path).map_err(|e| {
             format!("cannot read firmware image {path}: {e} (build it with `cargo build --release --target thumbv7em-none-eabihf` at the repository root)")
         })?;
+        let img = Self::from_bytes(elf, path)?;
+        if img.behind_bootloader() {
+            let boot = Self::load_bootloader(&bootloader_path())?;
+            return img.under_bootloader(&boot);
+        }
+        Ok(img)
+    }
+
+    /// Whether this is an application linked behind the bootloader (nothing in sectors
+    /// 0-1, a vector table at 0x0800_8000): a probe flashes it together with the
+    /// bootloader, and so does [`Image::load`].
+    pub fn behind_bootloader(&self) -> bool {
+        self.flash[..0x8000].iter().all(|&b| b == 0xFF)
+            && self.flash[0x8000..0x8008].iter().any(|&b| b != 0xFF)
+    }
+
+    /// Load the bootloader image `path` (`boot/`'s release build by default,
+    /// [`bootloader_path`]); the default is refused when older than its sources.
+    pub fn load_bootloader(path: &str) -> Result<Self, String> {
+        let build = "build it with `cargo build --release` in boot/";
+        if path == bootloader_default_path() {
+            let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../boot");
+            if let Some(src) = newer_file(
+                std::path::Path::new(path),
+                &[root.join("src")],
+                &["Cargo.toml", "Cargo.lock", "build.rs", "memory.x"].map(|f| root.join(f)),
+            ) {
+                return Err(format!(
+                    "bootloader image {path} is older than {} : {build}",
+                    src.display()
+                ));
+            }
+        }
+        let elf = std::fs::read(path)
+            .map_err(|e| format!("cannot read bootloader image {path}: {e} ({build})"))?;
         Self::from_bytes(elf, path)
     }
 
@@ -183,19 +218,31 @@ impl Image {
 /// image `elf` was built; `None` when
 /// the image is newer than all of them, or when it is missing (the load says so).
 pub fn newer_source(elf: &std::path::Path, root: &std::path::Path) -> Option<std::path::PathBuf> {
+    newer_file(
+        elf,
+        &[root.join("src"), root.join("logic/src")],
+        &[
+            "Cargo.toml",
+            "logic/Cargo.toml",
+            "Cargo.lock",
+            "build.rs",
+            "memory.x",
+            "odometer-guard.x",
+            "persist.x",
+        ]
+        .map(|f| root.join(f)),
+    )
+}
+
+/// The first of `files`, or of the files under `dirs`, modified after `elf` was built.
+fn newer_file(
+    elf: &std::path::Path,
+    dirs: &[std::path::PathBuf],
+    files: &[std::path::PathBuf],
+) -> Option<std::path::PathBuf> {
     let built = std::fs::metadata(elf).and_then(|m| m.modified()).ok()?;
-    let mut stack: Vec<std::path::PathBuf> = vec![root.join("src"), root.join("logic/src")];
-    let mut files: Vec<std::path::PathBuf> = [
-        "Cargo.toml",
-        "logic/Cargo.toml",
-        "Cargo.lock",
-        "build.rs",
-        "memory.x",
-        "odometer-guard.x",
-    ]
-    .iter()
-    .map(|f| root.join(f))
-    .collect();
+    let mut stack: Vec<std::path::PathBuf> = dirs.to_vec();
+    let mut files: Vec<std::path::PathBuf> = files.to_vec();
     while let Some(dir) = stack.pop() {
         let Ok(entries) = std::fs::read_dir(&dir) else {
             continue;
@@ -268,4 +315,19 @@ mod stale_tests {
         assert_eq!(newer_source(&root.join("missing.elf"), &root), None);
         let _ = std::fs::remove_dir_all(&root);
     }
+}
+
+/// The bootloader's release image (`boot/`), the one CI builds.
+pub fn bootloader_default_path() -> String {
+    concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../boot/target/thumbv7em-none-eabihf/release/docking-boot"
+    )
+    .to_string()
+}
+
+/// The bootloader image an application behind it is loaded with: `VBOARD_BOOTLOADER`,
+/// or [`bootloader_default_path`].
+pub fn bootloader_path() -> String {
+    std::env::var("VBOARD_BOOTLOADER").unwrap_or_else(|_| bootloader_default_path())
 }

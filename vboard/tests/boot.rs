@@ -29,21 +29,8 @@ const MARK: u32 = 0x2001_F000;
 const APP_SP: u32 = 0x2002_0000;
 const PS_PER_MS: u64 = 1_000_000_000;
 
-fn boot_path() -> String {
-    std::env::var("VBOARD_BOOTLOADER").unwrap_or_else(|_| {
-        concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../boot/target/thumbv7em-none-eabihf/release/docking-boot"
-        )
-        .to_string()
-    })
-}
-
 fn bootloader() -> Image {
-    let p = boot_path();
-    Image::load(&p).unwrap_or_else(|e| {
-        panic!("{e}\n(build the bootloader first: `cd boot && cargo build --release`)")
-    })
+    Image::load_bootloader(&vboard::image::bootloader_path()).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// A test application: a vector table (SP, reset vector), then code that stores `tag`,
