@@ -99,30 +99,26 @@ fn one_option_a_line(synopsis: &str) -> String {
     let (mut head, mut groups) = (String::new(), Vec::<String>::new());
     let mut depth = 0u32;
     for ch in synopsis.chars() {
+        let outer = depth == 0;
         match ch {
-            '[' => {
-                if depth == 0 {
-                    groups.push(String::new());
-                }
-                depth += 1;
-                if depth > 1 {
-                    groups.last_mut().map(|g| g.push(ch));
-                }
-            }
-            ']' => {
-                depth = depth.saturating_sub(1);
-                if depth > 0 {
-                    groups.last_mut().map(|g| g.push(ch));
-                }
-            }
-            _ if depth == 0 => {
-                if groups.is_empty() {
-                    head.push(ch);
+            '[' => depth += 1,
+            ']' => depth = depth.saturating_sub(1),
+            _ => {}
+        }
+        match (outer, depth) {
+            // A group opens.
+            (true, 1) => groups.push(String::new()),
+            // Before the first group: the command's words.
+            (true, 0) if groups.is_empty() => head.push(ch),
+            (true, 0) => {}
+            // Inside a group, its own outer brackets left out.
+            (false, 0) => {}
+            (false, _) => {
+                if let Some(g) = groups.last_mut() {
+                    g.push(ch);
                 }
             }
-            _ => {
-                groups.last_mut().map(|g| g.push(ch));
-            }
+            (true, _) => {}
         }
     }
     let mut out = format!("{} [OPTIONS]", head.trim_end());

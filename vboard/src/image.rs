@@ -272,6 +272,21 @@ pub fn default_path() -> String {
     .to_string()
 }
 
+/// The bootloader's release image (`boot/`), the one CI builds.
+pub fn bootloader_default_path() -> String {
+    concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../boot/target/thumbv7em-none-eabihf/release/docking-boot"
+    )
+    .to_string()
+}
+
+/// The bootloader image an application behind it is loaded with: `VBOARD_BOOTLOADER`,
+/// or [`bootloader_default_path`].
+pub fn bootloader_path() -> String {
+    std::env::var("VBOARD_BOOTLOADER").unwrap_or_else(|_| bootloader_default_path())
+}
+
 #[cfg(test)]
 mod stale_tests {
     use super::newer_source;
@@ -315,19 +330,4 @@ mod stale_tests {
         assert_eq!(newer_source(&root.join("missing.elf"), &root), None);
         let _ = std::fs::remove_dir_all(&root);
     }
-}
-
-/// The bootloader's release image (`boot/`), the one CI builds.
-pub fn bootloader_default_path() -> String {
-    concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../boot/target/thumbv7em-none-eabihf/release/docking-boot"
-    )
-    .to_string()
-}
-
-/// The bootloader image an application behind it is loaded with: `VBOARD_BOOTLOADER`,
-/// or [`bootloader_default_path`].
-pub fn bootloader_path() -> String {
-    std::env::var("VBOARD_BOOTLOADER").unwrap_or_else(|_| bootloader_default_path())
 }
