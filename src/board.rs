@@ -1,71 +1,9 @@
 //! Board layer for the STM32F407VGTx: pins, clocks, interrupts and their priorities,
-//! fault handlers. The control logic is the library's.
+//! fault handlers. The control logic is `docking_logic`'s. What follows is
+//! `docs/board.md`, included (the pin map, the priorities and the safety path are written
+//! once, there).
 //!
-//! Pin map (documented in docs/board.md):
-//!
-//! | signal | pin | safe (disabled) level |
-//! |---|---|---|
-//! | propulsion STEP | PE9 | low (board pull-down) |
-//! | propulsion DIR | PE10 | — |
-//! | propulsion EN (active low) | PE11 | **high** (driver off; board pull-up) |
-//! | lock motor IN1 (toward locked) | PD12 | **low** (board pull-down) |
-//! | lock motor IN2 (toward released) | PD13 | **low** (board pull-down) |
-//! | home / end switch (active low) | PC0 / PC1 | input, pull-up |
-//! | lock locked / released switch (active low) | PC2 / PC3 | input, pull-up |
-//! | HX711 DOUT / PD_SCK | PB0 (EXTI0, falling edge) / PB1 | input pull-up / low |
-//! | console USART2 TX / RX | PA2 / PA3 | 115200 8N1 |
-//! | Modbus RTU USART3 TX / RX (RS-485 transceiver) | PB10 / PB11 | 19200 8E1 (stored setting) |
-//! | RS-485 driver enable (DE, high = drive the bus) | PB14 | **low** (board pull-down) |
-//! | PLC **DOCK** (level, active low: asserted = "be docked") | PC4 | input, pull-up (an open wire reads released) |
-//! | PLC **E-STOP** (normally closed to ground: open = stop) | PC5 (EXTI5, rising edge) | input, pull-up (a broken wire reads open: a stop) |
-//! | PLC **READY** / **MATED** / **FAULT** / **MAINTENANCE** (active high) | PD0 / PD1 / PD2 / PD3 | **low** (push-pull; low at reset by the board's pull-downs: a dead controller is not ready, not mated) |
-//!
-//! # Priorities: a safety path no other work can delay
-//!
-//! RTIC 2 runs each piece of work as a task bound to an interrupt, at a fixed priority;
-//! a resource shared by tasks is locked by raising BASEPRI to the highest priority of
-//! its users (the stack resource policy), so a lock never blocks a task that does not
-//! share the resource.
-//!
-//! | priority | task (interrupt) | what | shares |
-//! |---|---|---|---|
-//! | 5 | `estop` (EXTI9_5: E-STOP opens) | **propulsion EN high, lock bridge low**, the stop latched | — |
-//! | 4 | `data_ready` (EXTI0: HX711 DOUT falls) | read the sample, judge it, **stop the propulsion** | `kernel` |
-//! | 3 | `step_tick` (SysTick, 20 kHz, only while moving) | step pulses | — |
-//! | 2 | `usart2` (USART2) | console bytes out; receive errors reported (bytes in: DMA1 stream 5 into a ring, `console.rs`) | — |
-//! | 2 | `console_rx_dma` (DMA1_STREAM5) | the console's receive ring: half-rings counted, a lapped ring reported | — |
-//! | 2 | `usart3` (USART3) | Modbus characters in (time-stamped) and out, RS-485 DE | — |
-//! | 1 | `control` (TIM2: each sample, and every sample period) | the control step: the PLC inputs read before it, the handshake outputs written after it; then pends `service` | `kernel`, `ctrl` |
-//! | 1 | `service` (SPI1, pended by `control` after each step and by idle's requests) | in the window after a step only (`owner.rs`): idle's jobs (one console command's gather, one Modbus PDU, one record), the flash's turn (record writes, erases: at rest only), the log's events and the state published | `ctrl` |
-//! | 0 | `idle` | console line editing, PIN hashes, report formatting, Modbus framing and replies, the defmt log; **sleeps** (`wfi`) when there is nothing to do (awake while a Modbus request is being received) | — (asks `service` through a one-slot mailbox) |
-//!
-//! **One owner.** The controller belongs to priority 1: `control` and `service` never
-//! preempt each other, and idle cannot lock it (it does not share it). Everything a
-//! technician or the PLC does reaches the machine as a job idle lends the service,
-//! which runs it only when it will end before the next step is due (`owner.rs`): the
-//! control step never waits for a client. Measured: `vboard sweep --flood`'s
-//! `control_entry_latency_max_us` (docs/board.md).
-//!
-//! # E-STOP
-//!
-//! The issue asks for the stop in hardware where the board can: a timer's break input
-//! would cut the step pulses with no code at all. The step pulses here are software
-//! (SysTick, see `step.rs`), so there is no timer output to break; the E-STOP input has
-//! the **highest-priority interrupt** instead. Its edge sets EN high and both lock bridge
-//! inputs low — two stores to set/reset registers — and latches the stop (the same
-//! latch as the overload's: EN and the lock stay off whatever the controller commands,
-//! [`GatedEn`], [`GatedHigh`]). The control step then reads the input open, latches
-//! `emergency_stop`, and refuses a clear until the input reads closed again. An input
-//! open at power-up (a broken wire) has no edge: the first control step latches the
-//! fault, and nothing has moved (nothing moves after a reset without a request).
-//!
-//! The stop latency (DOUT falling to EN high) is therefore the EXTI entry, the HX711
-//! readout (25.5 µs) and the guard, plus at most the longest section that masks every
-//! interrupt: a defmt log call (its RTT critical section), a `control` task's lock of
-//! `kernel` (a few dozen instructions), a clock-high phase of the readout. A console
-//! flood, a `history` walk (a job in `service`, below the sample's priority), a record
-//! write or the log never wait in front of it. A flash *erase* masks everything for up
-//! to 2 s: erases happen only with every motor off (`Controller::background`).
+#![doc = include_str!("../docs/board.md")]
 
 mod clock;
 mod console;
