@@ -43,4 +43,5 @@ pub mod propulsion;
 pub mod safety;
 pub mod sequencer;
 pub mod storage;
+pub mod update;
 pub mod ymodem;
