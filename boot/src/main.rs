@@ -10,7 +10,9 @@
 //!    application's stack pointer loaded and its reset vector taken.
 //!
 //! RAM: the CCM RAM only (`memory.x`): the application's SRAM (crash record, odometer
-//! journal, stack paint) is never read nor written. No interrupt is enabled. A flash
+//! journal, stack paint) is never read nor written. No interrupt is enabled. The
+//! independent watchdog is started first (8.2 s) and left running for the application:
+//! a trial image that hangs before it sets its own is reset, and so rolled back. A flash
 //! error waits 1 s and resets (the swap resumes from its progress words); a blank or
 //! foreign ACTIVE is never jumped to: the core sleeps with the outputs safe.
 #![cfg_attr(target_os = "none", no_std, no_main)]
@@ -32,6 +34,9 @@ mod board {
     const FLASH_SR: *mut u32 = 0x4002_3C0C as *mut u32;
     const FLASH_CR: *mut u32 = 0x4002_3C10 as *mut u32;
     const IWDG_KR: *mut u32 = 0x4000_3000 as *mut u32;
+    const IWDG_PR: *mut u32 = 0x4000_3004 as *mut u32;
+    const IWDG_RLR: *mut u32 = 0x4000_3008 as *mut u32;
+    const IWDG_SR: *mut u32 = 0x4000_300C as *mut u32;
     const SCB_VTOR: *mut u32 = 0xE000_ED08 as *mut u32;
 
     const KEY1: u32 = 0x4567_0123;
@@ -107,10 +112,28 @@ mod board {
         unsafe { core::ptr::write_volatile(r, v) }
     }
 
-    /// Reload the independent watchdog: harmless while it is off (after any reset, with
-    /// the factory option `WDG_SW`), and keeps a hardware watchdog fed between operations.
+    /// Reload the independent watchdog (started by [`start_watchdog`]) between flash
+    /// operations.
     fn feed() {
         wr(IWDG_KR, 0xAAAA);
+    }
+
+    /// Start the independent watchdog at LSI / 64, reload 4095: 8.2 s at the nominal
+    /// 32 kHz, 5.6 s on the fastest LSI (47 kHz), longer than any one flash operation of
+    /// the swap (a 128 KiB erase: 2 s at most; fed between operations). It runs on into
+    /// the application, whose init sets its own period: a trial image that hangs before
+    /// that, or never feeds it, is reset, and the reset rolls it back.
+    fn start_watchdog() {
+        wr(IWDG_KR, 0x5555);
+        wr(IWDG_PR, 4); // /64
+        wr(IWDG_RLR, 0xFFF);
+        // PVU/RVU: the new values reach the LSI domain within a few LSI cycles.
+        let mut n = 0u32;
+        while rd(IWDG_SR) & 3 != 0 && n < 100_000 {
+            n += 1;
+        }
+        wr(IWDG_KR, 0xCCCC);
+        feed();
     }
 
     /// The flash, sectors 1-9 writable (register level, PSIZE ×32: the board runs at
@@ -236,6 +259,7 @@ mod board {
 
     #[entry]
     fn main() -> ! {
+        start_watchdog();
         let flash = RefCell::new(Flash);
         // SAFETY: the only reference to BUF, taken once (entry runs once).
         let buf = unsafe { &mut *core::ptr::addr_of_mut!(BUF) };

@@ -198,6 +198,23 @@ fn an_update_is_swapped_in_then_rolled_back_at_the_next_reset_unless_confirmed()
     );
 }
 
+#[test]
+fn a_trial_image_that_hangs_is_reset_by_the_watchdog_and_rolled_back() {
+    // B never confirms and never starts a watchdog of its own: the bootloader's (8.2 s at
+    // 32 kHz) resets it, and that reset reverts.
+    let mut b = board(true);
+    assert!(run_until_tag(&mut b, B, 60_000), "the update never ran");
+    let at = b.now();
+    assert!(run_until_tag(&mut b, A, 60_000), "never rolled back");
+    let waited_s = (b.now() - at) / (1000 * PS_PER_MS);
+    assert!(
+        waited_s >= 8,
+        "rolled back after {waited_s} s: not by the watchdog"
+    );
+    assert_eq!(b.peek(STATE), Some(0xC0C0_C0C0), "REVERT recorded");
+    assert!(active(&b) == padded(&app(A)));
+}
+
 /// The power cut at `permille` of the swap's duration: the board powers up again and
 /// must run the update, whole.
 fn cut_during_swap(permille: u64, swap_ms: u64) {
