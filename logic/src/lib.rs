@@ -28,6 +28,7 @@ mod fmt;
 pub mod config;
 pub mod console;
 pub mod controller;
+pub mod crc;
 pub mod diag;
 pub mod estimate;
 pub mod fixed;

@@ -198,9 +198,6 @@ const KINDS: usize = MAX_KINDS as usize;
 /// Slot size as a flash offset.
 const SLOT_SIZE_U32: u32 = SLOT_SIZE as u32;
 
-/// CRC of the first 56 bytes of a slot.
-const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
-
 /// One record as read back from flash.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -321,7 +318,7 @@ enum Slot {
 
 /// CRC-32 of a slot's first 56 bytes (header and payload).
 fn body_crc(header: &[u8; HEADER_LEN], payload: &[u8; PAYLOAD_MAX]) -> u32 {
-    let mut digest = CRC32.digest();
+    let mut digest = crate::crc::Crc32::new();
     digest.update(header);
     digest.update(payload);
     digest.finalize()
@@ -956,7 +953,7 @@ impl<F: NorFlash> RecordLog<F> {
                 if rec.kind != kind {
                     continue;
                 }
-                let digest = CRC32.checksum(rec.data());
+                let digest = crate::crc::crc32(rec.data());
                 if carry.is_some() {
                     // More copies than a batch holds cannot be: ignore the excess.
                     let _ = copies.push(digest);

@@ -71,8 +71,6 @@ pub struct CrashBlock {
 #[link_section = ".persist.CRASH_BLOCK"]
 pub static mut CRASH_BLOCK: MaybeUninit<CrashBlock> = MaybeUninit::uninit();
 
-const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
-
 extern "C" {
     static _stack_end: u32;
     static _stack_start: u32;
@@ -148,7 +146,7 @@ core::arch::global_asm!(
 /// Record `c` (from the panic or HardFault handler: no allocation, no panic).
 pub fn record(c: &Crash) {
     let body = c.to_bytes();
-    let crc = CRC32.checksum(&body);
+    let crc = docking_logic::crc::crc32(&body);
     // SAFETY: raw writes into the block (no reference is made); the handlers that call
     // this run with nothing else running after them but the reset.
     unsafe {
@@ -172,7 +170,7 @@ pub fn take() -> Option<Crash> {
         addr_of_mut!((*b).magic).write(0);
         addr_of_mut!((*b).overflow).write(0);
         addr_of_mut!((*b).painted).write(PAINTED);
-        let recorded = (magic == MAGIC && CRC32.checksum(&body) == crc)
+        let recorded = (magic == MAGIC && docking_logic::crc::crc32(&body) == crc)
             .then(|| Crash::from_bytes(&body))
             .flatten();
         recorded.or((overflow == OVERFLOWED).then_some(Crash {

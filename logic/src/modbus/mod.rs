@@ -61,13 +61,9 @@ pub const BITS_PER_CHAR: u32 = 11;
 /// The baud rates a unit may be set to.
 pub const BAUD_RATES: [u32; 5] = [9_600, 19_200, 38_400, 57_600, 115_200];
 
-/// The Modbus CRC-16 (polynomial 0xA001 reflected, initial 0xFFFF), sent low byte
-/// first.
-const CRC16: crc::Crc<u16> = crc::Crc::<u16>::new(&crc::CRC_16_MODBUS);
-
 /// CRC-16/MODBUS of `bytes` (sent on the line low byte first).
 pub fn crc16(bytes: &[u8]) -> u16 {
-    CRC16.checksum(bytes)
+    crate::crc::crc16_modbus(bytes)
 }
 
 /// Exception codes.
