@@ -40,8 +40,6 @@ pub const CAN: u8 = 0x18;
 /// The receiver asks for CRC mode.
 pub const C: u8 = b'C';
 
-const CRC: crc::Crc<u16> = crc::Crc::<u16>::new(&crc::CRC_16_XMODEM);
-
 /// Why a transfer ended without the file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Abort {
@@ -242,7 +240,7 @@ impl Receiver {
         ) else {
             return Action::Send(&[NAK]);
         };
-        if blk != !inv || CRC.checksum(data) != u16::from_be_bytes([hi, lo]) {
+        if blk != !inv || crate::crc::crc16_xmodem(data) != u16::from_be_bytes([hi, lo]) {
             return Action::Send(&[NAK]);
         }
         match self.phase {
@@ -329,7 +327,12 @@ mod tests {
         d.resize(n, if blk == 0 { 0 } else { 0x1A });
         let mut p = vec![if n == 128 { SOH } else { STX }, blk, !blk];
         p.extend(&d);
-        p.extend(CRC.checksum(&d).to_be_bytes());
+        // The sender's CRC from the crc crate, not the receiver's own.
+        p.extend(
+            crc::Crc::<u16>::new(&crc::CRC_16_XMODEM)
+                .checksum(&d)
+                .to_be_bytes(),
+        );
         p
     }
 
