@@ -459,6 +459,22 @@ mod app {
         let journals = crash::journal_take();
         let journals: heapless::Vec<_, 2> = journals.into_iter().flatten().collect();
         ctrl.boot(cause, crashed, &journals);
+        // A trial boot after an update (issue 21, docs/update.md): the board came up,
+        // the flash answered and the odometer was restored, the HX711 answered its
+        // power cycle: confirm, or the next reset (the watchdog's included) rolls back.
+        match flash::OdometerFlash::boot_trial() {
+            flash::BootTrial::Trial => match flash::OdometerFlash::confirm_boot() {
+                Ok(()) => defmt::info!("update: trial boot confirmed, this image is kept"),
+                Err(e) => defmt::warn!(
+                    "update: trial boot not confirmed ({}): the next reset rolls back",
+                    defmt::Debug2Format(&e)
+                ),
+            },
+            flash::BootTrial::RolledBack => {
+                defmt::warn!("update: the last update never confirmed and was rolled back")
+            }
+            flash::BootTrial::Confirmed => {}
+        }
         crash::journal_write(&ctrl.journal());
         let (used, size) = crash::stack_usage();
         ctrl.set_stack_usage(used, size);

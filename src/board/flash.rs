@@ -237,6 +237,78 @@ impl OdometerFlash {
     }
 }
 
+/// The bootloader's state sector (sector 1, `boot/`; docs/update.md, "The state
+/// record": embassy-boot 0.7's format). The application reads its magic at boot and
+/// confirms a trial boot; nothing else here writes it.
+const BOOT_STATE: u32 = 0x0800_4000;
+/// Its sector number.
+const BOOT_STATE_SECTOR: u32 = 1;
+/// An update was swapped in and runs on trial (SWAP, the swap done).
+const SWAP_MAGIC: u32 = 0xF0F0_F0F0;
+/// Booted and confirmed.
+const BOOT_MAGIC: u32 = 0xD0D0_D0D0;
+/// The last trial image was rolled back.
+const REVERT_MAGIC: u32 = 0xC0C0_C0C0;
+
+/// What the bootloader's state says about this boot.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
+pub enum BootTrial {
+    /// A confirmed image (or a board that never had an update).
+    Confirmed,
+    /// A new image on trial: it must confirm itself, or the next reset rolls it back.
+    Trial,
+    /// A trial image was rolled back: this is the image before it.
+    RolledBack,
+}
+
+impl OdometerFlash {
+    /// The bootloader's state at this boot.
+    pub fn boot_trial() -> BootTrial {
+        // SAFETY: a word of the state sector, mapped readable flash.
+        match unsafe { core::ptr::read_volatile(BOOT_STATE as *const u32) } {
+            SWAP_MAGIC => BootTrial::Trial,
+            REVERT_MAGIC => BootTrial::RolledBack,
+            _ => BootTrial::Confirmed,
+        }
+    }
+
+    /// Confirm a trial boot (embassy-boot's `mark_booted`): invalidate the progress
+    /// words, erase the state sector, write BOOT. A cut after the erase leaves an erased
+    /// sector, read as BOOT by the bootloader; a cut before it, SWAP with the progress
+    /// invalid, which the bootloader takes as a revert with nothing to copy (this image
+    /// stays). Only on a trial: a confirmed state is never rewritten (no erase per boot).
+    /// At init only (interrupts masked in the erase, the watchdog fed from SRAM).
+    pub fn confirm_boot() -> Result<(), OdoFlashError> {
+        if Self::boot_trial() != BootTrial::Trial {
+            return Ok(());
+        }
+        // SAFETY: the progress-valid word of the state sector, readable flash.
+        let valid = unsafe { core::ptr::read_volatile((BOOT_STATE + 4) as *const u32) };
+        if valid == 0xFFFF_FFFF {
+            Self::program_word(BOOT_STATE + 4, 0)?;
+        }
+        Self::erase_sector(BOOT_STATE_SECTOR)?;
+        Self::program_word(BOOT_STATE, BOOT_MAGIC)
+    }
+
+    /// Program one word of the state sector.
+    fn program_word(addr: u32, word: u32) -> Result<(), OdoFlashError> {
+        if !(BOOT_STATE..BOOT_STATE + 0x4000).contains(&addr) || addr % 4 != 0 {
+            return Err(OdoFlashError::OutOfBounds);
+        }
+        Self::begin()?;
+        // SAFETY: FLASH_CR (fixed MMIO): PG with ×32 parallelism; then a word-aligned
+        // address inside the state sector (checked above): the store programs it.
+        unsafe {
+            core::ptr::write_volatile(FLASH_CR, CR_PSIZE_X32 | CR_PG);
+            core::ptr::write_volatile(addr as *mut u32, word);
+        }
+        let r = Self::status(Self::wait_idle());
+        Self::end();
+        r
+    }
+}
+
 impl ErrorType for OdometerFlash {
     type Error = OdoFlashError;
 }

@@ -215,6 +215,62 @@ fn a_trial_image_that_hangs_is_reset_by_the_watchdog_and_rolled_back() {
     assert!(active(&b) == padded(&app(A)));
 }
 
+/// The release image as an update of itself: swapped in by the bootloader, it boots on
+/// trial, confirms itself (the state sector says BOOT), and the next reset keeps it.
+#[test]
+fn the_release_image_swapped_in_confirms_itself_and_is_kept() {
+    let mut img = Image::load(&vboard::image::default_path()).unwrap_or_else(|e| panic!("{e}"));
+    let start = (ACTIVE - 0x0800_0000) as usize;
+    let app: Vec<u8> = img.flash[start..img.flash_used as usize].to_vec();
+    img.put(DFU_PAGES[0], &app).unwrap();
+    img.put(STATE, &[0xF0; 4]).unwrap();
+    let odometer = SharedFlash::new(SimFlash::stm32f407_odometer());
+    let world = World::new(Machine::new(&RigOptions::new(80)), odometer.clone());
+    let mut b = Board::new(img, world, BoardConfig::default()).unwrap();
+    b.power_on();
+    let end = 60_000 * PS_PER_MS;
+    while b.now() < end && b.peek(STATE) != Some(0xD0D0_D0D0) {
+        let t = b.now() + 50 * PS_PER_MS;
+        b.run_until(t).unwrap();
+    }
+    assert_eq!(
+        b.peek(STATE),
+        Some(0xD0D0_D0D0),
+        "the trial boot never confirmed"
+    );
+    let active_now: Vec<u8> = (0..app.len() as u32 / 4)
+        .flat_map(|i| b.peek(ACTIVE + 4 * i).unwrap_or(0).to_le_bytes())
+        .collect();
+    assert!(
+        active_now == app[..active_now.len()],
+        "ACTIVE is the update"
+    );
+    let confirmed = |b: &Board| {
+        b.log
+            .iter()
+            .filter(|l| l.msg.contains("trial boot confirmed"))
+            .count()
+    };
+    assert_eq!(confirmed(&b), 1, "the image said it confirmed");
+    // The next reset boots it as it is: nothing copied, nothing confirmed again.
+    let programs = b.soc().code_programs;
+    b.reset_pin();
+    b.run_until(b.now() + 3_000 * PS_PER_MS).unwrap();
+    assert_eq!(
+        b.soc().code_programs,
+        programs,
+        "nothing written by the reset"
+    );
+    assert_eq!(b.peek(STATE), Some(0xD0D0_D0D0));
+    assert_eq!(confirmed(&b), 1);
+    assert!(
+        b.log.iter().filter(|l| l.msg.contains("booted")).count() >= 2,
+        "the image ran after both boots"
+    );
+    // The odometer's sectors were never erased by the swap or the confirmation.
+    assert_eq!(odometer.with(|f| f.erase_counts().to_vec()), vec![0, 0]);
+}
+
 /// The power cut at `permille` of the swap's duration: the board powers up again and
 /// must run the update, whole.
 fn cut_during_swap(permille: u64, swap_ms: u64) {
