@@ -777,7 +777,7 @@ pub const PLANT_RESIDUAL_STEP_S: f64 = 0.001;
 /// Trapezoid steps of the ∫N3 dt convergence, s.
 pub const PLANT_INTEGRAL_STEPS_S: [f64; 4] = [1.0, 0.1, 0.01, 0.001];
 
-/// The reference's ∫N3 dt of the plant over 0–25 s (`force-model.md` §0), N·s.
+/// The reference ∫N3 dt of the plant over 0–25 s (`docs/physics.md` §8.5), N·s.
 pub const PLANT_N3_INTEGRAL_REF_NS: f64 = 3377.1;
 
 /// Tilt solver iteration caps compared (with no tolerance: exactly that many).

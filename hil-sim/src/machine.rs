@@ -18,7 +18,7 @@
 //! # The margin
 //!
 //! Friction coefficients are the least known parameters and µ2 moves the phase-4 peak
-//! most (155–289 N over µ2 0.30–0.05, reference §6). The envelope's nominal profile is
+//! most (155–289 N over µ2 0.30–0.05, `docs/physics.md` §8.2). The envelope's nominal profile is
 //! the **largest N3 over µ1 ± [`MU_SPREAD`] and µ2 ± [`MU_SPREAD`]** (a 3 × 3 grid, at
 //! every 10 µm of depth and at both sides of each phase boundary), and the guard then adds
 //! its usual margins (×1.25 + 30 N). The hard limit follows the envelope's peak (never

@@ -5,8 +5,8 @@
 //! solves the equations it came from, so that other masses, friction coefficients,
 //! cone angles and tilts can be simulated. The printed Eqs. 3–5 lost terms in
 //! typesetting; what is implemented is the reconstruction "R" of
-//! `shared/reference/force-model.md` (§2), which reproduces that file's table of values
-//! (§3) to better than 1e-3 N and Eq. 7 to the residuals of its §4 (phases 1–2 ≤ 0.01 N,
+//! `docs/physics.md` (§8.1), which reproduces that page's table of values (§8.4) to
+//! better than 1e-3 N and Eq. 7 to the residuals of its §8.5 (phases 1–2 ≤ 0.01 N,
 //! phase 3 N3 1.70 N, phase 4 N3 0.35 N / N4 1.10 N).
 //!
 //! # Units and conventions
@@ -53,7 +53,7 @@
 //! depth ([`Plant::at_depth`], mm past the start of compliant contact); [`Plant::at_time`]
 //! maps Eq. 7's time axis to depth as `depth = v_model · t`, where
 //! [`PlantParams::v_model_mm_s`] is **the travel per second of Eq. 7's time axis**.
-//! Default 4.0 mm/s ([`DEFAULT_V_MODEL_MM_S`]): the reference (§2) shows that Eq. 7's
+//! Default 4.0 mm/s ([`DEFAULT_V_MODEL_MM_S`]): `docs/physics.md` §8.3 shows that Eq. 7's
 //! phases 3–4 correspond to 4 mm/s of travel — Eq. 6 gives the paper's θ(16 s) = 1.65°
 //! only at 4.0 mm/s, the phase-3 duration 5.195 s is `L*·cosθ0/4`, and the phase-4 N3
 //! residual is 0.35 N at 4.0 against 47.7 N at 1.2 mm/s. `v_model = 1.2` reproduces
@@ -64,7 +64,7 @@
 //! they cannot be derived from the text; the paper's 3.75 s and 7.25 s). Phase 4 starts
 //! when the engaged length reaches `L* = (D2 − D1·cosθ0)/sinθ0` (the geometry), i.e.
 //! `L*·cosθ0` past the start of phase 3: `t3 = t2 + L*·cosθ0/v = 12.4443 s` at the
-//! paper's values. [`PlantParams::t3_s`] overrides it with a time; the reference's table
+//! paper's values. [`PlantParams::t3_s`] overrides it with a time; the reference table
 //! and Eq. 7 use the paper's printed 12.445 s ([`PlantParams::REFERENCE`]), and phase 4's
 //! depth counts from the boundary in use, so the 0.7 ms between the two shifts phase-4
 //! forces by up to 0.008 N (more than the table's 1e-3 N).
@@ -84,8 +84,9 @@
 //!   are continuous with the two-point solution where N4 crosses 0); moment unbalanced,
 //!   `resolved` = false. With the paper's values this happens from t ≈ 25.4 s.
 //! * Any force still negative is set to 0 and the point is unresolved; a singular
-//!   system (|det| below 1e-12 of Hadamard's bound — the reference finds none within
-//!   the ranges) is never divided by and is unresolved too.
+//!   system (|det| below 1e-12 of Hadamard's bound — none with the paper's values,
+//!   `docs/physics.md` §8.1, nor within the validated ranges) is never divided by and is
+//!   unresolved too.
 //!
 //! So a returned force is never negative and never NaN.
 //!
@@ -116,10 +117,11 @@ pub const DEFAULT_V_MODEL_MM_S: f64 = 4.0;
 /// Duration of one stroke on Eq. 7's time axis, s.
 pub const STROKE_S: f64 = docking_logic::profile::STROKE_S;
 
-/// The paper's printed phase 3→4 boundary, s (Eqs. 5–6), used by the reference's table.
+/// The paper's printed phase 3→4 boundary, s (Eqs. 5–6), used by the reference table
+/// (`docs/physics.md` §8.4).
 pub const PAPER_T3_S: f64 = 12.445;
 
-/// One row of the reference's table of values (`force-model.md` §3): the plant with
+/// One row of the reference table of values (`docs/physics.md` §8.4): the plant with
 /// [`PlantParams::REFERENCE`] at `t_s` gives these to better than 1e-3 N and 1e-3°.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TableRow {
@@ -133,7 +135,8 @@ pub struct TableRow {
     pub forces_n: [f64; 4],
 }
 
-/// The reference's §3 table (9 rows, both sides of the 12.445 s boundary).
+/// The reference table of `docs/physics.md` §8.4 (9 rows, both sides of the 12.445 s
+/// boundary).
 pub const REFERENCE_TABLE: [TableRow; 9] = [
     row(0.0, 1, 2.8400, [67.2261, 21.7502, 112.6456, 0.0]),
     row(3.75, 2, 2.8400, [61.1669, 14.7222, 115.0453, 0.0]),
@@ -307,7 +310,7 @@ impl PlantParams {
     };
 
     /// [`Self::PAPER`] with the paper's printed phase 3→4 boundary 12.445 s: the setting
-    /// of the reference's table (§3) and of Eq. 7.
+    /// of the reference table (`docs/physics.md` §8.4) and of Eq. 7.
     pub const REFERENCE: Self = Self {
         t3_s: Some(PAPER_T3_S),
         ..Self::PAPER

@@ -8,8 +8,8 @@
 //! of Eq. 7 (same columns plus `theta_deg`), with the paper's parameters unless
 //! `--mass-kg`, `--mu1`, `--mu2`, `--gamma-deg`, `--theta0-deg`, `--v-model` (the travel
 //! per second of Eq. 7's time axis, default 4 mm/s) or `--t3-s` (the phase 3→4 boundary;
-//! default from the geometry, 12.4443 s; the paper's 12.445 reproduces the reference's
-//! table) say otherwise.
+//! default from the geometry, 12.4443 s; the paper's 12.445 reproduces the table of
+//! `docs/physics.md` §8.4) say otherwise.
 
 use std::io::Write;
 

@@ -240,7 +240,7 @@ fn state_changing_commands_need_maintenance_and_a_machine_at_rest() {
         w["lifetime_cycles"], 1,
         "lifetime totals survive a cone replacement"
     );
-    // The wear is the bore's growth, not halved (reference §7); with no baseline
+    // The wear is the bore's growth, not halved (`docs/physics.md` §7); with no baseline
     // measured, from the nominal 26.000 mm, and the reply says so.
     let m = r.command("measure 26.050", 10);
     assert!(

@@ -1,5 +1,5 @@
 //! Acceptance of the plant model (`hil_sim::plant`): the reference's table of
-//! values and residuals against Eq. 7 (`shared/reference/force-model.md` §3–§4), the
+//! values and residuals against Eq. 7 (`docs/physics.md` §8.4–§8.5), the
 //! contact-set invariants over the stability sweep's ranges, a property test over random
 //! valid parameters and times, and `hil-sim profile --model plant` / `accuracy` in
 //! process.
@@ -8,7 +8,7 @@ use docking_logic::profile::forces_at_time;
 use hil_sim::plant::{Contact, Plant, PlantParams, STROKE_S};
 use proptest::prelude::*;
 
-/// `force-model.md` §3, transcribed here independently of the library's copy:
+/// `docs/physics.md` §8.4, transcribed here independently of the library's copy:
 /// t s, phase, θ °, N1, N2, N3, N4.
 const TABLE: [(f64, u8, f64, [f64; 4]); 9] = [
     (0.0, 1, 2.8400, [67.2261, 21.7502, 112.6456, 0.0]),

@@ -15,12 +15,12 @@
 //!
 //! ## Readings
 //! A reading is the wear the micrometer shows, `y = bore − baseline` (the paper's depth:
-//! the diameter's growth, not halved; §7 of the reference), at the `E` the odometer had
+//! the diameter's growth, not halved; `docs/physics.md` §7), at the `E` the odometer had
 //! when it was taken. In the line's coordinates it is `z = log2(y + c)`, with the noise
 //! of a reading (σ = 3 µm: the 1 µm resolution and the 3σ-filtered mean of 15 points)
 //! carried through the logarithm, `σ_z = 3 µm / ((y + c)·ln 2)`: a reading near zero wear
 //! says little about the curve, a reading at 300 µm a lot. Each reading's variance also
-//! carries a floor, `σ_shape = 0.02` (1.4 % of `h + c`): no power law fits a real cone
+//! carries a floor, `σ_shape = 0.01` (0.7 % of `h + c`): no power law fits a real cone
 //! exactly, and without the floor a dozen late readings would claim a precision the
 //! shape of the curve does not have.
 //!

@@ -1,4 +1,4 @@
-//! Guide-cone materials (reference §5). Each has its own calibrated wear coefficient,
+//! Guide-cone materials (`docs/physics.md` §5). Each has its own calibrated wear coefficient,
 //! expressed relative to the ZQSn5-2 baseline whose Km = 3.3e-5 the paper measured;
 //! hardness alone under-predicts the difference (HV 213.77 vs 242.8 gives 0.88, the
 //! measured wear ratio of QSn6-6-3 is 0.5701).

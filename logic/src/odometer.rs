@@ -1,5 +1,5 @@
 //! The wear odometer: cumulative guide-cone wear from the measured load, per cycle, in
-//! integer and fixed-point arithmetic only (reference §4–§5).
+//! integer and fixed-point arithmetic only (`docs/physics.md` §4–§5).
 //!
 //! ## Model
 //! Archard: wear is proportional to load × sliding distance. For every sample in the
@@ -187,7 +187,7 @@ pub struct Cone {
     /// Load–distance on this cone, Q63.1 mN·µm.
     pub w_q1: u64,
     /// The cone's own bore when new, µm (0: not measured; the nominal 26.000 mm is
-    /// assumed then). Measured wear is the bore's growth from it (reference §7).
+    /// assumed then). Measured wear is the bore's growth from it (`docs/physics.md` §7).
     pub baseline_um: u32,
 }
 
@@ -563,7 +563,7 @@ pub fn open_log<F: embedded_storage::nor_flash::NorFlash>(
     crate::storage::RecordLog::open_keeping(flash, F::ERASE_SIZE, LOG_KEEP)
 }
 
-/// Nominal bore of a new cone, µm (D2 = 26 mm, reference §2): assumed as the baseline of
+/// Nominal bore of a new cone, µm (D2 = 26 mm, `docs/physics.md` §1): assumed as the baseline of
 /// a cone whose own was not measured.
 pub const NOMINAL_BORE_UM: u32 = 26_000;
 
@@ -634,7 +634,7 @@ impl Measurement {
     }
 
     /// Measured wear against `baseline_um`: the bore's growth (not halved: the wear is
-    /// one-sided, reference §7), nm.
+    /// one-sided, `docs/physics.md` §7), nm.
     pub fn wear_nm(&self, baseline_um: u32) -> i32 {
         let d = self.bore_um as i64 - baseline_um as i64;
         (d * 1000).clamp(i32::MIN as i64, i32::MAX as i64) as i32

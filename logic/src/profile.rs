@@ -1,5 +1,5 @@
 //! The docking contact-force profile (Eq. 7 of He et al. 2025) and the four contact
-//! phases (reference §2–§3).
+//! phases (`docs/physics.md` §2–§3).
 //!
 //! `t` is seconds from the start of compliant contact at the nominal speed
 //! `v0 = 1.2 mm/s`; the firmware evaluates the profile at an **insertion depth**
@@ -22,7 +22,7 @@ pub const BOUNDARY_S: [f64; 3] = [3.75, 7.25, 12.445];
 /// Phase boundaries as insertion depth, µm (`v0 · BOUNDARY_S`).
 pub const BOUNDARY_UM: [i32; 3] = [4_500, 8_700, 14_934];
 
-/// One of the four contact phases of a compliant insertion (reference §2).
+/// One of the four contact phases of a compliant insertion (`docs/physics.md` §2).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[repr(u8)]
