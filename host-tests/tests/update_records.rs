@@ -1,0 +1,94 @@
+//! Issue 21: an image rolled back to reads the records a newer image wrote. A record of
+//! a kind this image does not know (what a newer image may add) is skipped at boot —
+//! no fault, the counters restored as they were — and carried through the log's sector
+//! moves, so that the newer image finds it again after the next update.
+
+use docking_logic::odometer::{self, open_log};
+use docking_logic::sequencer::State;
+use hil_sim::flash::{SharedFlash, SimFlash};
+use hil_sim::rig::{Rig, RigOptions, BOOT_TICKS};
+use host_tests::{run_cycles, run_until};
+
+/// A kind no record of this image uses (odometer::kind ends at 11; 14 is the tests'
+/// filler, 15 the log's own).
+const NEWER_KIND: u8 = 12;
+/// Filler records of another unknown kind, to bring the log to its sector move.
+const FILLER_KIND: u8 = 13;
+
+fn boot(flash: &SharedFlash) -> Rig {
+    let mut r = Rig::with_flash(RigOptions::new(80), flash.clone());
+    for _ in 0..BOOT_TICKS {
+        r.tick();
+    }
+    r
+}
+
+fn counters(r: &Rig) -> (u32, u32) {
+    (
+        r.ctrl.odometer().lifetime().cycles,
+        r.ctrl.odometer().cone().cycles,
+    )
+}
+
+#[test]
+fn a_record_of_a_kind_this_image_does_not_know_is_skipped_at_boot_and_kept_through_a_sector_move() {
+    let flash = SharedFlash::new(SimFlash::stm32f407_odometer());
+    let mut r = boot(&flash);
+    run_cycles(&mut r, 3);
+    let before = counters(&r);
+    drop(r);
+
+    // The newer image wrote a record of a kind this one does not know.
+    let newer: Vec<u8> = (0..40u8).map(|i| i ^ 0xA5).collect();
+    {
+        let (mut log, _) = open_log(flash.clone()).unwrap();
+        log.append(NEWER_KIND, &newer).unwrap();
+    }
+
+    // Rolled back to this image: it boots, skips the record, keeps its counters.
+    let mut r = boot(&flash);
+    assert_eq!(r.ctrl.state(), State::Idle, "boots to idle, no fault");
+    assert_eq!(counters(&r), before, "counters restored as they were");
+    run_cycles(&mut r, 2);
+    assert_eq!(counters(&r), (before.0 + 2, before.1 + 2));
+    let after = counters(&r);
+    drop(r);
+
+    // Fill the log up to its maintenance mark with more unknown records; this image's
+    // next idle moment moves the log to the next sector.
+    {
+        let (mut log, _) = open_log(flash.clone()).unwrap();
+        while !log.needs_maintenance() {
+            log.append(FILLER_KIND, &[0x3C; 16]).unwrap();
+        }
+    }
+    let erases_before: u32 = flash.with(|f| f.erase_counts().iter().sum());
+    let mut r = boot(&flash);
+    assert!(
+        run_until(&mut r, 20_000, |r| {
+            r.flash.with(|f| f.erase_counts().iter().sum::<u32>()) > erases_before
+                && !r.ctrl.persist_pending()
+        }),
+        "the log never moved"
+    );
+    // Settle after the move.
+    for _ in 0..200 {
+        r.tick();
+    }
+    assert_eq!(counters(&r), after);
+    drop(r);
+
+    // After the move the newer image's record is still the newest of its kind, and
+    // this image's counters reboot as they were.
+    let (mut log, report) = open_log(flash.clone()).unwrap();
+    assert_eq!(report.corrupt, 0);
+    let rec = log
+        .latest(NEWER_KIND)
+        .unwrap()
+        .expect("carried through the move");
+    assert_eq!(rec.data(), &newer[..]);
+    assert!(log.latest(odometer::kind::STATE).unwrap().is_some());
+    drop(log);
+    let r = boot(&flash);
+    assert_eq!(counters(&r), after);
+}
