@@ -4,7 +4,7 @@
 //!
 //! The commands are the lines of the ```` ```sh ```` blocks of `README.md` and
 //! `docs/*.md` (a `\` continues a line; `$ ` marks a command in a transcript, whose other
-//! lines are output; `cd DIR` sets the directory of the block's later lines). A
+//! lines are output; `cd DIR` sets the directory of the page's later lines). A
 //! synopsis is run in its shortest form: optional `[…]` groups dropped, placeholders
 //! filled ([`fill`]); long runs are shortened ([`shorten`]); servers get `--for 2`. What
 //! is not run says why ([`skip_reason`]): the probe's command is only built, CI's own
@@ -39,10 +39,11 @@ pub fn commands(page: &str, text: &str) -> Vec<DocCommand> {
         }
     }
     let mut out = Vec::new();
+    // A reader who typed `cd DIR` stays there for the rest of the page.
+    let mut dir = String::from(".");
     for (first, lines) in blocks {
         // In a transcript only `$ ` lines are commands; the rest is output.
         let transcript = lines.iter().any(|l| l.starts_with("$ "));
-        let mut dir = String::from(".");
         let mut pending: Option<(usize, String)> = None;
         for (k, line) in lines.iter().enumerate() {
             let (start, cmd) = match pending.take() {
@@ -254,7 +255,7 @@ mod tests {
 
     #[test]
     fn blocks_transcripts_continuations_and_cd_are_read_as_a_reader_would() {
-        let page = "text\n```sh\ncargo build --release --target thumbv7em-none-eabihf   # the image\ncd vboard\ncargo run --release -- scene NAME [--cycles N] \\\n    [--json]\n```\n```\nnot a command\n```\n```sh\n$ cargo run -p hil-sim -- serve --pty\n/dev/pts/7\n$ picocom -b 115200 /dev/pts/7\n```\n";
+        let page = "text\n```sh\ncargo build --release --target thumbv7em-none-eabihf   # the image\ncd vboard\ncargo run --release -- scene NAME [--cycles N] \\\n    [--json]\n```\n```\nnot a command\n```\n```sh\n$ cargo run -- serve --pty\n/dev/pts/7\n$ picocom -b 115200 /dev/pts/7\n```\n";
         let c = commands("p.md", page);
         let shown: Vec<(&str, &str)> = c
             .iter()
@@ -268,8 +269,8 @@ mod tests {
                     "vboard",
                     "cargo run --release -- scene NAME [--cycles N] [--json]"
                 ),
-                (".", "cargo run -p hil-sim -- serve --pty"),
-                (".", "picocom -b 115200 /dev/pts/7"),
+                ("vboard", "cargo run -- serve --pty"),
+                ("vboard", "picocom -b 115200 /dev/pts/7"),
             ]
         );
         assert_eq!(c[1].at, "p.md:5");

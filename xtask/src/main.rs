@@ -399,7 +399,7 @@ impl Xtask {
                 }
                 Ok(cmd) => {
                     ran += 1;
-                    println!("run  {} [{}]: {cmd}", c.at, c.dir);
+                    let t = Instant::now();
                     let status = Command::new("timeout")
                         .args(["300", "bash", "-c", &cmd])
                         .current_dir(self.root.join(&c.dir))
@@ -407,6 +407,12 @@ impl Xtask {
                         .stdout(Stdio::null())
                         .stderr(Stdio::piped())
                         .output();
+                    println!(
+                        "run  {} [{}]: {cmd} ({:.1} s)",
+                        c.at,
+                        c.dir,
+                        t.elapsed().as_secs_f64()
+                    );
                     match status {
                         Ok(o) if o.status.success() => {}
                         Ok(o) => {
