@@ -310,6 +310,33 @@ mod tests {
     }
 
     #[test]
+    fn a_cut_while_the_new_image_confirms_itself_keeps_the_new_image() {
+        let (a, b) = (image(1), image(2));
+        for cut in 1..=4 {
+            let flash = with_update(&a, &b);
+            assert_eq!(boot(&flash, None), BootState::Swap);
+            flash.borrow_mut().ops = 0;
+            flash.borrow_mut().cut_at = Some(cut);
+            mark(&flash, |s| {
+                let _ = s.mark_booted();
+            });
+            flash.borrow_mut().cut_at = None;
+            // A cut before the invalidation took leaves SWAP as it was: no confirmation,
+            // so the revert (the old image, whole). After it (SWAP with the progress
+            // invalid, an erased sector, BOOT) the new image is kept. Either way one
+            // whole image, and it stays.
+            let first = boot(&flash, None);
+            let kept = active(&flash);
+            assert!(
+                kept == b || (cut == 1 && kept == a),
+                "cut at confirming operation {cut}: {first:?}"
+            );
+            boot(&flash, None);
+            assert!(active(&flash) == kept, "cut at confirming operation {cut}");
+        }
+    }
+
+    #[test]
     fn noise_in_the_state_sector_boots_the_active_image_untouched() {
         let a = image(1);
         let flash = RefCell::new(Sim::new());

@@ -274,9 +274,10 @@ impl OdometerFlash {
 
     /// Confirm a trial boot (embassy-boot's `mark_booted`): invalidate the progress
     /// words, erase the state sector, write BOOT. A cut after the erase leaves an erased
-    /// sector, read as BOOT by the bootloader; a cut before it, SWAP with the progress
-    /// invalid, which the bootloader takes as a revert with nothing to copy (this image
-    /// stays). Only on a trial: a confirmed state is never rewritten (no erase per boot).
+    /// sector, read as BOOT by the bootloader; a cut between the invalidation and the
+    /// erase, SWAP with the progress invalid, which the bootloader takes as a revert
+    /// with nothing to copy (this image stays); a cut before the invalidation took, SWAP
+    /// as it was: not confirmed, rolled back (boot/src/lib.rs tests each case). Only on a trial: a confirmed state is never rewritten (no erase per boot).
     /// At init only (interrupts masked in the erase, the watchdog fed from SRAM).
     pub fn confirm_boot() -> Result<(), OdoFlashError> {
         if Self::boot_trial() != BootTrial::Trial {
