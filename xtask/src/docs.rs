@@ -143,7 +143,7 @@ pub fn fill(cmd: &str) -> String {
 }
 
 /// Long runs shortened: cycles cut to a handful (a `--at` list scaled with them), a
-/// sweep to one seed at CPI 1, a server stopped after 2 s.
+/// sweep to one scene at one seed at CPI 1, a server stopped after 2 s.
 pub fn shorten(cmd: &str) -> String {
     let words: Vec<&str> = cmd.split_whitespace().collect();
     let mut out: Vec<String> = Vec::new();
@@ -179,7 +179,12 @@ pub fn shorten(cmd: &str) -> String {
     }
     let has = |out: &[String], word: &str| out.iter().any(|w| w == word);
     if has(&out, "sweep") && !has(&out, "--seeds") {
-        out.extend(["--seeds", "1..1", "--cpi", "1", "--timing", "cpi"].map(String::from));
+        out.extend(
+            [
+                "--scene", "estop", "--seeds", "1..1", "--cpi", "1", "--timing", "cpi",
+            ]
+            .map(String::from),
+        );
     }
     if has(&out, "serve") && !has(&out, "--for") {
         out.extend(["--for", "2"].map(String::from));
@@ -249,7 +254,7 @@ mod tests {
         );
         assert_eq!(
             shorten("vboard -- sweep --flood"),
-            "vboard -- sweep --flood --seeds 1..1 --cpi 1 --timing cpi"
+            "vboard -- sweep --flood --scene estop --seeds 1..1 --cpi 1 --timing cpi"
         );
     }
 
