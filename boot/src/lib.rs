@@ -310,7 +310,7 @@ mod tests {
     }
 
     #[test]
-    fn a_cut_while_the_new_image_confirms_itself_keeps_the_new_image() {
+    fn a_cut_while_the_new_image_confirms_itself_leaves_one_whole_image() {
         let (a, b) = (image(1), image(2));
         for cut in 1..=4 {
             let flash = with_update(&a, &b);
