@@ -32,9 +32,13 @@
 //! lower-priority task (`src/board.rs`); on the host rig one after the other. The
 //! board and the simulator provide the hardware through [`Bsp`].
 
+use core::mem::size_of;
+
 use embedded_hal::digital::{InputPin, OutputPin};
 use embedded_storage::nor_flash::NorFlash;
 use heapless::Deque;
+use zerocopy::byteorder::little_endian::{I32, I64, U32};
+use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
 use crate::config::MachineConfig;
 use crate::diag::{Crash, ResetCause, ResetCounts};
@@ -192,16 +196,28 @@ pub struct Settings {
     pub rate_sps: u32,
 }
 
+/// A [`Settings`] record as laid out in flash (drawn above).
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct SettingsLayout {
+    rate_sps: U32,
+}
+
 impl Settings {
+    /// Bytes of the record.
+    pub const LEN: usize = size_of::<SettingsLayout>();
+
     /// The record.
-    pub fn to_bytes(&self) -> [u8; 4] {
-        self.rate_sps.to_le_bytes()
+    pub fn to_bytes(&self) -> [u8; Self::LEN] {
+        let layout = SettingsLayout {
+            rate_sps: self.rate_sps.into(),
+        };
+        zerocopy::transmute!(layout)
     }
 
     /// From a record; `None` if it is not a valid one.
     pub fn from_bytes(b: &[u8]) -> Option<Self> {
-        let r: [u8; 4] = b.try_into().ok()?;
-        let rate_sps = u32::from_le_bytes(r);
+        let rate_sps = SettingsLayout::read_from_bytes(b).ok()?.rate_sps.get();
         matches!(rate_sps, 10 | 80).then_some(Self { rate_sps })
     }
 }
@@ -696,25 +712,43 @@ impl core::fmt::Display for CalibrateError {
     }
 }
 
-/// Calibration record: `i32 offset_counts | i64 mn_per_count_q32` (12 bytes, LE).
-pub fn calibration_to_bytes(c: &Calibration) -> [u8; 12] {
-    let mut b = [0u8; 12];
-    let (o, q) = b.split_at_mut(4);
-    o.copy_from_slice(&c.offset_counts.to_le_bytes());
-    q.copy_from_slice(&c.mn_per_count_q32.to_le_bytes());
-    b
+/// A calibration record as laid out in flash (drawn at [`calibration_to_bytes`]).
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct CalibrationLayout {
+    offset_counts: I32,
+    mn_per_count_q32: I64,
+}
+
+/// Bytes of a calibration record.
+pub const CALIBRATION_LEN: usize = size_of::<CalibrationLayout>();
+
+/// Encode a calibration record, kind [`odometer::kind::CALIBRATION`] (12 bytes, LE),
+/// declared once as `CalibrationLayout`:
+///
+/// ```text
+///  0                4                                12
+///  +----------------+--------------------------------+
+///  | offset_counts  | mn_per_count_q32               |
+///  | i32            | i64 (Q32.32 mN per count)      |
+///  +----------------+--------------------------------+
+/// ```
+pub fn calibration_to_bytes(c: &Calibration) -> [u8; CALIBRATION_LEN] {
+    let layout = CalibrationLayout {
+        offset_counts: c.offset_counts.into(),
+        mn_per_count_q32: c.mn_per_count_q32.into(),
+    };
+    zerocopy::transmute!(layout)
 }
 
 /// Decode a calibration record; `None` if malformed or implausible.
 pub fn calibration_from_bytes(b: &[u8]) -> Option<Calibration> {
-    let o: [u8; 4] = b.get(0..4)?.try_into().ok()?;
-    let q: [u8; 8] = b.get(4..12)?.try_into().ok()?;
+    let l = CalibrationLayout::read_from_bytes(b).ok()?;
     let c = Calibration {
-        offset_counts: i32::from_le_bytes(o),
-        mn_per_count_q32: i64::from_le_bytes(q),
+        offset_counts: l.offset_counts.get(),
+        mn_per_count_q32: l.mn_per_count_q32.get(),
     };
-    (b.len() == 12 && c.mn_per_count_q32 > 0 && Calibration::tare_plausible(c.offset_counts))
-        .then_some(c)
+    (c.mn_per_count_q32 > 0 && Calibration::tare_plausible(c.offset_counts)).then_some(c)
 }
 
 /// Completed cycles [`Controller::history`] keeps in RAM (the console's `history` asks

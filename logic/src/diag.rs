@@ -11,6 +11,9 @@
 //!
 //! # Persisted formats (little-endian)
 //!
+//! Each is declared once, as a `zerocopy` layout (`ResetCountsLayout`, `CrashLayout`:
+//! `#[repr(C)]`, byte-aligned little-endian fields, no padding), drawn here:
+//!
 //! Reset counts, record kind [`crate::odometer::kind::RESETS`], 24 bytes:
 //!
 //! ```text
@@ -29,6 +32,11 @@
 //!  +------+-------+------+------+-------+-------+-------+------------------------+
 //!  kind: 1 panic, 2 HardFault, 3 stack overflow; line: a panic's source line
 //! ```
+
+use core::mem::size_of;
+
+use zerocopy::byteorder::little_endian::U32;
+use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
 /// Why the MCU reset.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -106,8 +114,15 @@ pub struct ResetCounts {
     pub counts: [u32; 6],
 }
 
+/// A [`ResetCounts`] record as laid out in flash (see the module doc).
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct ResetCountsLayout {
+    counts: [U32; 6],
+}
+
 /// Bytes of a [`ResetCounts`] record.
-pub const RESET_COUNTS_LEN: usize = 24;
+pub const RESET_COUNTS_LEN: usize = size_of::<ResetCountsLayout>();
 
 impl ResetCounts {
     /// One more reset of `cause` (saturating).
@@ -124,25 +139,18 @@ impl ResetCounts {
 
     /// The record.
     pub fn to_bytes(&self) -> [u8; RESET_COUNTS_LEN] {
-        let mut b = [0u8; RESET_COUNTS_LEN];
-        for (dst, c) in b.chunks_exact_mut(4).zip(self.counts) {
-            dst.copy_from_slice(&c.to_le_bytes());
-        }
-        b
+        let layout = ResetCountsLayout {
+            counts: self.counts.map(U32::new),
+        };
+        zerocopy::transmute!(layout)
     }
 
     /// From a record; `None` if it is not one.
     pub fn from_bytes(b: &[u8]) -> Option<Self> {
-        if b.len() != RESET_COUNTS_LEN {
-            return None;
-        }
-        let mut counts = [0u32; 6];
-        for (c, src) in counts.iter_mut().zip(b.chunks_exact(4)) {
-            let mut w = [0u8; 4];
-            w.copy_from_slice(src);
-            *c = u32::from_le_bytes(w);
-        }
-        Some(Self { counts })
+        let layout = ResetCountsLayout::read_from_bytes(b).ok()?;
+        Some(Self {
+            counts: layout.counts.map(U32::get),
+        })
     }
 }
 
@@ -189,62 +197,71 @@ pub struct Crash {
     pub file: [u8; 20],
 }
 
+/// A [`Crash`] record as laid out in flash and in the RAM block (see the module doc).
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct CrashLayout {
+    kind: u8,
+    /// Zero when written; not read.
+    pad: [u8; 3],
+    pc: U32,
+    lr: U32,
+    cfsr: U32,
+    hfsr: U32,
+    line: U32,
+    file: [u8; 20],
+}
+
 /// Bytes of a [`Crash`] record.
-pub const CRASH_LEN: usize = 44;
+pub const CRASH_LEN: usize = size_of::<CrashLayout>();
+
+impl CrashKind {
+    /// The record's `kind` byte.
+    const fn code(self) -> u8 {
+        match self {
+            Self::Panic => 1,
+            Self::HardFault => 2,
+            Self::StackOverflow => 3,
+        }
+    }
+
+    const fn from_code(c: u8) -> Option<Self> {
+        match c {
+            1 => Some(Self::Panic),
+            2 => Some(Self::HardFault),
+            3 => Some(Self::StackOverflow),
+            _ => None,
+        }
+    }
+}
 
 impl Crash {
     /// The record.
     pub fn to_bytes(&self) -> [u8; CRASH_LEN] {
-        let mut b = [0u8; CRASH_LEN];
-        let kind: u8 = match self.kind {
-            CrashKind::Panic => 1,
-            CrashKind::HardFault => 2,
-            CrashKind::StackOverflow => 3,
+        let layout = CrashLayout {
+            kind: self.kind.code(),
+            pad: [0; 3],
+            pc: self.pc.into(),
+            lr: self.lr.into(),
+            cfsr: self.cfsr.into(),
+            hfsr: self.hfsr.into(),
+            line: self.line.into(),
+            file: self.file,
         };
-        let words = [self.pc, self.lr, self.cfsr, self.hfsr, self.line];
-        if let Some(k) = b.first_mut() {
-            *k = kind;
-        }
-        for (dst, w) in b
-            .get_mut(4..24)
-            .into_iter()
-            .flat_map(|s| s.chunks_exact_mut(4))
-            .zip(words)
-        {
-            dst.copy_from_slice(&w.to_le_bytes());
-        }
-        if let Some(f) = b.get_mut(24..44) {
-            f.copy_from_slice(&self.file);
-        }
-        b
+        zerocopy::transmute!(layout)
     }
 
     /// From a record; `None` if it is not one.
     pub fn from_bytes(b: &[u8]) -> Option<Self> {
-        if b.len() != CRASH_LEN {
-            return None;
-        }
-        let kind = match b.first()? {
-            1 => CrashKind::Panic,
-            2 => CrashKind::HardFault,
-            3 => CrashKind::StackOverflow,
-            _ => return None,
-        };
-        let w = |i: usize| -> Option<u32> {
-            let mut x = [0u8; 4];
-            x.copy_from_slice(b.get(i..i + 4)?);
-            Some(u32::from_le_bytes(x))
-        };
-        let mut file = [0u8; 20];
-        file.copy_from_slice(b.get(24..44)?);
+        let l = CrashLayout::read_from_bytes(b).ok()?;
         Some(Self {
-            kind,
-            pc: w(4)?,
-            lr: w(8)?,
-            cfsr: w(12)?,
-            hfsr: w(16)?,
-            line: w(20)?,
-            file,
+            kind: CrashKind::from_code(l.kind)?,
+            pc: l.pc.get(),
+            lr: l.lr.get(),
+            cfsr: l.cfsr.get(),
+            hfsr: l.hfsr.get(),
+            line: l.line.get(),
+            file: l.file,
         })
     }
 

@@ -22,8 +22,10 @@
 //!   No allocation, no panic.
 
 use core::fmt;
+use core::mem::size_of;
 
 use sha2::{Digest, Sha256};
+use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
 use super::parse::is_pin;
 
@@ -71,8 +73,17 @@ impl fmt::Display for AuthError {
     }
 }
 
-/// The stored form of the maintenance PIN: salt and iterated salted SHA-256 hash.
-#[derive(Clone, Copy, Debug)]
+/// The stored form of the maintenance PIN: salt and iterated salted SHA-256 hash,
+/// record kind [`crate::odometer::kind::PIN`], laid out as declared (48 bytes):
+///
+/// ```text
+///  0                16                                 48
+///  +----------------+----------------------------------+
+///  | salt (16 B)    | hash h(PIN_HASH_ROUNDS) (32 B)   |
+///  +----------------+----------------------------------+
+/// ```
+#[derive(Clone, Copy, Debug, FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
 pub struct PinRecord {
     /// Random salt, unique per record.
     pub salt: [u8; 16],
@@ -82,31 +93,20 @@ pub struct PinRecord {
 
 impl PinRecord {
     /// Serialised length: salt then hash.
-    pub const LEN: usize = 48;
+    pub const LEN: usize = size_of::<Self>();
 
     /// Serialise as `salt || hash`.
     pub fn to_bytes(&self) -> [u8; Self::LEN] {
-        let mut out = [0u8; Self::LEN];
-        let (salt, hash) = out.split_at_mut(16);
-        salt.copy_from_slice(&self.salt);
-        hash.copy_from_slice(&self.hash);
-        out
+        zerocopy::transmute!(*self)
     }
 
     /// Deserialise exactly [`Self::LEN`] bytes; `None` for another length or blank
     /// flash (all 0xFF or all 0x00).
     pub fn from_bytes(bytes: &[u8]) -> Option<Self> {
-        if bytes.len() != Self::LEN
-            || bytes.iter().all(|&b| b == 0xFF)
-            || bytes.iter().all(|&b| b == 0x00)
-        {
+        if bytes.iter().all(|&b| b == 0xFF) || bytes.iter().all(|&b| b == 0x00) {
             return None;
         }
-        let (salt, hash) = bytes.split_at(16);
-        Some(Self {
-            salt: salt.try_into().ok()?,
-            hash: hash.try_into().ok()?,
-        })
+        Self::read_from_bytes(bytes).ok()
     }
 
     /// Whether `pin` matches (constant-time comparison; a malformed PIN never does).

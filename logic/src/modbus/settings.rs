@@ -1,6 +1,7 @@
 //! # Modbus settings in flash
 //!
-//! [`ModbusSettings::to_bytes`] / [`ModbusSettings::from_bytes`], 6 bytes:
+//! [`ModbusSettings::to_bytes`] / [`ModbusSettings::from_bytes`], 6 bytes, declared once
+//! as `ModbusSettingsLayout` (a `zerocopy` layout):
 //!
 //! ```text
 //!  0        1          2                        6
@@ -15,8 +16,22 @@
 //! A record that does not decode (wrong length, a value out of range) is refused whole:
 //! the caller falls back to [`ModbusSettings::DEFAULT`].
 
+use core::mem::size_of;
+
+use zerocopy::byteorder::little_endian::U32;
+use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
+
 use super::BITS_PER_CHAR;
 use crate::controller::{Bsp, Controller};
+
+/// The record as laid out in flash (see the module doc).
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct ModbusSettingsLayout {
+    unit: u8,
+    format: u8,
+    baud: U32,
+}
 
 /// The unit's serial-line settings (stored by a technician; see the module doc for the
 /// record). The character format is fixed at 8E1.
@@ -42,7 +57,7 @@ impl ModbusSettings {
         baud: 19_200,
     };
     /// Bytes in the record.
-    pub const LEN: usize = 6;
+    pub const LEN: usize = size_of::<ModbusSettingsLayout>();
     /// The record's format byte for 8E1 (the only one defined).
     pub const FORMAT_8E1: u8 = 0;
 
@@ -64,17 +79,21 @@ impl ModbusSettings {
 
     /// The record (see the module doc).
     pub fn to_bytes(&self) -> [u8; Self::LEN] {
-        let [b0, b1, b2, b3] = self.baud.to_le_bytes();
-        [self.unit, Self::FORMAT_8E1, b0, b1, b2, b3]
+        let layout = ModbusSettingsLayout {
+            unit: self.unit,
+            format: Self::FORMAT_8E1,
+            baud: self.baud.into(),
+        };
+        zerocopy::transmute!(layout)
     }
 
     /// From a record; `None` unless it is exactly a valid one.
     pub fn from_bytes(b: &[u8]) -> Option<Self> {
-        let [unit, format, b0, b1, b2, b3]: [u8; Self::LEN] = b.try_into().ok()?;
-        if format != Self::FORMAT_8E1 {
+        let l = ModbusSettingsLayout::read_from_bytes(b).ok()?;
+        if l.format != Self::FORMAT_8E1 {
             return None;
         }
-        Self::new(unit, u32::from_le_bytes([b0, b1, b2, b3]))
+        Self::new(l.unit, l.baud.get())
     }
 
     /// The settings `ctrl`'s odometer log holds (record kind
