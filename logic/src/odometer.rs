@@ -31,6 +31,17 @@
 //! * `E`: `u64` Q32.32 nominal cycles; powers via [`crate::fixed`] (bit-identical on host
 //!   and target);
 //! * depth: `u32` nm; force: `i32` mN; positions: `i32` µm.
+//!
+//! ## Records
+//! Every persisted record (kinds in [`kind`]) is declared once, as a `zerocopy` layout of
+//! little-endian fields (`#[repr(C)]`, byte-aligned, no padding): [`StateRecord`],
+//! [`Measurement`], [`RetiredCone`] and the cone record ([`cone_to_bytes`]), the last two
+//! sharing the cone's identity; each is drawn at its type.
+
+use core::mem::size_of;
+
+use zerocopy::byteorder::little_endian::{I32, U16, U32, U64};
+use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
 use crate::fixed::{pow_q32, ONE_Q32};
 use crate::material::Material;
@@ -573,13 +584,18 @@ pub const READINGS_KEPT: usize = 40;
 /// Retired cones' summaries the log keeps (at 45 000 cycles a cone, centuries of use).
 pub const RETIRED_KEPT: usize = 8;
 
-/// A technician's bore reading (console `measure`), as persisted (19 bytes, little
-/// endian; records of 18 bytes, from before the flags byte, are readings):
+/// A technician's bore reading (console `measure`), as persisted: record kind
+/// [`kind::MEASURE`], 19 bytes (`MeasurementLayout`); records of 18 bytes, from before
+/// the flags byte, are readings (`ReadingLayout`):
 ///
 /// ```text
-///  0 u32 bore_um   4 u32 lifetime cycle   8 u16 cone id   10 u32 cone cycle
-/// 14 u32 model wear nm (the odometer's at the time: it gives the reading's E)
-/// 18 u8  flags (bit 0: the cone's baseline, its bore when new)
+///  0         4                8         10         14         18      19
+///  +---------+----------------+---------+----------+----------+-------+
+///  | bore_um | lifetime cycle | cone id | cone     | model    | flags |
+///  | u32     | u32            | u16     | cycle u32| wear nm  | u8    |
+///  +---------+----------------+---------+----------+----------+-------+
+///  model wear: the odometer's at the time (it gives the reading's E)
+///  flags bit 0: the cone's baseline, its bore when new
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Measurement {
@@ -597,39 +613,58 @@ pub struct Measurement {
     pub baseline: bool,
 }
 
+/// The first 18 bytes of a [`Measurement`] record: the whole record before the flags
+/// byte existed.
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct ReadingLayout {
+    bore_um: U32,
+    lifetime_cycle: U32,
+    cone_id: U16,
+    cone_cycle: U32,
+    model_nm: U32,
+}
+
+/// A [`Measurement`] record (drawn there).
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct MeasurementLayout {
+    reading: ReadingLayout,
+    flags: u8,
+}
+
 /// Bytes of a persisted [`Measurement`].
-pub const MEASUREMENT_LEN: usize = 19;
+pub const MEASUREMENT_LEN: usize = size_of::<MeasurementLayout>();
 
 impl Measurement {
     /// Encode.
     pub fn to_bytes(&self) -> [u8; MEASUREMENT_LEN] {
-        let mut b = [0u8; MEASUREMENT_LEN];
-        let mut put = |at: usize, v: &[u8]| {
-            if let Some(d) = b.get_mut(at..at + v.len()) {
-                d.copy_from_slice(v);
-            }
+        let layout = MeasurementLayout {
+            reading: ReadingLayout {
+                bore_um: self.bore_um.into(),
+                lifetime_cycle: self.lifetime_cycle.into(),
+                cone_id: self.cone_id.into(),
+                cone_cycle: self.cone_cycle.into(),
+                model_nm: self.model_nm.into(),
+            },
+            flags: u8::from(self.baseline),
         };
-        put(0, &self.bore_um.to_le_bytes());
-        put(4, &self.lifetime_cycle.to_le_bytes());
-        put(8, &self.cone_id.to_le_bytes());
-        put(10, &self.cone_cycle.to_le_bytes());
-        put(14, &self.model_nm.to_le_bytes());
-        put(18, &[self.baseline as u8]);
-        b
+        zerocopy::transmute!(layout)
     }
 
     /// Decode (19 bytes, or 18 from before the flags byte).
     pub fn from_bytes(b: &[u8]) -> Option<Self> {
-        if b.len() != MEASUREMENT_LEN && b.len() != MEASUREMENT_LEN - 1 {
-            return None;
-        }
+        let (r, flags) = match MeasurementLayout::read_from_bytes(b) {
+            Ok(m) => (m.reading, m.flags),
+            Err(_) => (ReadingLayout::read_from_bytes(b).ok()?, 0),
+        };
         Some(Self {
-            bore_um: u32::from_le_bytes(get(b, 0)?),
-            lifetime_cycle: u32::from_le_bytes(get(b, 4)?),
-            cone_id: u16::from_le_bytes(get(b, 8)?),
-            cone_cycle: u32::from_le_bytes(get(b, 10)?),
-            model_nm: u32::from_le_bytes(get(b, 14)?),
-            baseline: b.get(18).is_some_and(|f| f & 1 == 1),
+            bore_um: r.bore_um.get(),
+            lifetime_cycle: r.lifetime_cycle.get(),
+            cone_id: r.cone_id.get(),
+            cone_cycle: r.cone_cycle.get(),
+            model_nm: r.model_nm.get(),
+            baseline: flags & 1 == 1,
         })
     }
 
@@ -649,13 +684,67 @@ impl Measurement {
     }
 }
 
-/// A retired cone's summary, as persisted (48 bytes, little endian):
+/// A cone's identity, the first 28 bytes of a cone record and of a retired cone's
+/// summary (little-endian):
 ///
 /// ```text
-///  0 u16 cone id   2 u8 material   3 u8 serial_len   4 20 B serial
-/// 24 u32 installed at (lifetime cycle)   28 u32 cycles   32 u32 model wear nm
-/// 36 i32 last measured wear nm (i32::MIN: never measured)   40 u32 baseline µm (0: none)
-/// 44 u32 readings taken
+///  0         2          3            4                      24                  28
+///  +---------+----------+------------+----------------------+-------------------+
+///  | cone id | material | serial_len | serial (20 B, 0-pad) | installed at      |
+///  | u16     | u8 code  | u8 ≤ 20    |                      | lifetime cycle u32|
+///  +---------+----------+------------+----------------------+-------------------+
+/// ```
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct ConeIdLayout {
+    id: U16,
+    material: u8,
+    serial_len: u8,
+    serial: [u8; SERIAL_MAX],
+    installed_at_cycle: U32,
+}
+
+impl ConeIdLayout {
+    fn of(c: &Cone) -> Self {
+        Self {
+            id: c.id.into(),
+            material: c.material.code(),
+            serial_len: c.serial_len,
+            serial: c.serial,
+            installed_at_cycle: c.installed_at_cycle.into(),
+        }
+    }
+
+    /// The cone, with the counters and baseline its record holds beside the identity
+    /// (`w_q1` is never in a record); `None` for an unknown material or a serial
+    /// longer than [`SERIAL_MAX`].
+    fn cone(&self, cycles: u32, baseline_um: u32) -> Option<Cone> {
+        if usize::from(self.serial_len) > SERIAL_MAX {
+            return None;
+        }
+        Some(Cone {
+            id: self.id.get(),
+            material: Material::from_code(self.material)?,
+            serial: self.serial,
+            serial_len: self.serial_len,
+            installed_at_cycle: self.installed_at_cycle.get(),
+            cycles,
+            w_q1: 0,
+            baseline_um,
+        })
+    }
+}
+
+/// A retired cone's summary, as persisted: record kind [`kind::RETIRED`], 48 bytes
+/// (`RetiredLayout`, little-endian):
+///
+/// ```text
+///  0                  28       32            36               40            44        48
+///  +------------------+--------+-------------+----------------+-------------+---------+
+///  | cone identity    | cycles | model wear  | last measured  | baseline µm | readings|
+///  | (ConeIdLayout)   | u32    | nm u32      | wear nm i32    | u32 (0:none)| taken   |
+///  +------------------+--------+-------------+----------------+-------------+---------+
+///  last measured wear: i32::MIN if never measured
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RetiredCone {
@@ -669,66 +758,63 @@ pub struct RetiredCone {
     pub readings: u32,
 }
 
+/// A [`RetiredCone`] record (drawn there).
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct RetiredLayout {
+    cone: ConeIdLayout,
+    cycles: U32,
+    model_nm: U32,
+    measured_nm: I32,
+    baseline_um: U32,
+    readings: U32,
+}
+
 /// Bytes of a persisted [`RetiredCone`].
-pub const RETIRED_LEN: usize = 48;
+pub const RETIRED_LEN: usize = size_of::<RetiredLayout>();
 
 impl RetiredCone {
     /// Encode.
     pub fn to_bytes(&self) -> [u8; RETIRED_LEN] {
-        let mut b = [0u8; RETIRED_LEN];
-        let c = &self.cone;
-        let mut put = |at: usize, v: &[u8]| {
-            if let Some(d) = b.get_mut(at..at + v.len()) {
-                d.copy_from_slice(v);
-            }
+        let layout = RetiredLayout {
+            cone: ConeIdLayout::of(&self.cone),
+            cycles: self.cone.cycles.into(),
+            model_nm: self.model_nm.into(),
+            measured_nm: self.measured_nm.unwrap_or(i32::MIN).into(),
+            baseline_um: self.cone.baseline_um.into(),
+            readings: self.readings.into(),
         };
-        put(0, &c.id.to_le_bytes());
-        put(2, &[c.material.code(), c.serial_len]);
-        put(4, &c.serial);
-        put(24, &c.installed_at_cycle.to_le_bytes());
-        put(28, &c.cycles.to_le_bytes());
-        put(32, &self.model_nm.to_le_bytes());
-        put(36, &self.measured_nm.unwrap_or(i32::MIN).to_le_bytes());
-        put(40, &c.baseline_um.to_le_bytes());
-        put(44, &self.readings.to_le_bytes());
-        b
+        zerocopy::transmute!(layout)
     }
 
     /// Decode.
     pub fn from_bytes(b: &[u8]) -> Option<Self> {
-        if b.len() != RETIRED_LEN {
-            return None;
-        }
-        let [material, serial_len] = get::<2>(b, 2)?;
-        if serial_len as usize > SERIAL_MAX {
-            return None;
-        }
-        let measured = i32::from_le_bytes(get(b, 36)?);
+        let l = RetiredLayout::read_from_bytes(b).ok()?;
+        let measured = l.measured_nm.get();
         Some(Self {
-            cone: Cone {
-                id: u16::from_le_bytes(get(b, 0)?),
-                material: Material::from_code(material)?,
-                serial: get::<SERIAL_MAX>(b, 4)?,
-                serial_len,
-                installed_at_cycle: u32::from_le_bytes(get(b, 24)?),
-                cycles: u32::from_le_bytes(get(b, 28)?),
-                w_q1: 0,
-                baseline_um: u32::from_le_bytes(get(b, 40)?),
-            },
-            model_nm: u32::from_le_bytes(get(b, 32)?),
+            cone: l.cone.cone(l.cycles.get(), l.baseline_um.get())?,
+            model_nm: l.model_nm.get(),
             measured_nm: (measured != i32::MIN).then_some(measured),
-            readings: u32::from_le_bytes(get(b, 44)?),
+            readings: l.readings.get(),
         })
     }
 }
 
-/// Snapshot of every counter, as persisted (48 bytes, little endian):
+/// Snapshot of every counter, as persisted: record kind [`kind::STATE`], 48 bytes
+/// (`StateLayout`, little-endian):
 ///
 /// ```text
-///  0 u32 lifetime.cycles      4 u32 cone.cycles        8 u64 cone.w_q1
-/// 16 u64 lifetime.w_q1       24 u32 overload_events   28 i32 peak_force_mn
-/// 32 u32 lifetime.faults     36 u16 cone.id           38 u8  material   39 u8 flags
-/// 40 u64 last_cycle_q1   (flags bit 0: written at the end of a cycle)
+///  0          4          8             16            24               28
+///  +----------+----------+-------------+-------------+----------------+---------------+
+///  | lifetime | cone     | cone.w_q1   | lifetime    | overload_events| peak_force_mn |
+///  | cycles   | cycles   | u64         | w_q1 u64    | u32            | i32           |
+///  +----------+----------+-------------+-------------+----------------+---------------+
+///  32         36        38         39      40                 48
+///  +----------+---------+----------+-------+------------------+
+///  | lifetime | cone id | material | flags | last_cycle_q1    |
+///  | faults   | u16     | u8 code  | u8    | u64              |
+///  +----------+---------+----------+-------+------------------+
+///  flags bit 0: written at the end of a cycle
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct StateRecord {
@@ -748,14 +834,45 @@ pub struct StateRecord {
     pub cycle_end: bool,
 }
 
-/// Bytes of a persisted [`StateRecord`].
-pub const STATE_LEN: usize = 48;
-/// Bytes of a persisted cone record.
-pub const CONE_LEN: usize = 32;
-
-fn get<const N: usize>(b: &[u8], at: usize) -> Option<[u8; N]> {
-    b.get(at..at + N).and_then(|s| s.try_into().ok())
+/// A [`StateRecord`] (drawn there).
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct StateLayout {
+    life_cycles: U32,
+    cone_cycles: U32,
+    cone_w_q1: U64,
+    life_w_q1: U64,
+    overload_events: U32,
+    peak_force_mn: I32,
+    faults: U32,
+    cone_id: U16,
+    material: u8,
+    flags: u8,
+    last_cycle_q1: U64,
 }
+
+/// Bytes of a persisted [`StateRecord`].
+pub const STATE_LEN: usize = size_of::<StateLayout>();
+
+/// A cone record, kind [`kind::CONE`], 32 bytes (little-endian): the identity, then the
+/// baseline bore (0: none; records written before the baseline existed hold 0 there).
+///
+/// ```text
+///  0                  28            32
+///  +------------------+-------------+
+///  | cone identity    | baseline µm |
+///  | (ConeIdLayout)   | u32         |
+///  +------------------+-------------+
+/// ```
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct ConeLayout {
+    cone: ConeIdLayout,
+    baseline_um: U32,
+}
+
+/// Bytes of a persisted cone record.
+pub const CONE_LEN: usize = size_of::<ConeLayout>();
 
 impl StateRecord {
     /// Snapshot of an odometer.
@@ -773,87 +890,57 @@ impl StateRecord {
 
     /// Encode.
     pub fn to_bytes(&self) -> [u8; STATE_LEN] {
-        let mut b = [0u8; STATE_LEN];
-        let mut put = |at: usize, v: &[u8]| {
-            if let Some(d) = b.get_mut(at..at + v.len()) {
-                d.copy_from_slice(v);
-            }
+        let layout = StateLayout {
+            life_cycles: self.life.cycles.into(),
+            cone_cycles: self.cone_cycles.into(),
+            cone_w_q1: self.cone_w_q1.into(),
+            life_w_q1: self.life.w_q1.into(),
+            overload_events: self.life.overload_events.into(),
+            peak_force_mn: self.life.peak_force_mn.into(),
+            faults: self.life.faults.into(),
+            cone_id: self.cone_id.into(),
+            material: self.material.code(),
+            flags: u8::from(self.cycle_end),
+            last_cycle_q1: self.last_cycle_q1.into(),
         };
-        put(0, &self.life.cycles.to_le_bytes());
-        put(4, &self.cone_cycles.to_le_bytes());
-        put(8, &self.cone_w_q1.to_le_bytes());
-        put(16, &self.life.w_q1.to_le_bytes());
-        put(24, &self.life.overload_events.to_le_bytes());
-        put(28, &self.life.peak_force_mn.to_le_bytes());
-        put(32, &self.life.faults.to_le_bytes());
-        put(36, &self.cone_id.to_le_bytes());
-        put(38, &[self.material.code(), self.cycle_end as u8]);
-        put(40, &self.last_cycle_q1.to_le_bytes());
-        b
+        zerocopy::transmute!(layout)
     }
 
     /// Decode; `None` if the bytes are not a state record.
     pub fn from_bytes(b: &[u8]) -> Option<Self> {
-        if b.len() != STATE_LEN {
-            return None;
-        }
-        let [material, flags] = get::<2>(b, 38)?;
+        let l = StateLayout::read_from_bytes(b).ok()?;
         Some(Self {
             life: Lifetime {
-                cycles: u32::from_le_bytes(get(b, 0)?),
-                w_q1: u64::from_le_bytes(get(b, 16)?),
-                overload_events: u32::from_le_bytes(get(b, 24)?),
-                peak_force_mn: i32::from_le_bytes(get(b, 28)?),
-                faults: u32::from_le_bytes(get(b, 32)?),
+                cycles: l.life_cycles.get(),
+                w_q1: l.life_w_q1.get(),
+                overload_events: l.overload_events.get(),
+                peak_force_mn: l.peak_force_mn.get(),
+                faults: l.faults.get(),
                 cones_installed: 0,
             },
-            cone_id: u16::from_le_bytes(get(b, 36)?),
-            material: Material::from_code(material)?,
-            cone_cycles: u32::from_le_bytes(get(b, 4)?),
-            cone_w_q1: u64::from_le_bytes(get(b, 8)?),
-            last_cycle_q1: u64::from_le_bytes(get(b, 40)?),
-            cycle_end: flags & 1 == 1,
+            cone_id: l.cone_id.get(),
+            material: Material::from_code(l.material)?,
+            cone_cycles: l.cone_cycles.get(),
+            cone_w_q1: l.cone_w_q1.get(),
+            last_cycle_q1: l.last_cycle_q1.get(),
+            cycle_end: l.flags & 1 == 1,
         })
     }
 }
 
-/// Encode a cone's identity: `u16 id | u8 material | u8 serial_len | 20 B serial |
-/// u32 installed_at_cycle | u32 baseline bore µm` (0: none; records written before the
-/// baseline existed hold 0 there).
+/// Encode a cone's identity and baseline (a cone record, drawn at `ConeLayout`).
 pub fn cone_to_bytes(c: &Cone) -> [u8; CONE_LEN] {
-    let mut b = [0u8; CONE_LEN];
-    let mut put = |at: usize, v: &[u8]| {
-        if let Some(d) = b.get_mut(at..at + v.len()) {
-            d.copy_from_slice(v);
-        }
+    let layout = ConeLayout {
+        cone: ConeIdLayout::of(c),
+        baseline_um: c.baseline_um.into(),
     };
-    put(0, &c.id.to_le_bytes());
-    put(2, &[c.material.code(), c.serial_len]);
-    put(4, &c.serial);
-    put(24, &c.installed_at_cycle.to_le_bytes());
-    put(28, &c.baseline_um.to_le_bytes());
-    b
+    zerocopy::transmute!(layout)
 }
 
 /// Decode a cone record (counters zero; they come from the state record).
 pub fn cone_from_bytes(b: &[u8]) -> Option<Cone> {
-    if b.len() != CONE_LEN {
-        return None;
-    }
-    let [material, serial_len] = get::<2>(b, 2)?;
-    if serial_len as usize > SERIAL_MAX {
-        return None;
-    }
-    Some(Cone {
-        id: u16::from_le_bytes(get(b, 0)?),
-        material: Material::from_code(material)?,
-        serial: get::<SERIAL_MAX>(b, 4)?,
-        serial_len,
-        installed_at_cycle: u32::from_le_bytes(get(b, 24)?),
-        cycles: 0,
-        w_q1: 0,
-        baseline_um: u32::from_le_bytes(get(b, 28)?),
-    })
+    let l = ConeLayout::read_from_bytes(b).ok()?;
+    l.cone.cone(0, l.baseline_um.get())
 }
 
 /// The counters as a reset must find them: kept by the board in RAM that no reset
