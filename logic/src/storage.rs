@@ -37,7 +37,8 @@
 //! # On-flash format
 //!
 //! The region is `sectors` erase sectors (at least 2) of `S` fixed 64-byte slots each.
-//! One slot (multi-byte fields little-endian):
+//! One slot (multi-byte fields little-endian), declared once as the `zerocopy` layout
+//! `SlotLayout` (`SlotBody`, the bytes the CRC covers, then the CRC and the marker):
 //!
 //! ```text
 //!  0        4      5     6       7      8                      56       60            64
@@ -139,6 +140,8 @@
 //! records.
 
 use embedded_storage::nor_flash::NorFlash;
+use zerocopy::byteorder::little_endian::U32;
+use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
 /// Size of one record slot, bytes.
 pub const SLOT_SIZE: usize = 64;
@@ -183,8 +186,6 @@ impl Keep {
     }
 }
 
-/// Bytes of a slot before the payload: seq, kind, len, carry, reserved.
-const HEADER_LEN: usize = 8;
 /// Length of the commit marker at the end of a slot, bytes.
 const MARKER_LEN: usize = 4;
 /// The commit marker of a committed slot.
@@ -316,34 +317,43 @@ enum Slot {
     Valid { rec: Record, carry: Option<u8> },
 }
 
-/// CRC-32 of a slot's first 56 bytes (header and payload).
-fn body_crc(header: &[u8; HEADER_LEN], payload: &[u8; PAYLOAD_MAX]) -> u32 {
-    let mut digest = crate::crc::Crc32::new();
-    digest.update(header);
-    digest.update(payload);
-    digest.finalize()
+/// A slot's header and payload: the bytes its CRC covers.
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct SlotBody {
+    seq: U32,
+    kind: u8,
+    len: u8,
+    carry: u8,
+    reserved: u8,
+    payload: [u8; PAYLOAD_MAX],
 }
 
-/// The 8 header bytes of a slot.
-fn header(rec: &Record, carry: u8) -> [u8; HEADER_LEN] {
-    let [s0, s1, s2, s3] = rec.seq.to_le_bytes();
-    [s0, s1, s2, s3, rec.kind, rec.len, carry, ERASED]
+/// One slot as laid out in flash (drawn in the module doc).
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct SlotLayout {
+    body: SlotBody,
+    crc: U32,
+    commit: [u8; MARKER_LEN],
 }
 
 /// The 64 bytes of a committed slot holding `rec`.
 fn encode(rec: &Record, carry: u8) -> [u8; SLOT_SIZE] {
-    let head = header(rec, carry);
-    let crc = body_crc(&head, &rec.payload).to_le_bytes();
-    let bytes = head
-        .iter()
-        .chain(&rec.payload)
-        .chain(&crc)
-        .chain(&COMMITTED);
-    let mut slot = [ERASED; SLOT_SIZE];
-    for (dst, src) in slot.iter_mut().zip(bytes) {
-        *dst = *src;
-    }
-    slot
+    let body = SlotBody {
+        seq: rec.seq.into(),
+        kind: rec.kind,
+        len: rec.len,
+        carry,
+        reserved: ERASED,
+        payload: rec.payload,
+    };
+    let slot = SlotLayout {
+        crc: crate::crc::crc32(body.as_bytes()).into(),
+        body,
+        commit: COMMITTED,
+    };
+    zerocopy::transmute!(slot)
 }
 
 /// Classify the 64 bytes of a slot.
@@ -351,11 +361,17 @@ fn decode(bytes: &[u8; SLOT_SIZE]) -> Slot {
     if bytes.iter().all(|&b| b == ERASED) {
         return Slot::Blank;
     }
-    let [s0, s1, s2, s3, kind, len, carry, reserved, payload @ .., c0, c1, c2, c3, m0, m1, m2, m3] =
-        *bytes;
-    let head = [s0, s1, s2, s3, kind, len, carry, reserved];
-    let valid = [m0, m1, m2, m3] == COMMITTED
-        && u32::from_le_bytes([c0, c1, c2, c3]) == body_crc(&head, &payload)
+    let slot: SlotLayout = zerocopy::transmute!(*bytes);
+    let SlotBody {
+        seq,
+        kind,
+        len,
+        carry,
+        payload,
+        ..
+    } = slot.body;
+    let valid = slot.commit == COMMITTED
+        && slot.crc.get() == crate::crc::crc32(slot.body.as_bytes())
         && usize::from(len) <= PAYLOAD_MAX
         && kind < MAX_KINDS
         && (carry == NOT_CARRIED || (1..=MAX_BATCH).contains(&usize::from(carry)));
@@ -363,7 +379,7 @@ fn decode(bytes: &[u8; SLOT_SIZE]) -> Slot {
         return Slot::Invalid;
     }
     let rec = Record {
-        seq: u32::from_le_bytes([s0, s1, s2, s3]),
+        seq: seq.get(),
         kind,
         len,
         payload,
