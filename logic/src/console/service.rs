@@ -20,11 +20,32 @@
 //! faulted); each at rest writes an audit record with the cycle count. `stop` needs
 //! nothing: a stop is never refused. Nothing on the console can reset the lifetime
 //! totals.
+//!
+//! # Audit records
+//!
+//! Record kind [`kind::AUDIT`], 19 to 48 bytes (little-endian), declared once as the
+//! `zerocopy` layout `AuditLayout` and written up to the end of its detail:
+//!
+//! ```text
+//!  0        1                 5         7            11          19                48
+//!  +--------+-----------------+---------+------------+-----------+------------------+
+//!  | action | lifetime cycle  | cone id | cone cycle | t_ms      | detail (≤ 29 B)  |
+//!  | u8     | u32             | u16     | u32        | u64       |                  |
+//!  +--------+-----------------+---------+------------+-----------+------------------+
+//!  action: a code of `action`; t_ms: milliseconds since boot
+//!  detail: cone replace: material code u8 | serial (20 B, 0-pad)
+//!          measure: bore_um u32 | baseline u8;  rate: sps u32;  modbus: its record;
+//!          calibrate tare: offset_counts i32;  calibrate span: force_mn u32;
+//!          bor: the level it was at u8;  the others: none
+//! ```
 
 use core::fmt::{self, Write};
+use core::mem::size_of;
 
 use heapless::{Deque, String};
 use sha2::{Digest, Sha256};
+use zerocopy::byteorder::little_endian::{U16, U32, U64};
+use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
 use super::auth::{make_pin_record, MaintenanceAuth, PinRecord};
 use super::fields::{Fields, JsonFields, TextFields};
@@ -38,13 +59,49 @@ use super::reports::{
 };
 use crate::controller::{Bsp, Controller};
 use crate::hal::ConsoleIo;
-use crate::odometer::kind;
+use crate::odometer::{kind, SERIAL_MAX};
 use crate::sequencer::Request;
+use crate::storage::PAYLOAD_MAX;
+
+const _: () = assert!(size_of::<AuditLayout>() == PAYLOAD_MAX);
 
 /// Longest input line, bytes.
 pub const LINE_MAX: usize = 128;
 /// Output ring, bytes (holds `history 100 --json`).
 pub const OUT_CAP: usize = 8192;
+
+/// An audit record, as long as its longest detail (see the module doc).
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct AuditLayout {
+    action: u8,
+    lifetime_cycle: U32,
+    cone_id: U16,
+    cone_cycle: U32,
+    t_ms: U64,
+    detail: [u8; AUDIT_DETAIL_MAX],
+}
+
+/// Longest detail of an audit record, bytes (the record fills a log payload).
+const AUDIT_DETAIL_MAX: usize = 29;
+/// Bytes of an audit record before its detail.
+const AUDIT_HEAD_LEN: usize = size_of::<AuditLayout>() - AUDIT_DETAIL_MAX;
+
+/// The detail of a `cone replace` audit record.
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct ConeReplaceDetail {
+    material: u8,
+    serial: [u8; SERIAL_MAX],
+}
+
+/// The detail of a `measure` audit record.
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
+#[repr(C)]
+struct MeasureDetail {
+    bore_um: U32,
+    baseline: u8,
+}
 
 /// Audited maintenance actions (the `action` byte of an audit record).
 pub mod action {
@@ -645,25 +702,19 @@ impl Console {
     }
 
     fn audit<B: Bsp>(&mut self, ctrl: &mut Controller<B>, act: u8, now_ms: u64, detail: &[u8]) {
-        // action u8 | lifetime cycle u32 | cone id u16 | cone cycle u32 | t_ms u64 | detail ≤ 29 B
         let odo = ctrl.odometer();
-        let mut rec = [0u8; 48];
-        let head = [act];
-        let parts: [&[u8]; 5] = [
-            &head,
-            &odo.lifetime().cycles.to_le_bytes(),
-            &odo.cone().id.to_le_bytes(),
-            &odo.cone().cycles.to_le_bytes(),
-            &now_ms.to_le_bytes(),
-        ];
-        let mut at = 0;
-        for p in parts.into_iter().chain(core::iter::once(detail)) {
-            let n = p.len().min(rec.len().saturating_sub(at));
-            if let (Some(d), Some(s)) = (rec.get_mut(at..at + n), p.get(..n)) {
-                d.copy_from_slice(s);
-            }
-            at += n;
+        let mut rec = AuditLayout {
+            action: act,
+            lifetime_cycle: odo.lifetime().cycles.into(),
+            cone_id: odo.cone().id.into(),
+            cone_cycle: odo.cone().cycles.into(),
+            t_ms: now_ms.into(),
+            detail: [0; AUDIT_DETAIL_MAX],
+        };
+        for (d, s) in rec.detail.iter_mut().zip(detail) {
+            *d = *s;
         }
+        let at = AUDIT_HEAD_LEN + detail.len().min(AUDIT_DETAIL_MAX);
         info!(
             "maintenance: action {} at lifetime cycle {}",
             act,
@@ -671,7 +722,8 @@ impl Console {
         );
         // Written now at rest, else queued for the next rest (a clear-fault while the
         // axis is held, a reply on the Modbus line): never an erase out of turn.
-        let rec = rec.get(..at).unwrap_or(&rec);
+        let rec = rec.as_bytes();
+        let rec = rec.get(..at).unwrap_or(rec);
         let written = ctrl.write_or_queue_record(kind::AUDIT, rec);
         if !written {
             error!("maintenance: audit record not written");
@@ -836,23 +888,18 @@ impl Console {
                 material,
                 serial,
                 bore_um,
-            } => {
-                match ctrl.replace_cone_measured(material, serial, bore_um) {
-                    Ok(()) => {
-                        // material code | serial (≤ 20 bytes)
-                        let mut detail = [0u8; 21];
-                        let n = serial.len().min(20);
-                        if let (Some(d), Some(src)) =
-                            (detail.get_mut(1..1 + n), serial.as_bytes().get(..n))
-                        {
-                            d.copy_from_slice(src);
-                        }
-                        if let Some(d0) = detail.first_mut() {
-                            *d0 = material.code();
-                        }
-                        self.audit(ctrl, action::CONE_REPLACE, now_ms, &detail);
-                        let id = ctrl.odometer().cone().id;
-                        self.reply(|o| {
+            } => match ctrl.replace_cone_measured(material, serial, bore_um) {
+                Ok(()) => {
+                    let mut detail = ConeReplaceDetail {
+                        material: material.code(),
+                        serial: [0; SERIAL_MAX],
+                    };
+                    for (d, s) in detail.serial.iter_mut().zip(serial.bytes()) {
+                        *d = s;
+                    }
+                    self.audit(ctrl, action::CONE_REPLACE, now_ms, detail.as_bytes());
+                    let id = ctrl.odometer().cone().id;
+                    self.reply(|o| {
                             write!(o, "ok: cone {id} installed ({}, serial {serial}); cone counters start at zero;", material.name())?;
                             match bore_um {
                                 Some(b) => kv_fixed(o, "baseline_bore_mm", b as i64, 3),
@@ -860,10 +907,9 @@ impl Console {
                             }?;
                             o.write_str("\r\n")
                         });
-                    }
-                    Err(e) => self.err(&e),
                 }
-            }
+                Err(e) => self.err(&e),
+            },
             Command::Measure { bore_um, baseline } => self.measure(ctrl, bore_um, baseline, now_ms),
             Command::Measurements { json } => {
                 self.defer(Report::Measurements(measurements_view(ctrl)), json)
@@ -1028,13 +1074,11 @@ impl Console {
                 return;
             }
         };
-        let mut detail = [0u8; 5];
-        let (b, f) = detail.split_at_mut(4);
-        b.copy_from_slice(&bore_um.to_le_bytes());
-        if let Some(f0) = f.first_mut() {
-            *f0 = baseline as u8;
-        }
-        self.audit(ctrl, action::MEASURE, now_ms, &detail);
+        let detail = MeasureDetail {
+            bore_um: bore_um.into(),
+            baseline: u8::from(baseline),
+        };
+        self.audit(ctrl, action::MEASURE, now_ms, detail.as_bytes());
         if baseline {
             self.reply(|o| {
                 o.write_str("ok: baseline")?;
