@@ -75,8 +75,13 @@ pub const PIN_MIN_LEN: usize = 4;
 /// Longest maintenance PIN, digits.
 pub const PIN_MAX_LEN: usize = 12;
 
-/// One command as `help` shows it: the table the parser's word check and `help` share.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// How a command's arguments become a [`Command`].
+type Parser = for<'a> fn(&Args<'a>) -> Result<Command<'a>, ParseError>;
+
+/// One command: its word, its syntax and what it does as `help` shows them, and its
+/// parser. This table is the console's one list of commands: [`parse`] finds a line's
+/// first word here and runs that entry's parser, and `help` prints it.
+#[derive(Clone, Copy)]
 pub struct CommandHelp {
     /// The first word (what `help <command>` takes).
     pub word: &'static str,
@@ -84,10 +89,30 @@ pub struct CommandHelp {
     pub usage: &'static str,
     /// What it does, one line.
     pub what: &'static str,
+    parse: Parser,
 }
 
-const fn c(word: &'static str, usage: &'static str, what: &'static str) -> CommandHelp {
-    CommandHelp { word, usage, what }
+impl core::fmt::Debug for CommandHelp {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("CommandHelp")
+            .field("word", &self.word)
+            .field("usage", &self.usage)
+            .finish()
+    }
+}
+
+const fn c(
+    word: &'static str,
+    usage: &'static str,
+    what: &'static str,
+    parse: Parser,
+) -> CommandHelp {
+    CommandHelp {
+        word,
+        usage,
+        what,
+        parse,
+    }
 }
 
 /// Every console command, in `help`'s order.
@@ -96,100 +121,134 @@ pub const COMMANDS: [CommandHelp; 23] = [
         "help",
         "help [<command>] [--json]",
         "this list, or one command's",
+        help_args,
     ),
     c(
         "echo",
         "echo [on|off]",
         "terminal echo and prompt (off: the bare line protocol for scripts, until reset)",
+        echo_args,
     ),
-    c("version", "version [--json]", "firmware name and version"),
+    c(
+        "version",
+        "version [--json]",
+        "firmware name and version",
+        version_args,
+    ),
     c(
         "status",
         "status [--json]",
         "state, phase, force, position, fault, PLC lines",
+        status_args,
     ),
     c(
         "wear",
         "wear [--json]",
         "the cone's wear odometer and the lifetime counters",
+        wear_args,
     ),
     c(
         "history",
         "history [N] [--json]",
         "the newest N completed cycles (1..100, default 10)",
+        history_args,
     ),
     c(
         "faults",
         "faults [--json]",
         "active fault, recent faults, resets, last crash",
+        faults_args,
     ),
     c(
         "measurements",
         "measurements [--json]",
         "the current cone's bore readings",
+        measurements_args,
     ),
     c(
         "clear-fault",
         "clear-fault",
         "clear a latched fault and recover to home (maint)",
+        clear_fault_args,
     ),
-    c("home", "home", "home the axis and lock the panel (maint)"),
-    c("dock", "dock", "dock and stay mated until undock (maint)"),
+    c(
+        "home",
+        "home",
+        "home the axis and lock the panel (maint)",
+        home_args,
+    ),
+    c(
+        "dock",
+        "dock",
+        "dock and stay mated until undock (maint)",
+        dock_args,
+    ),
     c(
         "undock",
         "undock",
         "undock, or abort a docking under way (maint)",
+        undock_args,
     ),
     c(
         "stop",
         "stop",
         "stop all motion now, latched; never refused",
+        stop_args,
     ),
     c(
         "rate",
         "rate <10|80>",
         "the HX711's rate, from the next boot (maint)",
+        rate_args,
     ),
     c(
         "modbus",
         "modbus [<unit> <baud>]",
         "show or store the Modbus line's settings (maint to store)",
+        modbus_args,
     ),
     c(
         "bor",
         "bor [set]",
         "show, or program at rest, the brown-out reset level (maint to set)",
+        bor_args,
     ),
     c(
         "cone",
         "cone replace <material> <serial> [--bore <d0_mm>]",
         "a new cone: its counters start at zero (maint)",
+        cone_args,
     ),
     c(
         "measure",
         "measure [--baseline] <bore_diameter_mm>",
         "record a bore reading, or the new cone's baseline (maint)",
+        measure_args,
     ),
     c(
         "calibrate",
         "calibrate tare",
         "zero the load cell with nothing on it (maint)",
+        calibrate_args,
     ),
     c(
         "calibrate",
         "calibrate span <force_n>",
         "set the span with a known load on the cell (maint)",
+        calibrate_args,
     ),
     c(
         "maint",
         "maint <pin>",
         "enter maintenance mode (ends after 10 min idle)",
+        maint_args,
     ),
-    c("maint", "maint exit", "leave maintenance mode"),
+    c("maint", "maint exit", "leave maintenance mode", maint_args),
     c(
         "pin",
         "pin set <new_pin>",
         "set the maintenance PIN (4-12 digits; maint once one exists)",
+        pin_args,
     ),
 ];
 
@@ -589,177 +648,212 @@ impl<'a> Args<'a> {
     }
 }
 
-/// Parse one console line (see the module doc for the grammar).
+/// Parse one console line (see the module doc for the grammar): its first word names
+/// the [`COMMANDS`] entry whose parser reads the rest.
 pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
     let mut tokens = line.split([' ', '\t']).filter(|t| !t.is_empty());
     let word = tokens.next().ok_or(ParseError::Empty)?;
-    let known = COMMANDS.iter().any(|c| c.word == word);
-    if !known {
-        return Err(ParseError::UnknownCommand(Snippet::new(word)));
-    }
+    let entry = COMMANDS
+        .iter()
+        .find(|c| c.word == word)
+        .ok_or(ParseError::UnknownCommand(Snippet::new(word)))?;
     let a = Args::collect(tokens)?;
-    match word {
-        "help" => {
-            if a.unknown_option {
-                return Err(ParseError::UnknownOption);
-            }
-            let topic = match a.pos.as_slice() {
-                [] => None,
-                [t] if COMMANDS.iter().any(|c| c.word == *t) => Some(*t),
-                [_] => return Err(ParseError::BadArgument("command")),
-                _ => return Err(ParseError::ExtraArgument),
-            };
-            Ok(Command::Help {
-                topic,
-                json: a.json,
-            })
-        }
-        "echo" => {
-            a.action(1)?;
-            match a.pos.first().copied() {
-                None => Ok(Command::Echo { on: None }),
-                Some("on") => Ok(Command::Echo { on: Some(true) }),
-                Some("off") => Ok(Command::Echo { on: Some(false) }),
-                Some(_) => Err(ParseError::BadArgument("echo setting")),
-            }
-        }
-        "version" => Ok(Command::Version { json: a.report()? }),
-        "status" => Ok(Command::Status { json: a.report()? }),
-        "wear" => Ok(Command::Wear { json: a.report()? }),
-        "faults" => Ok(Command::Faults { json: a.report()? }),
-        "measurements" => Ok(Command::Measurements { json: a.report()? }),
-        "history" => {
-            if a.unknown_option {
-                return Err(ParseError::UnknownOption);
-            }
-            let n = match a.pos.as_slice() {
-                [] => HISTORY_DEFAULT,
-                [n] => parse_count(n).ok_or(ParseError::BadArgument("N"))?,
-                _ => return Err(ParseError::ExtraArgument),
-            };
-            Ok(Command::History { n, json: a.json })
-        }
-        // The actions without arguments.
-        "clear-fault" | "home" | "dock" | "undock" | "stop" => {
-            a.action(0)?;
-            Ok(match word {
-                "clear-fault" => Command::ClearFault,
-                "home" => Command::Home,
-                "dock" => Command::Dock,
-                "undock" => Command::Undock,
-                _ => Command::Stop,
-            })
-        }
-        "rate" => {
-            a.action(1)?;
-            match a.get(0, "rate_sps")? {
-                "10" => Ok(Command::Rate { sps: 10 }),
-                "80" => Ok(Command::Rate { sps: 80 }),
-                _ => Err(ParseError::BadArgument("rate_sps")),
-            }
-        }
-        "modbus" => {
-            a.action(2)?;
-            match a.pos.as_slice() {
-                [] => Ok(Command::ModbusShow),
-                [unit, baud] => {
-                    let unit = (unit.len() <= 3 && unit.bytes().all(|b| b.is_ascii_digit()))
-                        .then(|| unit.parse::<u8>().ok())
-                        .flatten()
-                        .filter(|u| (1..=247).contains(u))
-                        .ok_or(ParseError::BadArgument("unit"))?;
-                    let baud = crate::modbus::BAUD_RATES
-                        .into_iter()
-                        .find(|b| baud.parse::<u32>().ok() == Some(*b) && baud.len() <= 6)
-                        .ok_or(ParseError::BadArgument("baud"))?;
-                    Ok(Command::ModbusSet { unit, baud })
-                }
-                _ => Err(ParseError::MissingArgument("baud")),
-            }
-        }
-        "cone" => {
-            a.action(5)?;
-            if a.get(0, "cone subcommand")? != "replace" {
-                return Err(ParseError::BadArgument("cone subcommand"));
-            }
-            let material = Material::from_name(a.get(1, "material")?)
-                .ok_or(ParseError::BadArgument("material"))?;
-            let serial = a.get(2, "serial")?;
-            if !is_serial(serial) {
-                return Err(ParseError::BadArgument("serial"));
-            }
-            let bore_um = match a.pos.get(3).copied() {
-                None => None,
-                Some("--bore") => Some(bore(a.get(4, "d0_mm")?, "d0_mm")?),
-                Some(t) if t.starts_with("--") => return Err(ParseError::UnknownOption),
-                Some(_) => return Err(ParseError::ExtraArgument),
-            };
-            Ok(Command::ConeReplace {
-                material,
-                serial,
-                bore_um,
-            })
-        }
-        "measure" => {
-            a.action(2)?;
-            match a.pos.as_slice() {
-                ["--baseline", d] => Ok(Command::Measure {
-                    bore_um: bore(d, "d0_mm")?,
-                    baseline: true,
-                }),
-                ["--baseline"] => Err(ParseError::MissingArgument("d0_mm")),
-                [t, ..] if t.starts_with("--") => Err(ParseError::UnknownOption),
-                [d] => Ok(Command::Measure {
-                    bore_um: bore(d, "bore_diameter_mm")?,
-                    baseline: false,
-                }),
-                [] => Err(ParseError::MissingArgument("bore_diameter_mm")),
-                _ => Err(ParseError::ExtraArgument),
-            }
-        }
-        "calibrate" => {
-            a.action(2)?;
-            match a.get(0, "calibrate subcommand")? {
-                "tare" if a.pos.len() > 1 => Err(ParseError::ExtraArgument),
-                "tare" => Ok(Command::CalibrateTare),
-                "span" => {
-                    let force_mn = parse_milli(a.get(1, "force_n")?)
-                        .filter(|v| (SPAN_MIN_MN..=SPAN_MAX_MN).contains(v))
-                        .ok_or(ParseError::BadArgument("force_n"))?;
-                    Ok(Command::CalibrateSpan { force_mn })
-                }
-                _ => Err(ParseError::BadArgument("calibrate subcommand")),
-            }
-        }
-        "maint" => {
-            a.action(1)?;
-            match a.get(0, "pin")? {
-                "exit" => Ok(Command::MaintExit),
-                pin if is_pin(pin) => Ok(Command::Maint { pin }),
-                _ => Err(ParseError::BadArgument("pin")),
-            }
-        }
-        "bor" => {
-            a.action(1)?;
-            match a.pos.as_slice() {
-                [] => Ok(Command::BorShow),
-                ["set"] => Ok(Command::BorSet),
-                _ => Err(ParseError::BadArgument("bor subcommand")),
-            }
-        }
-        "pin" => {
-            a.action(2)?;
-            if a.get(0, "pin subcommand")? != "set" {
-                return Err(ParseError::BadArgument("pin subcommand"));
-            }
-            let pin = a.get(1, "new_pin")?;
-            if !is_pin(pin) {
-                return Err(ParseError::BadArgument("new_pin"));
-            }
-            Ok(Command::PinSet { pin })
-        }
-        _ => Err(ParseError::UnknownCommand(Snippet::new(word))),
+    (entry.parse)(&a)
+}
+
+fn help_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    if a.unknown_option {
+        return Err(ParseError::UnknownOption);
     }
+    let topic = match a.pos.as_slice() {
+        [] => None,
+        [t] if COMMANDS.iter().any(|c| c.word == *t) => Some(*t),
+        [_] => return Err(ParseError::BadArgument("command")),
+        _ => return Err(ParseError::ExtraArgument),
+    };
+    Ok(Command::Help {
+        topic,
+        json: a.json,
+    })
+}
+
+fn echo_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(1)?;
+    match a.pos.first().copied() {
+        None => Ok(Command::Echo { on: None }),
+        Some("on") => Ok(Command::Echo { on: Some(true) }),
+        Some("off") => Ok(Command::Echo { on: Some(false) }),
+        Some(_) => Err(ParseError::BadArgument("echo setting")),
+    }
+}
+
+fn version_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    Ok(Command::Version { json: a.report()? })
+}
+
+fn status_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    Ok(Command::Status { json: a.report()? })
+}
+
+fn wear_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    Ok(Command::Wear { json: a.report()? })
+}
+
+fn faults_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    Ok(Command::Faults { json: a.report()? })
+}
+
+fn measurements_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    Ok(Command::Measurements { json: a.report()? })
+}
+
+fn history_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    if a.unknown_option {
+        return Err(ParseError::UnknownOption);
+    }
+    let n = match a.pos.as_slice() {
+        [] => HISTORY_DEFAULT,
+        [n] => parse_count(n).ok_or(ParseError::BadArgument("N"))?,
+        _ => return Err(ParseError::ExtraArgument),
+    };
+    Ok(Command::History { n, json: a.json })
+}
+
+// The actions without arguments.
+fn clear_fault_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(0).map(|()| Command::ClearFault)
+}
+
+fn home_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(0).map(|()| Command::Home)
+}
+
+fn dock_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(0).map(|()| Command::Dock)
+}
+
+fn undock_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(0).map(|()| Command::Undock)
+}
+
+fn stop_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(0).map(|()| Command::Stop)
+}
+
+fn rate_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(1)?;
+    match a.get(0, "rate_sps")? {
+        "10" => Ok(Command::Rate { sps: 10 }),
+        "80" => Ok(Command::Rate { sps: 80 }),
+        _ => Err(ParseError::BadArgument("rate_sps")),
+    }
+}
+
+fn modbus_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(2)?;
+    match a.pos.as_slice() {
+        [] => Ok(Command::ModbusShow),
+        [unit, baud] => {
+            let unit = (unit.len() <= 3 && unit.bytes().all(|b| b.is_ascii_digit()))
+                .then(|| unit.parse::<u8>().ok())
+                .flatten()
+                .filter(|u| (1..=247).contains(u))
+                .ok_or(ParseError::BadArgument("unit"))?;
+            let baud = crate::modbus::BAUD_RATES
+                .into_iter()
+                .find(|b| baud.parse::<u32>().ok() == Some(*b) && baud.len() <= 6)
+                .ok_or(ParseError::BadArgument("baud"))?;
+            Ok(Command::ModbusSet { unit, baud })
+        }
+        _ => Err(ParseError::MissingArgument("baud")),
+    }
+}
+
+fn cone_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(5)?;
+    if a.get(0, "cone subcommand")? != "replace" {
+        return Err(ParseError::BadArgument("cone subcommand"));
+    }
+    let material =
+        Material::from_name(a.get(1, "material")?).ok_or(ParseError::BadArgument("material"))?;
+    let serial = a.get(2, "serial")?;
+    if !is_serial(serial) {
+        return Err(ParseError::BadArgument("serial"));
+    }
+    let bore_um = match a.pos.get(3).copied() {
+        None => None,
+        Some("--bore") => Some(bore(a.get(4, "d0_mm")?, "d0_mm")?),
+        Some(t) if t.starts_with("--") => return Err(ParseError::UnknownOption),
+        Some(_) => return Err(ParseError::ExtraArgument),
+    };
+    Ok(Command::ConeReplace {
+        material,
+        serial,
+        bore_um,
+    })
+}
+
+fn measure_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(2)?;
+    match a.pos.as_slice() {
+        ["--baseline", d] => Ok(Command::Measure {
+            bore_um: bore(d, "d0_mm")?,
+            baseline: true,
+        }),
+        ["--baseline"] => Err(ParseError::MissingArgument("d0_mm")),
+        [t, ..] if t.starts_with("--") => Err(ParseError::UnknownOption),
+        [d] => Ok(Command::Measure {
+            bore_um: bore(d, "bore_diameter_mm")?,
+            baseline: false,
+        }),
+        [] => Err(ParseError::MissingArgument("bore_diameter_mm")),
+        _ => Err(ParseError::ExtraArgument),
+    }
+}
+
+fn calibrate_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(2)?;
+    match a.get(0, "calibrate subcommand")? {
+        "tare" if a.pos.len() > 1 => Err(ParseError::ExtraArgument),
+        "tare" => Ok(Command::CalibrateTare),
+        "span" => {
+            let force_mn = parse_milli(a.get(1, "force_n")?)
+                .filter(|v| (SPAN_MIN_MN..=SPAN_MAX_MN).contains(v))
+                .ok_or(ParseError::BadArgument("force_n"))?;
+            Ok(Command::CalibrateSpan { force_mn })
+        }
+        _ => Err(ParseError::BadArgument("calibrate subcommand")),
+    }
+}
+
+fn maint_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(1)?;
+    match a.get(0, "pin")? {
+        "exit" => Ok(Command::MaintExit),
+        pin if is_pin(pin) => Ok(Command::Maint { pin }),
+        _ => Err(ParseError::BadArgument("pin")),
+    }
+}
+
+fn bor_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(1)?;
+    match a.pos.as_slice() {
+        [] => Ok(Command::BorShow),
+        ["set"] => Ok(Command::BorSet),
+        _ => Err(ParseError::BadArgument("bor subcommand")),
+    }
+}
+
+fn pin_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(2)?;
+    if a.get(0, "pin subcommand")? != "set" {
+        return Err(ParseError::BadArgument("pin subcommand"));
+    }
+    let pin = a.get(1, "new_pin")?;
+    if !is_pin(pin) {
+        return Err(ParseError::BadArgument("new_pin"));
+    }
+    Ok(Command::PinSet { pin })
 }
 
 /// A PIN as accepted on the console: 4..=12 ASCII digits.
