@@ -942,6 +942,11 @@ pub struct Report {
     pub modbus_reply_bytes: u64,
     /// Reply bytes sent with the RS-485 driver off (lost): must be 0.
     pub modbus_de_losses: u64,
+    /// Modbus characters lost to USART3 overruns (its data register still full when
+    /// the next stop bit ended: the receive interrupt ran too late, e.g. stalled on a
+    /// flash program). A lost character fails its request's CRC or framing; the master
+    /// retries.
+    pub modbus_overruns: u64,
     /// Cycles per instruction used.
     pub cpi: f64,
     /// LSI frequency used, Hz.
@@ -1031,7 +1036,7 @@ impl Report {
             })
             .collect();
         format!(
-            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_input_lost\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{},\"moving_s\":{},\"control_period_max_ms\":{},\"control_entry_latency_max_us\":{},\"control_entry_latency_max_us_all\":{},\"control_late\":{},\"watchdog_feed_gap_max_ms\":{},\"watchdog_feeds_missed\":{},\"estop_edges_moving\":{},\"estop_off_max_us\":{},\"estop_edges_not_stopped\":{}}}",
+            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_input_lost\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"modbus_overruns\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{},\"moving_s\":{},\"control_period_max_ms\":{},\"control_entry_latency_max_us\":{},\"control_entry_latency_max_us_all\":{},\"control_late\":{},\"watchdog_feed_gap_max_ms\":{},\"watchdog_feeds_missed\":{},\"estop_edges_moving\":{},\"estop_off_max_us\":{},\"estop_edges_not_stopped\":{}}}",
             self.reset_count,
             strs(&causes),
             num(self.instructions_per_control_step),
@@ -1050,6 +1055,7 @@ impl Report {
             self.modbus_flood_bytes,
             self.modbus_reply_bytes,
             self.modbus_de_losses,
+            self.modbus_overruns,
             num(self.cpi),
             self.lsi_hz,
             self.flash_timing,
@@ -1158,8 +1164,8 @@ impl Report {
         }
         if self.modbus_flood_bytes > 0 {
             s += &format!(
-                "\n  modbus: {} bytes of flood sent, {} reply bytes on the bus, {} sent with DE low",
-                self.modbus_flood_bytes, self.modbus_reply_bytes, self.modbus_de_losses
+                "\n  modbus: {} bytes of flood sent, {} reply bytes on the bus, {} sent with DE low, {} lost to overruns",
+                self.modbus_flood_bytes, self.modbus_reply_bytes, self.modbus_de_losses, self.modbus_overruns
             );
         }
         s += &format!(
@@ -1579,6 +1585,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         modbus_flood_bytes: mb_flood.bytes,
         modbus_reply_bytes: soc.modbus_out.len() as u64,
         modbus_de_losses: soc.modbus_de_losses,
+        modbus_overruns: soc.usart3.overruns,
         checks,
         motion_before_request,
         step: m.axis.step_timing(),
