@@ -66,7 +66,7 @@ pub fn commands(page: &str, text: &str) -> Vec<DocCommand> {
             }
             let cmd = strip_comment(&cmd);
             if let Some(d) = cmd.strip_prefix("cd ") {
-                dir = d.trim().to_string();
+                dir = change_dir(&dir, d.trim());
                 continue;
             }
             out.push(DocCommand {
@@ -77,6 +77,28 @@ pub fn commands(page: &str, text: &str) -> Vec<DocCommand> {
         }
     }
     out
+}
+
+/// `cd to` from `dir`, both relative to the root (`..` steps back; `.` is the root).
+fn change_dir(dir: &str, to: &str) -> String {
+    let mut parts: Vec<&str> = dir
+        .split('/')
+        .filter(|p| !p.is_empty() && *p != ".")
+        .collect();
+    for p in to.split('/') {
+        match p {
+            "" | "." => {}
+            ".." => {
+                parts.pop();
+            }
+            p => parts.push(p),
+        }
+    }
+    if parts.is_empty() {
+        ".".into()
+    } else {
+        parts.join("/")
+    }
 }
 
 /// A command without its trailing `# comment`.
@@ -242,6 +264,13 @@ mod tests {
             )),
             "cargo run --release -- serve --tcp 127.0.0.1:0 --for 2"
         );
+    }
+
+    #[test]
+    fn cd_is_relative_to_where_the_reader_is() {
+        assert_eq!(change_dir(".", "boot"), "boot");
+        assert_eq!(change_dir("boot", "../vboard"), "vboard");
+        assert_eq!(change_dir("vboard", ".."), ".");
     }
 
     #[test]
