@@ -22,6 +22,8 @@ elf=target/$TARGET/release/docking-controller
 
 cargo build -q --release --target "$TARGET"
 cargo build -q --release -p hil-sim
+# The virtual board boots every image through the bootloader (issue 21, docs/update.md).
+(cd boot && cargo build -q --release)
 (cd vboard && cargo build -q --release)
 hil=./target/release/hil-sim
 vb=./vboard/target/release/vboard

@@ -8,6 +8,8 @@ cd "$(dirname "$0")/.."
 levels=("$@")
 [ $# -eq 0 ] && levels=(z s 2 3)
 T=thumbv7em-none-eabihf
+# The virtual board boots every image through the bootloader (issue 21, docs/update.md).
+(cd boot && cargo build -q --release)
 (cd vboard && cargo build -q --release)
 printf '%-5s %10s %18s %22s %16s\n' level flash_B stop_latency_us control_step_insns exti0_insns
 for l in "${levels[@]}"; do
