@@ -116,7 +116,7 @@ const fn c(
 }
 
 /// Every console command, in `help`'s order.
-pub const COMMANDS: [CommandHelp; 23] = [
+pub const COMMANDS: [CommandHelp; 24] = [
     c(
         "help",
         "help [<command>] [--json]",
@@ -221,8 +221,14 @@ pub const COMMANDS: [CommandHelp; 23] = [
     ),
     c(
         "measure",
-        "measure [--baseline] <bore_diameter_mm>",
-        "record a bore reading, or the new cone's baseline (maint)",
+        "measure <bore_diameter_mm>",
+        "record a micrometer bore reading (maint)",
+        measure_args,
+    ),
+    c(
+        "measure",
+        "measure --baseline <d0_mm>",
+        "the new cone's bore, before its first docking (maint)",
         measure_args,
     ),
     c(
@@ -916,6 +922,20 @@ pub fn parse_milli(s: &str) -> Option<u32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// docs/console.md lists every command of the table (its syntax starting a line of
+    /// the command block): a command added to COMMANDS and not to the page fails here.
+    #[test]
+    fn the_console_page_lists_every_command_of_the_table() {
+        let page = include_str!("../../../docs/console.md");
+        for c in COMMANDS.iter() {
+            assert!(
+                page.lines().any(|l| l.starts_with(c.usage)),
+                "docs/console.md does not list `{}`",
+                c.usage
+            );
+        }
+    }
 
     #[test]
     fn milli() {
