@@ -41,7 +41,7 @@ const BOOT_BUDGET: u64 = 16 * 1024;
 const UPDATE_BUDGET: u64 = 96 * 1024;
 
 const USAGE: &str =
-    "usage: cargo xtask <ci | size | boot | qemu | vboard | measure [--sweep] | opt-levels [LEVELS...]>";
+    "usage: cargo xtask <ci | size | boot | qemu | vboard | docs | measure [--sweep] | opt-levels [LEVELS...]>";
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
