@@ -400,6 +400,12 @@ impl Xtask {
             println!("FAIL: vboard's clippy or test build");
             return false;
         }
+        self.vboard_tests()
+    }
+
+    /// The bootloader the image is linked behind (the board loads both), then vboard's
+    /// tests and its boot scene on the release image.
+    fn vboard_tests(&mut self) -> bool {
         let mut ok = self.run("boot", "cargo", &["build", "--release"], &[]);
         ok &= self.tests("vboard", &["test", "--release"]);
         ok &= self.run(
@@ -413,9 +419,7 @@ impl Xtask {
 
     fn vboard(&mut self) -> bool {
         self.step("virtual board: clippy, then the release image against the simulated machine");
-        // The image is linked behind the bootloader: the board loads both.
-        let mut ok = self.run("boot", "cargo", &["build", "--release"], &[]);
-        ok &= self.run(
+        let clean = self.run(
             "vboard",
             "cargo",
             &[
@@ -428,14 +432,7 @@ impl Xtask {
             ],
             &[],
         );
-        ok &= self.tests("vboard", &["test", "--release"]);
-        ok &= self.run(
-            "vboard",
-            "cargo",
-            &["run", "-q", "--release", "--", "scene", "boot"],
-            &[],
-        );
-        ok
+        self.vboard_tests() && clean
     }
 
     /// Every command the docs show, run in its short form (see `docs.rs`).
