@@ -14,6 +14,7 @@ mod modbus;
 mod options;
 mod owner;
 mod step;
+mod update;
 
 use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, Ordering};
@@ -21,6 +22,7 @@ use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m_rt::{exception, ExceptionFrame};
 use defmt_rtt as _;
 use docking_logic::console::service::Console;
+use docking_logic::console::update::{Outcome as UpdateOutcome, UpdateSession};
 use docking_logic::controller::{Bsp, Controller, ControllerConfig, Parts};
 use docking_logic::controller::{Handshake, Timed};
 use docking_logic::diag::{file_tail, Crash, CrashKind, ResetCause};
@@ -462,19 +464,30 @@ mod app {
         // A trial boot after an update (issue 21, docs/update.md): the board came up,
         // the flash answered and the odometer was restored, the HX711 answered its
         // power cycle: confirm, or the next reset (the watchdog's included) rolls back.
-        match flash::OdometerFlash::boot_trial() {
+        let boot = match flash::OdometerFlash::boot_trial() {
             flash::BootTrial::Trial => match flash::OdometerFlash::confirm_boot() {
-                Ok(()) => defmt::info!("update: trial boot confirmed, this image is kept"),
-                Err(e) => defmt::warn!(
-                    "update: trial boot not confirmed ({}): the next reset rolls back",
-                    defmt::Debug2Format(&e)
-                ),
+                Ok(()) => {
+                    defmt::info!("update: trial boot confirmed, this image is kept");
+                    flash::BootTrial::Trial
+                }
+                Err(e) => {
+                    defmt::warn!(
+                        "update: trial boot not confirmed ({}): the next reset rolls back",
+                        defmt::Debug2Format(&e)
+                    );
+                    flash::BootTrial::Confirmed
+                }
             },
             flash::BootTrial::RolledBack => {
-                defmt::warn!("update: the last update never confirmed and was rolled back")
+                defmt::warn!("update: the last update never confirmed and was rolled back");
+                flash::BootTrial::RolledBack
             }
-            flash::BootTrial::Confirmed => {}
-        }
+            flash::BootTrial::Confirmed => flash::BootTrial::Confirmed,
+        };
+        // What `version` and Modbus identification say about the images; the image
+        // record this boot owes (a confirmation, a rollback).
+        let images = update::boot_report(ctrl, boot);
+        ctrl.set_images(images);
         crash::journal_write(&ctrl.journal());
         let (used, size) = crash::stack_usage();
         ctrl.set_stack_usage(used, size);
@@ -712,6 +725,8 @@ mod app {
         // In a static (it holds the 8 KiB output ring): returned from init it would be
         // moved through init's stack.
         console: Console = Console::new([0; 32]),
+        // The `update` command's YMODEM session (in a static: its 1 KiB block buffer).
+        session: UpdateSession = UpdateSession::new(),
     ])]
     fn idle(cx: idle::Context) -> ! {
         let mailbox = &owner::MAILBOX;
@@ -786,9 +801,32 @@ mod app {
                     }
                 });
             }
+            let now_ms = now_us / 1_000;
+            // A firmware update (console `update`): YMODEM has the line until it ends;
+            // the flash goes through the owner (update.rs).
+            let session = &mut *cx.local.session;
+            if session.active() {
+                let flash = core::cell::RefCell::new(update::UpdateFlash);
+                let mut dfu = update_layout::part::Paged::dfu(&flash);
+                let mut state = update_layout::part::State::new(&flash);
+                let key = &update::PUBLIC_KEY;
+                if let Some(out) = session.poll(term, &mut dfu, &mut state, key, now_ms) {
+                    mailbox.call(&mut |ctrl| {
+                        docking_logic::console::update::finish(console, ctrl, out, now_ms)
+                    });
+                    console.flush_output(term);
+                    if matches!(out, UpdateOutcome::Verified { .. }) {
+                        update::restart(term);
+                    }
+                }
+                owner::BUS_BUSY.store(line.sending(), Ordering::Relaxed);
+                while let Some(ev) = cx.local.log_rx.dequeue() {
+                    defmt::info!("t={=u64} ms {}", ev.t_ms, ev.event);
+                }
+                continue;
+            }
             // The console: a line in without the controller; the command's job; a
             // login's PIN hash and the reply's formatting and sending without it.
-            let now_ms = now_us / 1_000;
             let (cmd_line, _) = console.read_line(term);
             if let Some(cmd_line) = cmd_line {
                 mailbox.call(&mut |ctrl| {
@@ -801,6 +839,9 @@ mod app {
                 }
             }
             console.flush_output(term);
+            if console.take_update() {
+                session.start(now_ms);
+            }
             // What the service applies at its next run: the login, the line.
             owner::MAINTENANCE.store(console.maintenance_active(now_ms), Ordering::Relaxed);
             owner::BUS_BUSY.store(line.sending(), Ordering::Relaxed);

@@ -36,7 +36,9 @@
 //!  detail: cone replace: material code u8 | serial (20 B, 0-pad)
 //!          measure: bore_um u32 | baseline u8;  rate: sps u32;  modbus: its record;
 //!          calibrate tare: offset_counts i32;  calibrate span: force_mn u32;
-//!          bor: the level it was at u8;  the others: none
+//!          bor: the level it was at u8;
+//!          update: result u8 (0 verified, 1 refused) | new version (8 B) |
+//!                  running version (8 B) | image length u32;  the others: none
 //! ```
 
 use core::fmt::{self, Write};
@@ -129,6 +131,10 @@ pub mod action {
     pub const MODBUS: u8 = 10;
     /// The brown-out reset level was programmed (detail: the level found, u8).
     pub const BOR: u8 = 11;
+    /// A firmware update was received (issue 21; detail: result u8 — 0 verified and
+    /// marked for the swap, 1 refused — the new image's version, the running image's
+    /// (8 B each, `update_layout::header::Version`, FF.. unknown), its length u32).
+    pub const UPDATE: u8 = 12;
 }
 
 /// What one poll did.
@@ -237,6 +243,8 @@ struct Deferred {
     /// A report waits to be written (`report_json`: as JSON).
     report: Report,
     report_json: bool,
+    /// `update` was accepted: the board starts the session ([`Console::take_update`]).
+    update: bool,
 }
 
 /// A report's data, copied from the controller while the console holds it
@@ -278,6 +286,7 @@ impl Console {
                 pin_rec_ready: false,
                 report: Report::None,
                 report_json: false,
+                update: false,
             },
             term: TermState {
                 quiet: false,
@@ -652,8 +661,39 @@ impl Console {
         });
     }
 
-    fn err(&mut self, msg: &dyn fmt::Display) {
+    pub(super) fn err(&mut self, msg: &dyn fmt::Display) {
         self.reply(|o| write!(o, "error: {msg}\r\n"));
+    }
+
+    /// One reply of these parts, whole or not at all (no formatting).
+    pub(super) fn reply_parts(&mut self, parts: &[&[u8]]) {
+        self.reply(|o| parts.iter().try_for_each(|p| o.push(p)));
+    }
+
+    /// `update` was accepted: the board starts its session after this reply.
+    pub(super) fn request_update(&mut self) {
+        self.deferred.update = true;
+    }
+
+    /// Whether an `update` waits for its session (asked once: it is cleared).
+    pub fn take_update(&mut self) -> bool {
+        core::mem::take(&mut self.deferred.update)
+    }
+
+    /// The prompt after an update's refusal.
+    pub(super) fn prompt_after_update(&mut self) {
+        self.prompt();
+    }
+
+    /// An audit record of `act` (the update's, from its own module).
+    pub(super) fn audit_action<B: Bsp>(
+        &mut self,
+        ctrl: &mut Controller<B>,
+        act: u8,
+        now_ms: u64,
+        detail: &[u8],
+    ) {
+        self.audit(ctrl, act, now_ms, detail);
     }
 
     fn ok(&mut self, msg: &dyn fmt::Display) {
@@ -782,17 +822,8 @@ impl Console {
                     self.ok(&"echo and prompt off until reset (`echo on` turns them back on)");
                 }
             }
-            Command::Version { json } => {
-                let v = env!("CARGO_PKG_VERSION");
-                if json {
-                    self.reply_json(|j| {
-                        j.str("name", "docking-controller")?.str("version", v)?;
-                        Ok(())
-                    });
-                } else {
-                    self.reply(|o| write!(o, "docking-controller {v}\r\n"));
-                }
-            }
+            Command::Version { json } => self.version(&ctrl.images(), json),
+            Command::Update => super::update::begin(self, ctrl),
             Command::Status { json } => self.defer(Report::Status(status_view(ctrl, maint)), json),
             Command::Wear { json } => self.defer(Report::Wear(wear_view(ctrl)), json),
             Command::History { n, json } => {
@@ -1015,6 +1046,53 @@ impl Console {
                     "(maint: needs `maint <pin>`, and all but undock a machine at rest)\r\n",
                 )
             });
+        }
+    }
+
+    /// `version`: the running image (its header's version; the build's without one),
+    /// `(test key)` when the built-in key is the test key, the image it replaced, and a
+    /// rollback (issue 21).
+    fn version(&mut self, r: &crate::update::ImageReport, json: bool) {
+        use super::update::version_text;
+        let (mut a, mut b, mut c) = ([0u8; 24], [0u8; 24], [0u8; 24]);
+        let v = match r.running {
+            Some(_) => version_text(r.running, &mut a),
+            None => env!("CARGO_PKG_VERSION"),
+        };
+        let previous = version_text(r.previous, &mut b);
+        let rolled = match (r.rolled_back, r.rolled_back_version) {
+            (false, _) => "no",
+            (true, None) => "yes",
+            (true, Some(x)) => version_text(Some(x), &mut c),
+        };
+        if json {
+            self.reply_json(|j| {
+                j.str("name", "docking-controller")?
+                    .str("version", v)?
+                    .bool("test_key", r.test_key)?;
+                match r.previous {
+                    Some(_) => j.str("previous", previous)?,
+                    None => j.null("previous")?,
+                };
+                j.bool("rolled_back", r.rolled_back)?;
+                match (r.rolled_back, r.rolled_back_version) {
+                    (true, Some(_)) => j.str("rolled_back_version", rolled)?,
+                    _ => j.null("rolled_back_version")?,
+                };
+                Ok(())
+            });
+        } else {
+            let key: &[u8] = if r.test_key { b" (test key)" } else { b"" };
+            self.reply_parts(&[
+                b"docking-controller ",
+                v.as_bytes(),
+                key,
+                b" previous=",
+                previous.as_bytes(),
+                b" rolled_back=",
+                rolled.as_bytes(),
+                b"\r\n",
+            ]);
         }
     }
 

@@ -4,8 +4,12 @@
 //! access). Read device id codes 1 (basic stream: objects 0–2), 2 (regular stream:
 //! 0–0x7F), 3 (extended stream: all), 4 (one object). Objects: 0 VendorName
 //! [`VENDOR_NAME`], 1 ProductCode [`PRODUCT_CODE`], 2 MajorMinorRevision (the firmware
-//! version), 4 ProductName [`PRODUCT_NAME`], 5 ModelName [`MODEL_NAME`], 0x80 the unit's
-//! serial number (as passed to [`Server::poll`](super::Server::poll), at most [`SERIAL_OBJECT_MAX`] bytes). A
+//! version: the running image's, from its header), 4 ProductName [`PRODUCT_NAME`], 5
+//! ModelName [`MODEL_NAME`], 0x80 the unit's serial number (as passed to
+//! [`Server::poll`](super::Server::poll), at most [`SERIAL_OBJECT_MAX`] bytes), and the
+//! images (issue 21): 0x81 the previous image's version (`none`), 0x82 the key the
+//! image verifies updates with (`test` or `integrator`), 0x83 the last update rolled
+//! back (`no`, its version, or `yes` when its version is not known). A
 //! stream that does not fit one reply sets "more follows" and the next object id; a
 //! stream request for an object id that does not exist restarts at object 0 (the spec's
 //! rule); an individual request for one is exception 02; any other read device id code
@@ -13,13 +17,15 @@
 
 use super::pdu::Reply;
 use super::{exception, MAX_FRAME};
+use crate::update::{ImageReport, Version, VERSION_TEXT_MAX};
 
 /// Object 0, VendorName, unless the commissioning file names the machine's builder
 /// ([`crate::controller::Identity`]).
 pub const VENDOR_NAME: &str = "docking-controller project";
 /// Object 1, ProductCode (the firmware package).
 pub const PRODUCT_CODE: &str = "docking-controller";
-/// Object 2, MajorMinorRevision (the firmware version).
+/// Object 2, MajorMinorRevision, when the image has no header (the host's simulators):
+/// the build's version.
 pub const REVISION: &str = env!("CARGO_PKG_VERSION");
 /// Object 4, ProductName, unless the commissioning file names the product.
 pub const PRODUCT_NAME: &str = "Automatic connector docking controller";
@@ -29,16 +35,87 @@ pub const MODEL_NAME: &str = "STM32F407";
 pub const OBJECT_SERIAL: u8 = 0x80;
 /// The unit serial's longest length in object 0x80, bytes (longer is cut).
 pub const SERIAL_OBJECT_MAX: usize = 32;
+/// Object 0x81 (private): the image this one replaced by an update.
+pub const OBJECT_PREVIOUS: u8 = 0x81;
+/// Object 0x82 (private): `test` when the built-in update key is the test key.
+pub const OBJECT_KEY: u8 = 0x82;
+/// Object 0x83 (private): the last update rolled back.
+pub const OBJECT_ROLLED_BACK: u8 = 0x83;
 /// The conformity level: basic, regular and extended, stream and individual access.
 pub const CONFORMITY: u8 = 0x83;
 /// The objects, in stream order.
-const OBJECTS: [u8; 6] = [0, 1, 2, 4, 5, OBJECT_SERIAL];
+const OBJECTS: [u8; 9] = [
+    0,
+    1,
+    2,
+    4,
+    5,
+    OBJECT_SERIAL,
+    OBJECT_PREVIOUS,
+    OBJECT_KEY,
+    OBJECT_ROLLED_BACK,
+];
 
-fn device_object(id: u8, serial: &str, names: crate::controller::Identity) -> Option<&[u8]> {
+/// The images' texts, written before the objects are.
+struct Texts {
+    running: [u8; VERSION_TEXT_MAX],
+    running_len: usize,
+    previous: [u8; VERSION_TEXT_MAX],
+    previous_len: usize,
+    rolled: [u8; VERSION_TEXT_MAX],
+    rolled_len: usize,
+    test_key: bool,
+}
+
+impl Texts {
+    fn of(r: &ImageReport) -> Self {
+        let mut t = Self {
+            running: [0; VERSION_TEXT_MAX],
+            running_len: 0,
+            previous: [0; VERSION_TEXT_MAX],
+            previous_len: 0,
+            rolled: [0; VERSION_TEXT_MAX],
+            rolled_len: 0,
+            test_key: r.test_key,
+        };
+        let put = |v: Option<Version>, dflt: &[u8], buf: &mut [u8; VERSION_TEXT_MAX]| match v {
+            Some(v) => v.write_text(buf),
+            None => {
+                for (d, s) in buf.iter_mut().zip(dflt) {
+                    *d = *s;
+                }
+                dflt.len().min(VERSION_TEXT_MAX)
+            }
+        };
+        t.running_len = put(r.running, REVISION.as_bytes(), &mut t.running);
+        t.previous_len = put(r.previous, b"none", &mut t.previous);
+        t.rolled_len = match (r.rolled_back, r.rolled_back_version) {
+            (false, _) => put(None, b"no", &mut t.rolled),
+            (true, v) => put(v, b"yes", &mut t.rolled),
+        };
+        t
+    }
+}
+
+fn device_object<'a>(
+    id: u8,
+    serial: &'a str,
+    names: crate::controller::Identity,
+    t: &'a Texts,
+) -> Option<&'a [u8]> {
     Some(match id {
         0 => names.vendor.as_bytes(),
         1 => PRODUCT_CODE.as_bytes(),
-        2 => REVISION.as_bytes(),
+        2 => t.running.get(..t.running_len)?,
+        OBJECT_PREVIOUS => t.previous.get(..t.previous_len)?,
+        OBJECT_KEY => {
+            if t.test_key {
+                b"test"
+            } else {
+                b"integrator"
+            }
+        }
+        OBJECT_ROLLED_BACK => t.rolled.get(..t.rolled_len)?,
         4 => names.product.as_bytes(),
         5 => MODEL_NAME.as_bytes(),
         OBJECT_SERIAL => {
@@ -55,8 +132,10 @@ pub(super) fn device_identification(
     pdu: &[u8],
     serial: &str,
     names: crate::controller::Identity,
+    images: &ImageReport,
     out: &mut [u8; MAX_FRAME],
 ) -> Reply {
+    let texts = Texts::of(images);
     const HEAD: usize = 8; // unit, 0x2B, 0x0E, code, conformity, more, next, count
     let &[_, mei, code, object] = pdu else {
         return match pdu.get(1) {
@@ -73,7 +152,7 @@ pub(super) fn device_identification(
         3 | 4 => 0xFF,
         _ => return Reply::Exception(exception::ILLEGAL_DATA_VALUE),
     };
-    let known = device_object(object, serial, names).is_some();
+    let known = device_object(object, serial, names, &texts).is_some();
     if code == 4 && !known {
         return Reply::Exception(exception::ILLEGAL_DATA_ADDRESS);
     }
@@ -89,7 +168,7 @@ pub(super) fn device_identification(
         if code == 4 && id != object {
             continue;
         }
-        let value = device_object(id, serial, names).unwrap_or(&[]);
+        let value = device_object(id, serial, names, &texts).unwrap_or(&[]);
         let end = pos + 2 + value.len();
         // Room for the CRC after it.
         match out.get_mut(pos..end).filter(|_| end + 2 <= MAX_FRAME) {

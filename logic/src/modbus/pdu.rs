@@ -400,7 +400,13 @@ pub(super) fn process<B: Bsp>(
         *o = unit;
     }
     let reply = match function {
-        0x2B => device_identification(pdu, unit_serial, ctrl.config().identity, out),
+        0x2B => device_identification(
+            pdu,
+            unit_serial,
+            ctrl.config().identity,
+            &ctrl.images(),
+            out,
+        ),
         _ => match validate(function, pdu) {
             Err(code) => Reply::Exception(code),
             Ok(()) => standard(frame, unit, function, broadcast, ctrl, out, session),

@@ -1,0 +1,497 @@
+//! The `update` command (issue 21, docs/update.md): a signed image received by
+//! YMODEM-1K into DFU page 0, its trailer checked, its ed25519 signature verified by
+//! embassy-boot's `verify_and_mark_updated` (which marks it for the bootloader's swap
+//! only when the signature holds), then a restart into it.
+//!
+//! ```text
+//!  technician        console (maintenance mode, at rest)            flash
+//!  update  ───────▶  ok: update: send the signed image by YMODEM-1K …
+//!                    (READY low, every request but stop refused: Controller::begin_update)
+//!          ◀───────  'C' every 3 s
+//!  block 0 ───────▶  size ≤ ACTIVE                                   erase DFU page 0
+//!          ◀───────  ACK 'C'
+//!  block n ───────▶                                                  program the block
+//!          ◀───────  ACK                     (progress in the log, every 10 %)
+//!  EOT, end ──────▶  trailer: magic, length, words, vector table
+//!                    SHA-512 of the image, ed25519 with the built-in key
+//!                    → STATE: SWAP (embassy-boot)                    STATE marked
+//!          ◀───────  ok: update verified: version V …; restarting     audit, image record
+//!                    reset → the bootloader swaps, the new image runs on trial
+//! ```
+//!
+//! Every way it can fail ends in one line, `error: update refused: <why>`, with STATE
+//! as it was (nothing is marked before the signature holds): the sender's cancel, 60 s
+//! of silence, a file larger than ACTIVE, a flash error, a bad trailer
+//! ([`crate::update::Refusal`]), a signature that does not verify (unsigned, another
+//! key's, or a byte changed), or a trial image not yet confirmed. After a refusal the
+//! line is let go quiet first (the sender's last bytes are not taken for commands).
+//!
+//! Nothing is printed while the transfer runs: the link carries YMODEM then. The
+//! session runs in the board's idle loop ([`UpdateSession::poll`]), without the
+//! controller; the flash it writes through is the board's (DFU page 0 and STATE behind
+//! the controller's owner, at rest). No `core::fmt`: fixed texts and a hand-written
+//! decimal.
+
+use embassy_boot::{BlockingFirmwareUpdater, FirmwareUpdaterConfig, FirmwareUpdaterError};
+use embedded_storage::nor_flash::NorFlash;
+use update_layout::header::{Header, Version, HEADER_LEN, HEADER_OFFSET, VERSION_TEXT_MAX};
+use update_layout::layout::{ACTIVE_BASE, PAGE_LEN};
+
+use super::service::{action, Console};
+use crate::controller::{Bsp, Controller};
+use crate::hal::ConsoleIo;
+use crate::odometer::kind;
+use crate::update::{check, marked_record, ImageReport, TRAILER_LEN};
+use crate::ymodem::{Abort, Action, Receiver};
+
+/// What the receiver sends while nothing arrives ('C', or NAK inside the file), ms.
+pub const IDLE_MS: u64 = 3_000;
+/// Silence after which the transfer is cancelled, ms.
+pub const SILENCE_MS: u64 = 60_000;
+/// After a refusal: the line must be quiet this long before the reply, ms.
+pub const QUIET_MS: u64 = 1_000;
+/// ...but the reply comes at the latest this long after the refusal, ms.
+pub const QUIET_MAX_MS: u64 = 10_000;
+
+/// How the session ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Outcome {
+    /// Verified and marked for the swap: the records, the reply, then the restart.
+    Verified {
+        /// The image's length (without the trailer), bytes.
+        len: u32,
+        /// Its version (its header), if it has one.
+        version: Option<Version>,
+    },
+    /// Refused, STATE as it was: why, for the technician.
+    Refused(&'static str),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    Off,
+    Receiving,
+    /// Refused: waiting for the line to go quiet (`until`), at the latest `deadline`.
+    Quiet {
+        until: u64,
+        deadline: u64,
+    },
+}
+
+/// The session: the YMODEM receiver and its timers.
+pub struct UpdateSession {
+    phase: Phase,
+    rx: Receiver,
+    last_rx_ms: u64,
+    last_idle_ms: u64,
+    /// Tenths of the file reported in the log so far.
+    progress: u8,
+    why: Option<&'static str>,
+}
+
+impl Default for UpdateSession {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// The refusal texts (one line each, after `error: update refused: `).
+pub mod why {
+    /// The sender cancelled.
+    pub const CANCELLED: &str = "the sender cancelled the transfer";
+    /// 60 s without a byte.
+    pub const SILENCE: &str = "nothing received for 60 s";
+    /// Block 0 without a size, or an empty batch.
+    pub const NO_SIZE: &str = "the sender gave no file size (YMODEM block 0)";
+    /// Larger than ACTIVE.
+    pub const TOO_LARGE: &str = "the file is larger than the application's partition";
+    /// A block out of sequence.
+    pub const SEQUENCE: &str = "a block out of sequence (transfer broken)";
+    /// EOT before the size.
+    pub const SHORT: &str = "the sender ended the file before its size (truncated)";
+    /// Flash.
+    pub const FLASH: &str = "flash error writing DFU page 0 (nothing marked)";
+    /// The signature.
+    pub const SIGNATURE: &str =
+        "the signature does not verify with this image's key (unsigned, signed with another key, or changed)";
+    /// A trial image (not confirmed) cannot mark another.
+    pub const TRIAL: &str = "this image runs on trial and has not confirmed itself";
+    /// The state sector could not be read or written.
+    pub const STATE: &str = "flash error in the bootloader's state sector";
+}
+
+impl UpdateSession {
+    /// No session (`const` and all-zero: the board keeps it in a static in `.bss`, not
+    /// copied from flash; [`Self::start`] sets the receiver's maximum).
+    pub const fn new() -> Self {
+        Self {
+            phase: Phase::Off,
+            rx: Receiver::new(0),
+            last_rx_ms: 0,
+            last_idle_ms: 0,
+            progress: 0,
+            why: None,
+        }
+    }
+
+    /// Whether a session runs (the console's line editor rests meanwhile).
+    pub fn active(&self) -> bool {
+        self.phase != Phase::Off
+    }
+
+    /// Begin: the first 'C' goes out at the next poll.
+    pub fn start(&mut self, now_ms: u64) {
+        self.rx = Receiver::new(PAGE_LEN);
+        self.phase = Phase::Receiving;
+        self.last_rx_ms = now_ms;
+        // Never: the first 'C' goes out at once.
+        self.last_idle_ms = u64::MAX;
+        self.progress = 0;
+    }
+
+    fn refuse(&mut self, why: &'static str, now_ms: u64) {
+        warn!("update refused: {}", why);
+        self.why = Some(why);
+        self.phase = Phase::Quiet {
+            until: now_ms + QUIET_MS,
+            deadline: now_ms + QUIET_MAX_MS,
+        };
+    }
+
+    /// Run the session: bytes in, flash written through `dfu` (the DFU partition:
+    /// page 0 then page 1, as embassy-boot sees it) and `state` (STATE), YMODEM's
+    /// answers out. `key`: the ed25519 public key built in. `Some` once it has ended.
+    pub fn poll<D: NorFlash, S: NorFlash>(
+        &mut self,
+        io: &mut impl ConsoleIo,
+        dfu: &mut D,
+        state: &mut S,
+        key: &[u8; 32],
+        now_ms: u64,
+    ) -> Option<Outcome> {
+        match self.phase {
+            Phase::Off => None,
+            Phase::Quiet { until, deadline } => {
+                // Whatever the sender still sends is dropped; the reply waits for a quiet
+                // line.
+                let mut until = until;
+                while !matches!(io.read_byte(), Err(nb::Error::WouldBlock)) {
+                    until = now_ms + QUIET_MS;
+                }
+                if now_ms >= until || now_ms >= deadline {
+                    self.phase = Phase::Off;
+                    return Some(Outcome::Refused(self.why.unwrap_or(why::FLASH)));
+                }
+                self.phase = Phase::Quiet { until, deadline };
+                None
+            }
+            Phase::Receiving => self.receive(io, dfu, state, key, now_ms),
+        }
+    }
+
+    fn receive<D: NorFlash, S: NorFlash>(
+        &mut self,
+        io: &mut impl ConsoleIo,
+        dfu: &mut D,
+        state: &mut S,
+        key: &[u8; 32],
+        now_ms: u64,
+    ) -> Option<Outcome> {
+        loop {
+            let b = match io.read_byte() {
+                Ok(b) => b,
+                Err(nb::Error::WouldBlock) => break,
+                // A byte lost on the way in: the packet's CRC fails, it is asked again.
+                Err(nb::Error::Other(())) => continue,
+            };
+            self.last_rx_ms = now_ms;
+            match self.rx.feed(b) {
+                Action::None => {}
+                Action::Send(bytes) => send(io, bytes),
+                Action::Start { size } => {
+                    info!("update: receiving {} bytes; erasing DFU page 0", size);
+                    // The sender waits for the ACK: the erase (seconds) delays nobody.
+                    if dfu.erase(0, PAGE_LEN).is_err() {
+                        return self.cancel(io, why::FLASH, now_ms);
+                    }
+                    send(io, self.rx.ack());
+                }
+                Action::Data { offset, len } => {
+                    if program(dfu, offset, self.rx.data()).is_err() {
+                        return self.cancel(io, why::FLASH, now_ms);
+                    }
+                    send(io, self.rx.ack());
+                    self.report_progress(offset.saturating_add(len as u32));
+                }
+                Action::Done(bytes) => {
+                    send(io, bytes);
+                    let size = self.rx.size();
+                    let out = verify(dfu, state, key, size);
+                    return match out {
+                        Outcome::Verified { .. } => {
+                            self.phase = Phase::Off;
+                            Some(out)
+                        }
+                        Outcome::Refused(w) => {
+                            self.refuse(w, now_ms);
+                            None
+                        }
+                    };
+                }
+                Action::Aborted(why, bytes) => {
+                    send(io, bytes);
+                    self.refuse(abort_text(why), now_ms);
+                    return None;
+                }
+            }
+        }
+        if now_ms.saturating_sub(self.last_rx_ms) >= SILENCE_MS {
+            return self.cancel(io, why::SILENCE, now_ms);
+        }
+        let quiet_since = match self.last_idle_ms {
+            u64::MAX => None,
+            idle => Some(self.last_rx_ms.max(idle)),
+        };
+        if quiet_since.is_none_or(|t| now_ms.saturating_sub(t) >= IDLE_MS) {
+            self.last_idle_ms = now_ms;
+            send(io, self.rx.idle());
+        }
+        None
+    }
+
+    fn cancel(
+        &mut self,
+        io: &mut impl ConsoleIo,
+        why: &'static str,
+        now_ms: u64,
+    ) -> Option<Outcome> {
+        if let Action::Aborted(_, bytes) = self.rx.cancel() {
+            send(io, bytes);
+        }
+        self.refuse(why, now_ms);
+        None
+    }
+
+    fn report_progress(&mut self, done: u32) {
+        let size = self.rx.size().max(1);
+        let tenths = (u64::from(done) * 10 / u64::from(size)).min(10) as u8;
+        if tenths > self.progress {
+            self.progress = tenths;
+            info!(
+                "update: {} % received ({} of {} bytes)",
+                tenths * 10,
+                done,
+                size
+            );
+        }
+    }
+}
+
+/// Everything of `bytes` into the link (the transmit ring takes a YMODEM answer whole).
+fn send(io: &mut impl ConsoleIo, mut bytes: &[u8]) {
+    for _ in 0..8 {
+        if bytes.is_empty() {
+            return;
+        }
+        let n = io.write(bytes);
+        bytes = bytes.get(n..).unwrap_or(&[]);
+    }
+}
+
+/// Program a block at `offset`: whole words; a last block that is not (a file that is
+/// not a signed image) is padded with erased bytes, and refused at the trailer check.
+fn program<D: NorFlash>(dfu: &mut D, offset: u32, data: &[u8]) -> Result<(), D::Error> {
+    let whole = data.len() / 4 * 4;
+    let (words, rest) = data.split_at(whole);
+    if !words.is_empty() {
+        dfu.write(offset, words)?;
+    }
+    if !rest.is_empty() {
+        let mut last = [0xFF; 4];
+        for (d, s) in last.iter_mut().zip(rest) {
+            *d = *s;
+        }
+        dfu.write(offset + whole as u32, &last)?;
+    }
+    Ok(())
+}
+
+fn abort_text(a: Abort) -> &'static str {
+    match a {
+        Abort::Cancelled => why::CANCELLED,
+        Abort::NoSize => why::NO_SIZE,
+        Abort::TooLarge => why::TOO_LARGE,
+        Abort::Sequence => why::SEQUENCE,
+        Abort::Short => why::SHORT,
+        Abort::Local => why::SILENCE,
+    }
+}
+
+/// The file of `size` bytes in DFU page 0: its trailer checked, then embassy-boot's
+/// verification, which marks it for the swap only if the signature holds.
+fn verify<D: NorFlash, S: NorFlash>(
+    dfu: &mut D,
+    state: &mut S,
+    key: &[u8; 32],
+    size: u32,
+) -> Outcome {
+    let mut head = [0u8; 8];
+    let mut tail = [0u8; TRAILER_LEN];
+    let tail_at = size.saturating_sub(TRAILER_LEN as u32);
+    if size < (TRAILER_LEN + 8) as u32 {
+        return Outcome::Refused(crate::update::Refusal::TooShort.text());
+    }
+    if dfu.read(0, &mut head).is_err() || dfu.read(tail_at, &mut tail).is_err() {
+        return Outcome::Refused(why::FLASH);
+    }
+    let trailer = match check(size, &head, &tail, ACTIVE_BASE, PAGE_LEN) {
+        Ok(t) => t,
+        Err(r) => return Outcome::Refused(r.text()),
+    };
+    let mut h = [0u8; HEADER_LEN];
+    let version = (trailer.len >= HEADER_OFFSET + HEADER_LEN as u32)
+        .then(|| dfu.read(HEADER_OFFSET, &mut h).ok())
+        .flatten()
+        .and_then(|()| Header::parse(&h))
+        .map(|h| h.version);
+    // embassy-boot's state buffer is one word of STATE (its own assertion).
+    if S::WRITE_SIZE != 4 {
+        return Outcome::Refused(why::STATE);
+    }
+    let mut aligned = [0u8; 4];
+    let mut updater = BlockingFirmwareUpdater::new(
+        FirmwareUpdaterConfig {
+            dfu: &mut *dfu,
+            state: &mut *state,
+        },
+        &mut aligned,
+    );
+    info!(
+        "update: {} bytes received; verifying the signature",
+        trailer.len
+    );
+    match updater.verify_and_mark_updated(key, &trailer.signature, trailer.len) {
+        Ok(()) => Outcome::Verified {
+            len: trailer.len,
+            version,
+        },
+        Err(FirmwareUpdaterError::Signature(_)) => Outcome::Refused(why::SIGNATURE),
+        Err(FirmwareUpdaterError::BadState) => Outcome::Refused(why::TRIAL),
+        Err(FirmwareUpdaterError::Flash(_)) => Outcome::Refused(why::STATE),
+    }
+}
+
+/// `v`'s text (`none` without one).
+pub fn version_text(v: Option<Version>, buf: &mut [u8; VERSION_TEXT_MAX]) -> &str {
+    match v {
+        Some(v) => {
+            let n = v.write_text(buf);
+            core::str::from_utf8(buf.get(..n).unwrap_or(&[])).unwrap_or("?")
+        }
+        None => "none",
+    }
+}
+
+/// `v` in decimal (`buf` holds any u32).
+fn decimal(v: u32, buf: &mut [u8; 10]) -> &[u8] {
+    let mut i = buf.len();
+    let mut x = v;
+    loop {
+        i -= 1;
+        if let Some(d) = buf.get_mut(i) {
+            *d = b'0' + (x % 10) as u8;
+        }
+        x /= 10;
+        if x == 0 || i == 0 {
+            break;
+        }
+    }
+    buf.get(i..).unwrap_or(&[])
+}
+
+/// `update` (run with the controller, maintenance mode and rest checked by the
+/// console): at rest, READY low and requests refused for the whole update; the
+/// session starts once the reply is out ([`Console::take_update`]).
+pub(super) fn begin<B: Bsp>(console: &mut Console, ctrl: &mut Controller<B>) {
+    if let Err(e) = ctrl.begin_update() {
+        console.err(&e);
+        return;
+    }
+    let mut n = [0u8; 10];
+    console.reply_parts(&[
+        b"ok: update: send the signed image by YMODEM-1K now (sb -k FILE, or the terminal's YMODEM upload); at most ",
+        decimal(PAGE_LEN, &mut n),
+        b" bytes; 60 s of silence cancels\r\n",
+    ]);
+    console.request_update();
+}
+
+/// The session ended (with the controller): the audit record, the image record of a
+/// verified update, the reply. A refused update gives the machine back to its
+/// requests; a verified one is followed by the restart (the board's).
+pub fn finish<B: Bsp>(console: &mut Console, ctrl: &mut Controller<B>, out: Outcome, now_ms: u64) {
+    let images: ImageReport = ctrl.images();
+    let v = |x: Option<Version>| x.map_or([0xFF; 8], Version::to_bytes);
+    let (result, len, version) = match out {
+        Outcome::Verified { len, version } => (0u8, len, version),
+        Outcome::Refused(_) => (1u8, 0, None),
+    };
+    // Audit detail: result u8 (0 verified and marked, 1 refused) | the new image's
+    // version | the running image's | the image's length u32 (versions FF.. unknown).
+    let mut detail = [0u8; 21];
+    let parts: [&[u8]; 4] = [
+        &[result],
+        &v(version),
+        &v(images.running),
+        &len.to_le_bytes(),
+    ];
+    for (d, s) in detail.iter_mut().zip(parts.into_iter().flatten()) {
+        *d = *s;
+    }
+    console.audit_action(ctrl, action::UPDATE, now_ms, &detail);
+    match out {
+        Outcome::Verified { len, version } => {
+            let rec = marked_record(&images, version);
+            if ctrl.store_record(kind::IMAGE, rec.bytes()).is_err() {
+                error!("update: the image record was not written");
+            }
+            info!("update verified and marked: restarting into it");
+            let mut t = [0u8; VERSION_TEXT_MAX];
+            let mut n = [0u8; 10];
+            console.reply_parts(&[
+                b"ok: update verified: version ",
+                version_text(version, &mut t).as_bytes(),
+                b", ",
+                decimal(len, &mut n),
+                b" bytes, signature good; restarting into it (the old image comes back if it does not confirm)\r\n",
+            ]);
+        }
+        Outcome::Refused(why) => {
+            ctrl.end_update();
+            console.reply_parts(&[b"error: update refused: ", why.as_bytes(), b"\r\n"]);
+            console.prompt_after_update();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn decimals_and_versions_are_written_without_core_fmt() {
+        let mut b = [0u8; 10];
+        assert_eq!(decimal(0, &mut b), b"0");
+        assert_eq!(decimal(229_376, &mut b), b"229376");
+        assert_eq!(decimal(u32::MAX, &mut b), b"4294967295");
+        let mut t = [0u8; VERSION_TEXT_MAX];
+        assert_eq!(version_text(None, &mut t), "none");
+        let v = Version {
+            major: 0,
+            minor: 2,
+            patch: 0,
+            build: 0,
+        };
+        assert_eq!(version_text(Some(v), &mut t), "0.2.0");
+    }
+}
