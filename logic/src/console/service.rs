@@ -557,7 +557,8 @@ impl Console {
         }
         let hashed = self.finish_login(now_ms) + self.finish_pin_set(now_ms);
         self.term.maint = self.auth.is_active(now_ms);
-        if !self.store_due() {
+        // No prompt before an update's YMODEM session (its reply comes after it).
+        if !self.store_due() && !self.deferred.update {
             self.prompt();
         }
         hashed

@@ -87,6 +87,9 @@ pub struct UpdateSession {
     /// Tenths of the file reported in the log so far.
     progress: u8,
     why: Option<&'static str>,
+    /// A flash operation ran in the last poll (an erase takes seconds): the next poll
+    /// counts the silence from its own time, not from before it.
+    worked: bool,
 }
 
 impl Default for UpdateSession {
@@ -131,6 +134,7 @@ impl UpdateSession {
             last_idle_ms: 0,
             progress: 0,
             why: None,
+            worked: false,
         }
     }
 
@@ -197,6 +201,12 @@ impl UpdateSession {
         key: &[u8; 32],
         now_ms: u64,
     ) -> Option<Outcome> {
+        if core::mem::take(&mut self.worked) {
+            // The poll before wrote the flash and returned after `now_ms` of its own:
+            // that time was the receiver's, not the sender's silence (a NAK now would
+            // have the sender send the block twice).
+            self.last_rx_ms = now_ms;
+        }
         loop {
             let b = match io.read_byte() {
                 Ok(b) => b,
@@ -211,12 +221,14 @@ impl UpdateSession {
                 Action::Start { size } => {
                     info!("update: receiving {} bytes; erasing DFU page 0", size);
                     // The sender waits for the ACK: the erase (seconds) delays nobody.
+                    self.worked = true;
                     if dfu.erase(0, PAGE_LEN).is_err() {
                         return self.cancel(io, why::FLASH, now_ms);
                     }
                     send(io, self.rx.ack());
                 }
                 Action::Data { offset, len } => {
+                    self.worked = true;
                     if program(dfu, offset, self.rx.data()).is_err() {
                         return self.cancel(io, why::FLASH, now_ms);
                     }
