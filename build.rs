@@ -85,18 +85,21 @@ fn active_x() -> String {
 }
 
 /// The image header's section at its fixed offset after the vector table, `.text` after
-/// it (update-layout's header.rs).
+/// it (update-layout's header.rs). The gap before the header is filled with 0xFF (erased
+/// flash) inside the section, so that the image has no hole: `llvm-objcopy -O binary`
+/// (the signing tool's) and a probe write the same bytes.
 fn image_header_x() -> String {
     use update_layout::header::{HEADER_LEN, HEADER_OFFSET};
     format!(
         "/* Written by build.rs from update-layout: the image header (version, key id) at a\n\
           * fixed offset after the vector table, for the signing tool and the updater. */\n\
-         SECTIONS\n{{\n  .image_header ORIGIN(FLASH) + {HEADER_OFFSET:#x} :\n  {{\n    \
+         SECTIONS\n{{\n  .image_header ADDR(.vector_table) + SIZEOF(.vector_table) :\n  {{\n    \
+         FILL(0xFFFFFFFF);\n    . = ALIGN({HEADER_OFFSET:#x});\n    __image_header = .;\n    \
          KEEP(*(.image_header));\n  }} > FLASH\n}}\nINSERT AFTER .vector_table;\n\
-         ASSERT(ADDR(.vector_table) + SIZEOF(.vector_table) <= ORIGIN(FLASH) + {HEADER_OFFSET:#x},\n  \
-         \"the vector table reaches the image header (image-header.x)\");\n\
-         ASSERT(ADDR(.image_header) == ORIGIN(FLASH) + {HEADER_OFFSET:#x} && SIZEOF(.image_header) == {HEADER_LEN},\n  \
-         \"the image header is not at its place (image-header.x)\");\n"
+         ASSERT(__image_header == ORIGIN(FLASH) + {HEADER_OFFSET:#x},\n  \
+         \"the image header is not at its place: the vector table reaches it (image-header.x)\");\n\
+         ASSERT(ADDR(.image_header) + SIZEOF(.image_header) == ORIGIN(FLASH) + {HEADER_OFFSET:#x} + {HEADER_LEN},\n  \
+         \"the image header is not {HEADER_LEN} bytes (image-header.x)\");\n"
     )
 }
 

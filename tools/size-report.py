@@ -31,7 +31,7 @@ import sys
 
 DEFAULT_ELF = "target/thumbv7em-none-eabihf/release/docking-controller"
 FLASH_TYPES = set("tTrRdDvVwW")
-FLASH_SECTIONS = (".vector_table", ".text", ".rodata", ".data")
+FLASH_SECTIONS = (".vector_table", ".image_header", ".text", ".rodata", ".data")
 
 
 def run(cmd):

@@ -36,10 +36,32 @@ pub const NEW_VERSION: Version = Version {
 /// Checks of a scene: (name, passed, detail).
 pub type Checks = Vec<(String, bool, String)>;
 
-/// The release image's application bytes (ACTIVE's, as a probe flashes them).
+/// The release image's application bytes as `llvm-objcopy -O binary` writes them (the
+/// signing tool's input): from ACTIVE's first byte to the last loaded one, a gap
+/// between two segments (alignment) zero (a probe leaves it erased, 0xFF).
 pub fn app_bytes(img: &Image) -> Vec<u8> {
+    use object::read::elf::{FileHeader, ProgramHeader};
     let start = (ACTIVE_BASE - FLASH_BASE) as usize;
-    img.flash[start..img.flash_used as usize].to_vec()
+    let mut v = img.flash[start..img.flash_used as usize].to_vec();
+    let mut loaded = vec![false; v.len()];
+    if let Ok(f) = object::read::elf::ElfFile32::<object::Endianness>::parse(&*img.elf) {
+        let e = f.endian();
+        for ph in f.elf_header().program_headers(e, &*img.elf).unwrap_or(&[]) {
+            let (pa, n) = (ph.p_paddr(e) as usize, ph.p_filesz(e) as usize);
+            let Some(off) = pa.checked_sub(ACTIVE_BASE as usize) else {
+                continue;
+            };
+            for l in loaded.iter_mut().skip(off).take(n) {
+                *l = true;
+            }
+        }
+    }
+    for (b, l) in v.iter_mut().zip(&loaded) {
+        if !l {
+            *b = 0;
+        }
+    }
+    v
 }
 
 /// The update file of `app` stamped `v`, signed with the test key.
@@ -75,6 +97,7 @@ pub fn transfer(
     dock_at_bytes: Option<usize>,
 ) -> Result<Transfer, Halt> {
     let t0 = s.now();
+    let wall0 = std::time::Instant::now();
     let mut out = Transfer::default();
     let start = s.board.soc().console_out.len();
     let _ = s.board.soc_mut().console_send(b"update\r\n");
@@ -153,6 +176,13 @@ pub fn transfer(
     }
     s.set_dock(false);
     out.seconds = (s.now() - t0) as f64 / PS_PER_S as f64;
+    if std::env::var_os("VBOARD_TRACE_UPDATE").is_some() {
+        eprintln!(
+            "transfer: {:.1} s virtual, {:.1} s wall",
+            out.seconds,
+            wall0.elapsed().as_secs_f64()
+        );
+    }
     Ok(out)
 }
 
@@ -367,8 +397,11 @@ pub fn never_confirming_image() -> Vec<u8> {
     v.extend(0x2002_0000u32.to_le_bytes());
     v.extend((ACTIVE_BASE + 0x40 + 1).to_le_bytes());
     v.resize(0x40, 0xFF);
+    // ldr r0,=MARK; ldr r1,=tag; str r1,[r0]; mov r2,sp; str r2,[r0,#4];
+    // ldr r3,=VTOR; ldr r3,[r3]; str r3,[r0,#8]; then `wfi; b .-2`: it sleeps (no
+    // interrupt is enabled) until the bootloader's watchdog resets it.
     for hw in [
-        0x4804u16, 0x4905, 0x6001, 0x466A, 0x6042, 0x4B04, 0x681B, 0x6083, 0xE7FE, 0xBF00,
+        0x4804u16, 0x4905, 0x6001, 0x466A, 0x6042, 0x4B04, 0x681B, 0x6083, 0xBF30, 0xE7FD,
     ] {
         v.extend(hw.to_le_bytes());
     }
@@ -494,6 +527,7 @@ pub fn marked(opts: &Options) -> Result<Marked, String> {
     prepare(&mut s, &mut checks).map_err(|e| e.to_string())?;
     let counters = counters(&mut s).map_err(|e| e.to_string())?;
     let app = app_bytes(&s.board.image);
+    let old = read_flash(&s, ACTIVE_BASE, app.len() as u32 / 4 * 4);
     let file = update_file(&app, NEW_VERSION);
     // Stop at the reply: the board's restart is the next instant.
     let t = transfer(&mut s, &file, None, None).map_err(|e| e.to_string())?;
@@ -506,7 +540,7 @@ pub fn marked(opts: &Options) -> Result<Marked, String> {
         code: read_flash(&s, FLASH_BASE, ODOMETER_BASE - FLASH_BASE),
         odometer: s.board.soc().world.flash.with(|f| f.clone()),
         counters,
-        old: app,
+        old,
         new,
         transfer_s: t.seconds,
         swap_ps: 0,
@@ -611,10 +645,12 @@ pub fn update_cut_transfer(
     prepare(&mut s, checks).map_err(|e| e.to_string())?;
     let before = counters(&mut s).map_err(|e| e.to_string())?;
     let state = state_word(&s);
-    let old = app_bytes(&s.board.image);
-    let mut new = old.clone();
+    let app = app_bytes(&s.board.image);
+    // What ACTIVE holds now (as the probe flashed it) and what the update would put there.
+    let old = read_flash(&s, ACTIVE_BASE, app.len() as u32 / 4 * 4);
+    let mut new = app.clone();
     stamp(&mut new, NEW_VERSION);
-    let file = update_file(&old, NEW_VERSION);
+    let file = update_file(&app, NEW_VERSION);
     let at = ((file.len() as f64 * f) as usize).max(1);
     let t = transfer(&mut s, &file, Some(at), None).map_err(|e| e.to_string())?;
     checks.push((

@@ -506,7 +506,7 @@ fn test_summary(line: &str) -> Option<(u64, u64)> {
 /// The image's sections as `size -A` reports them, bytes.
 #[derive(Debug, Default, PartialEq)]
 struct Sections {
-    /// .vector_table, .text, .rodata: in flash.
+    /// .vector_table, .image_header (issue 21), .text, .rodata: in flash.
     text: u64,
     /// .data: in flash (its load image) and in RAM.
     data: u64,
@@ -526,7 +526,7 @@ impl Sections {
                 continue;
             };
             match name {
-                ".vector_table" | ".text" | ".rodata" => s.text += n,
+                ".vector_table" | ".image_header" | ".text" | ".rodata" => s.text += n,
                 ".data" => s.data += n,
                 ".bss" | ".uninit" | ".persist" => s.bss += n,
                 _ => {}
