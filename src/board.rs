@@ -733,11 +733,13 @@ mod app {
         cx.local.console.seed(*cx.local.entropy);
         // The greeting: firmware, why it reset, the prompt (a terminal's first line).
         let (mut reset, mut state) = (None, "unknown");
-        mailbox.call(&mut |c| (reset, state) = (c.last_reset(), c.state().name()));
+        let mut images = docking_logic::update::ImageReport::UNKNOWN;
+        mailbox
+            .call(&mut |c| (reset, state, images) = (c.last_reset(), c.state().name(), c.images()));
         cx.local.console.observe(state, clock::now_us() / 1_000);
         cx.local
             .console
-            .banner(reset.map_or("unknown", |r| r.name()));
+            .banner_of(&images, reset.map_or("unknown", |r| r.name()));
         // As `Server::new` would: invalid settings (never, `ModbusSettings::stored`
         // checks them) give the default ones.
         if !cx.local.server.set_settings(*cx.local.modbus_settings) {

@@ -1410,7 +1410,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
                     crate::update::update_cut_transfer(seed, &opts.session, &mut checks)?
                 }
                 cut => {
-                    let m = crate::update::marked(&opts.session)?;
+                    let m = crate::update::marked(&opts.session, cut == Cut::Swap)?;
                     crate::update::update_cut_marked(cut, seed, &opts.session, &m, &mut checks)?
                 }
             };

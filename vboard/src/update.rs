@@ -520,8 +520,9 @@ pub struct Marked {
 }
 
 /// Run the update to the instant it is marked (once per process for the cut scenes'
-/// seeds).
-pub fn marked(opts: &Options) -> Result<Marked, String> {
+/// seeds); `measure_swap`: then power a board on from it to time the swap
+/// ([`Marked::swap_ps`]; else 0, see [`update_from_marked`]).
+pub fn marked(opts: &Options, measure_swap: bool) -> Result<Marked, String> {
     let mut s = Session::new(opts.clone())?;
     let mut checks = Checks::new();
     prepare(&mut s, &mut checks).map_err(|e| e.to_string())?;
@@ -545,16 +546,19 @@ pub fn marked(opts: &Options) -> Result<Marked, String> {
         transfer_s: t.seconds,
         swap_ps: 0,
     };
-    let mut b = from_marked(opts, &m)?;
-    let deadline = b.now() + 120 * PS_PER_S;
-    b.run_until(deadline, |x| !x.board.log.is_empty())
-        .map_err(|e| e.to_string())?;
-    m.swap_ps = b.now();
+    if measure_swap {
+        let mut b = from_marked(opts, &m)?;
+        let deadline = b.now() + 120 * PS_PER_S;
+        b.run_until(deadline, |x| !x.board.log.is_empty())
+            .map_err(|e| e.to_string())?;
+        m.swap_ps = b.now();
+    }
     Ok(m)
 }
 
-/// A board powered on from `m`'s flash.
-fn from_marked(opts: &Options, m: &Marked) -> Result<Session, String> {
+/// A board powered on from `m`'s flash: the update as it restarts (its SRAM lost: the
+/// counters are in flash by then, written at rest).
+pub fn from_marked(opts: &Options, m: &Marked) -> Result<Session, String> {
     let mut img = Image::load(&opts.firmware)?;
     img.flash = m.code.clone();
     let mut o = opts.clone();
@@ -700,7 +704,7 @@ pub fn update_cut_marked(
         let end = s.now() + (1_500.0 * f) as u64 * PS_PER_MS;
         s.run_until(end, |_| false).map_err(|e| e.to_string())?;
     } else {
-        let end = t0 + (m.swap_ps as f64 * f) as u64;
+        let end = t0 + (m.swap_ps.max(PS_PER_S) as f64 * f) as u64;
         s.run_until(end, |_| false).map_err(|e| e.to_string())?;
     }
     let what = if cut == Cut::Swap {
@@ -733,5 +737,37 @@ pub fn update_cut_marked(
         cut_ps,
     )
     .map_err(|e| e.to_string())?;
+    Ok(s)
+}
+
+/// From the marked flash, no cut: the swap runs to its end, the new image confirms
+/// itself and runs with every counter (what the `update` scene checks after its
+/// restart); `m.swap_ps` measured on the way.
+pub fn update_from_marked(
+    opts: &Options,
+    m: &mut Marked,
+    checks: &mut Checks,
+) -> Result<Session, String> {
+    let mut s = from_marked(opts, m)?;
+    let deadline = s.now() + 120 * PS_PER_S;
+    s.run_until(deadline, |x| !x.board.log.is_empty())
+        .map_err(|e| e.to_string())?;
+    m.swap_ps = s.now();
+    after_cut(
+        &mut s,
+        &m.old,
+        &m.new,
+        &m.counters,
+        &["new"],
+        checks,
+        "no cut",
+        0,
+    )
+    .map_err(|e| e.to_string())?;
+    checks.push((
+        "no cut: confirmed (STATE says BOOT)".into(),
+        state_word(&s) == update_layout::state::BOOT,
+        format!("{:#010x}", state_word(&s)),
+    ));
     Ok(s)
 }

@@ -302,7 +302,16 @@ impl Console {
     /// The boot banner: one line with a fixed prefix (`# `, so a script can skip it)
     /// naming the firmware and why it reset, then the prompt.
     pub fn banner(&mut self, reset: &str) {
-        let v = env!("CARGO_PKG_VERSION");
+        self.banner_of(&crate::update::ImageReport::UNKNOWN, reset);
+    }
+
+    /// [`Self::banner`] naming the running image's version (its header's; issue 21).
+    pub fn banner_of(&mut self, images: &crate::update::ImageReport, reset: &str) {
+        let mut t = [0u8; 24];
+        let v = match images.running {
+            Some(_) => super::update::version_text(images.running, &mut t),
+            None => env!("CARGO_PKG_VERSION"),
+        };
         self.reply(|o| write!(o, "# docking-controller {v} reset={reset}; type 'help'\r\n"));
         self.prompt();
     }
