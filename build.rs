@@ -16,6 +16,16 @@
 
 use std::{env, fs, path::PathBuf};
 
+// The partition map and the image header, from the shared crate's own sources (one
+// place for the layout; included rather than a build-dependency so that this script
+// still compiles on its own, as host-tests/tests/build_script.rs compiles it).
+#[allow(dead_code)]
+#[path = "update-layout/src/header.rs"]
+mod header;
+#[allow(dead_code)]
+#[path = "update-layout/src/layout.rs"]
+mod layout;
+
 fn main() {
     // The machine's tuning (guard envelope, hard limit, hold force, nominal
     // load-distance): `hil-sim commission` writes it for another machine; without
@@ -44,6 +54,8 @@ fn main() {
         println!("cargo::error={e}");
         return;
     }
+    println!("cargo:rerun-if-changed=update-layout/src/layout.rs");
+    println!("cargo:rerun-if-changed=update-layout/src/header.rs");
     println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rerun-if-changed=odometer-guard.x");
     println!("cargo:rerun-if-changed=persist.x");
@@ -74,8 +86,8 @@ fn main() {
 /// The FLASH region: ACTIVE, as the shared partition map has it, and `.text` after the
 /// image header (memory.x includes this: cortex-m-rt takes `_stext` from there).
 fn active_x() -> String {
-    use update_layout::header::{HEADER_LEN, HEADER_OFFSET};
-    use update_layout::layout::{ACTIVE_BASE, ACTIVE_LEN};
+    use header::{HEADER_LEN, HEADER_OFFSET};
+    use layout::{ACTIVE_BASE, ACTIVE_LEN};
     format!(
         "/* Written by build.rs from update-layout (the partition map): ACTIVE. */\n\
          MEMORY\n{{\n  FLASH : ORIGIN = {ACTIVE_BASE:#010x}, LENGTH = {}K\n}}\n\
@@ -89,7 +101,7 @@ fn active_x() -> String {
 /// flash) inside the section, so that the image has no hole: `llvm-objcopy -O binary`
 /// (the signing tool's) and a probe write the same bytes.
 fn image_header_x() -> String {
-    use update_layout::header::{HEADER_LEN, HEADER_OFFSET};
+    use header::{HEADER_LEN, HEADER_OFFSET};
     format!(
         "/* Written by build.rs from update-layout: the image header (version, key id) at a\n\
           * fixed offset after the vector table, for the signing tool and the updater. */\n\

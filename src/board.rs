@@ -731,6 +731,8 @@ mod app {
     fn idle(cx: idle::Context) -> ! {
         let mailbox = &owner::MAILBOX;
         cx.local.console.seed(*cx.local.entropy);
+        // This image runs `update`'s YMODEM session (below).
+        cx.local.console.enable_updater();
         // The greeting: firmware, why it reset, the prompt (a terminal's first line).
         let (mut reset, mut state) = (None, "unknown");
         let mut images = docking_logic::update::ImageReport::UNKNOWN;

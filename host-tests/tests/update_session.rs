@@ -253,3 +253,25 @@ fn silence_cancels_the_transfer_after_a_minute_with_c_every_three_seconds() {
     let cs = link.from_board.iter().filter(|&&b| b == b'C').count();
     assert!((20..=21).contains(&cs), "{cs} 'C' sent");
 }
+
+/// The simulator has no update partition: `update` is refused in one line and the
+/// machine is not left locked (a console that accepted it would hold READY low and
+/// refuse every request, waiting for a session nobody runs).
+#[test]
+fn the_simulator_refuses_update_and_takes_requests_after_it() {
+    let mut r = hil_sim::rig::Rig::new(hil_sim::rig::RigOptions::new(80));
+    r.console_enabled = true;
+    for _ in 0..hil_sim::rig::BOOT_TICKS {
+        r.tick();
+    }
+    assert!(r.command("pin set 2468", 10).starts_with("ok"));
+    assert!(r.command("maint 2468", 10).starts_with("ok"));
+    let reply = r.command("update", 10);
+    assert!(reply.starts_with("error: no field update here"), "{reply}");
+    assert!(!r.ctrl.updating());
+    assert!(r.command("maint exit", 10).starts_with("ok"));
+    for _ in 0..10 {
+        r.tick();
+    }
+    assert!(r.ctrl.handshake().ready, "READY back");
+}

@@ -130,7 +130,7 @@ pub struct Header {
 
 impl Header {
     /// The header's bytes.
-    pub const fn to_bytes(&self) -> [u8; HEADER_LEN] {
+    pub const fn to_bytes(self) -> [u8; HEADER_LEN] {
         let [m0, m1, m2, m3] = MAGIC;
         let [v0, v1, v2, v3, v4, v5, v6, v7] = self.version.to_bytes();
         let [f0, f1, f2, f3] = self.flags.to_le_bytes();

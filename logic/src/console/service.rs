@@ -214,6 +214,9 @@ struct TermState {
     state: Option<&'static str>,
     /// Maintenance mode, as last seen (the prompt ends `#` instead of `>`).
     maint: bool,
+    /// The host runs `update`'s session ([`Console::enable_updater`]: the board); the
+    /// simulators have no DFU partition and refuse `update`.
+    updater: bool,
 }
 
 /// Ctrl-C: abandon the line.
@@ -295,6 +298,7 @@ impl Console {
                 recall: String::new(),
                 state: None,
                 maint: false,
+                updater: false,
             },
         }
     }
@@ -683,6 +687,16 @@ impl Console {
     /// `update` was accepted: the board starts its session after this reply.
     pub(super) fn request_update(&mut self) {
         self.deferred.update = true;
+    }
+
+    /// The host runs `update`'s session when [`Self::take_update`] says so (the board).
+    pub fn enable_updater(&mut self) {
+        self.term.updater = true;
+    }
+
+    /// Whether `update` is taken here.
+    pub(super) fn has_updater(&self) -> bool {
+        self.term.updater
     }
 
     /// Whether an `update` waits for its session (asked once: it is cleared).

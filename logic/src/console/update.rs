@@ -32,17 +32,15 @@
 //! the controller's owner, at rest). No `core::fmt`: fixed texts and a hand-written
 //! decimal.
 
-use embassy_boot::{BlockingFirmwareUpdater, FirmwareUpdaterConfig, FirmwareUpdaterError};
-use embedded_storage::nor_flash::NorFlash;
-use update_layout::header::{Header, Version, HEADER_LEN, HEADER_OFFSET, VERSION_TEXT_MAX};
-use update_layout::layout::{ACTIVE_BASE, PAGE_LEN};
+#[cfg(feature = "updater")]
+pub use session::UpdateSession;
+use update_layout::header::{Version, VERSION_TEXT_MAX};
+use update_layout::layout::PAGE_LEN;
 
 use super::service::{action, Console};
 use crate::controller::{Bsp, Controller};
-use crate::hal::ConsoleIo;
 use crate::odometer::kind;
-use crate::update::{check, marked_record, ImageReport, TRAILER_LEN};
-use crate::ymodem::{Abort, Action, Receiver};
+use crate::update::{marked_record, ImageReport};
 
 /// What the receiver sends while nothing arrives ('C', or NAK inside the file), ms.
 pub const IDLE_MS: u64 = 3_000;
@@ -65,37 +63,6 @@ pub enum Outcome {
     },
     /// Refused, STATE as it was: why, for the technician.
     Refused(&'static str),
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Phase {
-    Off,
-    Receiving,
-    /// Refused: waiting for the line to go quiet (`until`), at the latest `deadline`.
-    Quiet {
-        until: u64,
-        deadline: u64,
-    },
-}
-
-/// The session: the YMODEM receiver and its timers.
-pub struct UpdateSession {
-    phase: Phase,
-    rx: Receiver,
-    last_rx_ms: u64,
-    last_idle_ms: u64,
-    /// Tenths of the file reported in the log so far.
-    progress: u8,
-    why: Option<&'static str>,
-    /// A flash operation ran in the last poll (an erase takes seconds): the next poll
-    /// counts the silence from its own time, not from before it.
-    worked: bool,
-}
-
-impl Default for UpdateSession {
-    fn default() -> Self {
-        Self::new()
-    }
 }
 
 /// The refusal texts (one line each, after `error: update refused: `).
@@ -123,273 +90,318 @@ pub mod why {
     pub const STATE: &str = "flash error in the bootloader's state sector";
 }
 
-impl UpdateSession {
-    /// No session (`const` and all-zero: the board keeps it in a static in `.bss`, not
-    /// copied from flash; [`Self::start`] sets the receiver's maximum).
-    pub const fn new() -> Self {
-        Self {
-            phase: Phase::Off,
-            rx: Receiver::new(0),
-            last_rx_ms: 0,
-            last_idle_ms: 0,
-            progress: 0,
-            why: None,
-            worked: false,
+/// The session (the board's, and the host tests'; feature `updater`).
+#[cfg(feature = "updater")]
+mod session {
+    use embassy_boot::{BlockingFirmwareUpdater, FirmwareUpdaterConfig, FirmwareUpdaterError};
+    use embedded_storage::nor_flash::NorFlash;
+    use update_layout::header::{Header, HEADER_LEN, HEADER_OFFSET};
+    use update_layout::layout::{ACTIVE_BASE, PAGE_LEN};
+
+    use super::{why, Outcome, IDLE_MS, QUIET_MAX_MS, QUIET_MS, SILENCE_MS};
+    use crate::hal::ConsoleIo;
+    use crate::update::{check, TRAILER_LEN};
+    use crate::ymodem::{Abort, Action, Receiver};
+
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    enum Phase {
+        Off,
+        Receiving,
+        /// Refused: waiting for the line to go quiet (`until`), at the latest `deadline`.
+        Quiet {
+            until: u64,
+            deadline: u64,
+        },
+    }
+
+    /// The session: the YMODEM receiver and its timers.
+    pub struct UpdateSession {
+        phase: Phase,
+        rx: Receiver,
+        last_rx_ms: u64,
+        last_idle_ms: u64,
+        /// Tenths of the file reported in the log so far.
+        progress: u8,
+        why: Option<&'static str>,
+        /// A flash operation ran in the last poll (an erase takes seconds): the next poll
+        /// counts the silence from its own time, not from before it.
+        worked: bool,
+    }
+
+    impl Default for UpdateSession {
+        fn default() -> Self {
+            Self::new()
         }
     }
 
-    /// Whether a session runs (the console's line editor rests meanwhile).
-    pub fn active(&self) -> bool {
-        self.phase != Phase::Off
-    }
-
-    /// Begin: the first 'C' goes out at the next poll.
-    pub fn start(&mut self, now_ms: u64) {
-        self.rx = Receiver::new(PAGE_LEN);
-        self.phase = Phase::Receiving;
-        self.last_rx_ms = now_ms;
-        // Never: the first 'C' goes out at once.
-        self.last_idle_ms = u64::MAX;
-        self.progress = 0;
-    }
-
-    fn refuse(&mut self, why: &'static str, now_ms: u64) {
-        warn!("update refused: {}", why);
-        self.why = Some(why);
-        self.phase = Phase::Quiet {
-            until: now_ms + QUIET_MS,
-            deadline: now_ms + QUIET_MAX_MS,
-        };
-    }
-
-    /// Run the session: bytes in, flash written through `dfu` (the DFU partition:
-    /// page 0 then page 1, as embassy-boot sees it) and `state` (STATE), YMODEM's
-    /// answers out. `key`: the ed25519 public key built in. `Some` once it has ended.
-    pub fn poll<D: NorFlash, S: NorFlash>(
-        &mut self,
-        io: &mut impl ConsoleIo,
-        dfu: &mut D,
-        state: &mut S,
-        key: &[u8; 32],
-        now_ms: u64,
-    ) -> Option<Outcome> {
-        match self.phase {
-            Phase::Off => None,
-            Phase::Quiet { until, deadline } => {
-                // Whatever the sender still sends is dropped; the reply waits for a quiet
-                // line.
-                let mut until = until;
-                while !matches!(io.read_byte(), Err(nb::Error::WouldBlock)) {
-                    until = now_ms + QUIET_MS;
-                }
-                if now_ms >= until || now_ms >= deadline {
-                    self.phase = Phase::Off;
-                    return Some(Outcome::Refused(self.why.unwrap_or(why::FLASH)));
-                }
-                self.phase = Phase::Quiet { until, deadline };
-                None
+    impl UpdateSession {
+        /// No session (`const` and all-zero: the board keeps it in a static in `.bss`, not
+        /// copied from flash; [`Self::start`] sets the receiver's maximum).
+        pub const fn new() -> Self {
+            Self {
+                phase: Phase::Off,
+                rx: Receiver::new(0),
+                last_rx_ms: 0,
+                last_idle_ms: 0,
+                progress: 0,
+                why: None,
+                worked: false,
             }
-            Phase::Receiving => self.receive(io, dfu, state, key, now_ms),
         }
-    }
 
-    fn receive<D: NorFlash, S: NorFlash>(
-        &mut self,
-        io: &mut impl ConsoleIo,
-        dfu: &mut D,
-        state: &mut S,
-        key: &[u8; 32],
-        now_ms: u64,
-    ) -> Option<Outcome> {
-        if core::mem::take(&mut self.worked) {
-            // The poll before wrote the flash and returned after `now_ms` of its own:
-            // that time was the receiver's, not the sender's silence (a NAK now would
-            // have the sender send the block twice).
-            self.last_rx_ms = now_ms;
+        /// Whether a session runs (the console's line editor rests meanwhile).
+        pub fn active(&self) -> bool {
+            self.phase != Phase::Off
         }
-        loop {
-            let b = match io.read_byte() {
-                Ok(b) => b,
-                Err(nb::Error::WouldBlock) => break,
-                // A byte lost on the way in: the packet's CRC fails, it is asked again.
-                Err(nb::Error::Other(())) => continue,
+
+        /// Begin: the first 'C' goes out at the next poll.
+        pub fn start(&mut self, now_ms: u64) {
+            self.rx = Receiver::new(PAGE_LEN);
+            self.phase = Phase::Receiving;
+            self.last_rx_ms = now_ms;
+            // Never: the first 'C' goes out at once.
+            self.last_idle_ms = u64::MAX;
+            self.progress = 0;
+        }
+
+        fn refuse(&mut self, why: &'static str, now_ms: u64) {
+            warn!("update refused: {}", why);
+            self.why = Some(why);
+            self.phase = Phase::Quiet {
+                until: now_ms + QUIET_MS,
+                deadline: now_ms + QUIET_MAX_MS,
             };
-            self.last_rx_ms = now_ms;
-            match self.rx.feed(b) {
-                Action::None => {}
-                Action::Send(bytes) => send(io, bytes),
-                Action::Start { size } => {
-                    info!("update: receiving {} bytes; erasing DFU page 0", size);
-                    // The sender waits for the ACK: the erase (seconds) delays nobody.
-                    self.worked = true;
-                    if dfu.erase(0, PAGE_LEN).is_err() {
-                        return self.cancel(io, why::FLASH, now_ms);
+        }
+
+        /// Run the session: bytes in, flash written through `dfu` (the DFU partition:
+        /// page 0 then page 1, as embassy-boot sees it) and `state` (STATE), YMODEM's
+        /// answers out. `key`: the ed25519 public key built in. `Some` once it has ended.
+        pub fn poll<D: NorFlash, S: NorFlash>(
+            &mut self,
+            io: &mut impl ConsoleIo,
+            dfu: &mut D,
+            state: &mut S,
+            key: &[u8; 32],
+            now_ms: u64,
+        ) -> Option<Outcome> {
+            match self.phase {
+                Phase::Off => None,
+                Phase::Quiet { until, deadline } => {
+                    // Whatever the sender still sends is dropped; the reply waits for a quiet
+                    // line.
+                    let mut until = until;
+                    while !matches!(io.read_byte(), Err(nb::Error::WouldBlock)) {
+                        until = now_ms + QUIET_MS;
                     }
-                    send(io, self.rx.ack());
-                }
-                Action::Data { offset, len } => {
-                    self.worked = true;
-                    if program(dfu, offset, self.rx.data()).is_err() {
-                        return self.cancel(io, why::FLASH, now_ms);
+                    if now_ms >= until || now_ms >= deadline {
+                        self.phase = Phase::Off;
+                        return Some(Outcome::Refused(self.why.unwrap_or(why::FLASH)));
                     }
-                    send(io, self.rx.ack());
-                    self.report_progress(offset.saturating_add(len as u32));
+                    self.phase = Phase::Quiet { until, deadline };
+                    None
                 }
-                Action::Done(bytes) => {
-                    send(io, bytes);
-                    let size = self.rx.size();
-                    let out = verify(dfu, state, key, size);
-                    return match out {
-                        Outcome::Verified { .. } => {
-                            self.phase = Phase::Off;
-                            Some(out)
-                        }
-                        Outcome::Refused(w) => {
-                            self.refuse(w, now_ms);
-                            None
-                        }
-                    };
-                }
-                Action::Aborted(why, bytes) => {
-                    send(io, bytes);
-                    self.refuse(abort_text(why), now_ms);
-                    return None;
-                }
+                Phase::Receiving => self.receive(io, dfu, state, key, now_ms),
             }
         }
-        if now_ms.saturating_sub(self.last_rx_ms) >= SILENCE_MS {
-            return self.cancel(io, why::SILENCE, now_ms);
+
+        fn receive<D: NorFlash, S: NorFlash>(
+            &mut self,
+            io: &mut impl ConsoleIo,
+            dfu: &mut D,
+            state: &mut S,
+            key: &[u8; 32],
+            now_ms: u64,
+        ) -> Option<Outcome> {
+            if core::mem::take(&mut self.worked) {
+                // The poll before wrote the flash and returned after `now_ms` of its own:
+                // that time was the receiver's, not the sender's silence (a NAK now would
+                // have the sender send the block twice).
+                self.last_rx_ms = now_ms;
+            }
+            loop {
+                let b = match io.read_byte() {
+                    Ok(b) => b,
+                    Err(nb::Error::WouldBlock) => break,
+                    // A byte lost on the way in: the packet's CRC fails, it is asked again.
+                    Err(nb::Error::Other(())) => continue,
+                };
+                self.last_rx_ms = now_ms;
+                match self.rx.feed(b) {
+                    Action::None => {}
+                    Action::Send(bytes) => send(io, bytes),
+                    Action::Start { size } => {
+                        info!("update: receiving {} bytes; erasing DFU page 0", size);
+                        // The sender waits for the ACK: the erase (seconds) delays nobody.
+                        self.worked = true;
+                        if dfu.erase(0, PAGE_LEN).is_err() {
+                            return self.cancel(io, why::FLASH, now_ms);
+                        }
+                        send(io, self.rx.ack());
+                    }
+                    Action::Data { offset, len } => {
+                        self.worked = true;
+                        if program(dfu, offset, self.rx.data()).is_err() {
+                            return self.cancel(io, why::FLASH, now_ms);
+                        }
+                        send(io, self.rx.ack());
+                        self.report_progress(offset.saturating_add(len as u32));
+                    }
+                    Action::Done(bytes) => {
+                        send(io, bytes);
+                        let size = self.rx.size();
+                        let out = verify(dfu, state, key, size);
+                        return match out {
+                            Outcome::Verified { .. } => {
+                                self.phase = Phase::Off;
+                                Some(out)
+                            }
+                            Outcome::Refused(w) => {
+                                self.refuse(w, now_ms);
+                                None
+                            }
+                        };
+                    }
+                    Action::Aborted(why, bytes) => {
+                        send(io, bytes);
+                        self.refuse(abort_text(why), now_ms);
+                        return None;
+                    }
+                }
+            }
+            if now_ms.saturating_sub(self.last_rx_ms) >= SILENCE_MS {
+                return self.cancel(io, why::SILENCE, now_ms);
+            }
+            let quiet_since = match self.last_idle_ms {
+                u64::MAX => None,
+                idle => Some(self.last_rx_ms.max(idle)),
+            };
+            if quiet_since.is_none_or(|t| now_ms.saturating_sub(t) >= IDLE_MS) {
+                self.last_idle_ms = now_ms;
+                send(io, self.rx.idle());
+            }
+            None
         }
-        let quiet_since = match self.last_idle_ms {
-            u64::MAX => None,
-            idle => Some(self.last_rx_ms.max(idle)),
+
+        fn cancel(
+            &mut self,
+            io: &mut impl ConsoleIo,
+            why: &'static str,
+            now_ms: u64,
+        ) -> Option<Outcome> {
+            if let Action::Aborted(_, bytes) = self.rx.cancel() {
+                send(io, bytes);
+            }
+            self.refuse(why, now_ms);
+            None
+        }
+
+        fn report_progress(&mut self, done: u32) {
+            let size = self.rx.size().max(1);
+            let tenths = (u64::from(done) * 10 / u64::from(size)).min(10) as u8;
+            if tenths > self.progress {
+                self.progress = tenths;
+                info!(
+                    "update: {} % received ({} of {} bytes)",
+                    tenths * 10,
+                    done,
+                    size
+                );
+            }
+        }
+    }
+
+    /// Everything of `bytes` into the link (the transmit ring takes a YMODEM answer whole).
+    fn send(io: &mut impl ConsoleIo, mut bytes: &[u8]) {
+        for _ in 0..8 {
+            if bytes.is_empty() {
+                return;
+            }
+            let n = io.write(bytes);
+            bytes = bytes.get(n..).unwrap_or(&[]);
+        }
+    }
+
+    /// Program a block at `offset`: whole words; a last block that is not (a file that is
+    /// not a signed image) is padded with erased bytes, and refused at the trailer check.
+    fn program<D: NorFlash>(dfu: &mut D, offset: u32, data: &[u8]) -> Result<(), D::Error> {
+        let whole = data.len() / 4 * 4;
+        let (words, rest) = data.split_at(whole);
+        if !words.is_empty() {
+            dfu.write(offset, words)?;
+        }
+        if !rest.is_empty() {
+            let mut last = [0xFF; 4];
+            for (d, s) in last.iter_mut().zip(rest) {
+                *d = *s;
+            }
+            dfu.write(offset + whole as u32, &last)?;
+        }
+        Ok(())
+    }
+
+    fn abort_text(a: Abort) -> &'static str {
+        match a {
+            Abort::Cancelled => why::CANCELLED,
+            Abort::NoSize => why::NO_SIZE,
+            Abort::TooLarge => why::TOO_LARGE,
+            Abort::Sequence => why::SEQUENCE,
+            Abort::Short => why::SHORT,
+            Abort::Local => why::SILENCE,
+        }
+    }
+
+    /// The file of `size` bytes in DFU page 0: its trailer checked, then embassy-boot's
+    /// verification, which marks it for the swap only if the signature holds.
+    fn verify<D: NorFlash, S: NorFlash>(
+        dfu: &mut D,
+        state: &mut S,
+        key: &[u8; 32],
+        size: u32,
+    ) -> Outcome {
+        let mut head = [0u8; 8];
+        let mut tail = [0u8; TRAILER_LEN];
+        let tail_at = size.saturating_sub(TRAILER_LEN as u32);
+        if size < (TRAILER_LEN + 8) as u32 {
+            return Outcome::Refused(crate::update::Refusal::TooShort.text());
+        }
+        if dfu.read(0, &mut head).is_err() || dfu.read(tail_at, &mut tail).is_err() {
+            return Outcome::Refused(why::FLASH);
+        }
+        let trailer = match check(size, &head, &tail, ACTIVE_BASE, PAGE_LEN) {
+            Ok(t) => t,
+            Err(r) => return Outcome::Refused(r.text()),
         };
-        if quiet_since.is_none_or(|t| now_ms.saturating_sub(t) >= IDLE_MS) {
-            self.last_idle_ms = now_ms;
-            send(io, self.rx.idle());
+        let mut h = [0u8; HEADER_LEN];
+        let version = (trailer.len >= HEADER_OFFSET + HEADER_LEN as u32)
+            .then(|| dfu.read(HEADER_OFFSET, &mut h).ok())
+            .flatten()
+            .and_then(|()| Header::parse(&h))
+            .map(|h| h.version);
+        // embassy-boot's state buffer is one word of STATE (its own assertion).
+        if S::WRITE_SIZE != 4 {
+            return Outcome::Refused(why::STATE);
         }
-        None
-    }
-
-    fn cancel(
-        &mut self,
-        io: &mut impl ConsoleIo,
-        why: &'static str,
-        now_ms: u64,
-    ) -> Option<Outcome> {
-        if let Action::Aborted(_, bytes) = self.rx.cancel() {
-            send(io, bytes);
+        let mut aligned = [0u8; 4];
+        let mut updater = BlockingFirmwareUpdater::new(
+            FirmwareUpdaterConfig {
+                dfu: &mut *dfu,
+                state: &mut *state,
+            },
+            &mut aligned,
+        );
+        info!(
+            "update: {} bytes received; verifying the signature",
+            trailer.len
+        );
+        match updater.verify_and_mark_updated(key, &trailer.signature, trailer.len) {
+            Ok(()) => Outcome::Verified {
+                len: trailer.len,
+                version,
+            },
+            Err(FirmwareUpdaterError::Signature(_)) => Outcome::Refused(why::SIGNATURE),
+            Err(FirmwareUpdaterError::BadState) => Outcome::Refused(why::TRIAL),
+            Err(FirmwareUpdaterError::Flash(_)) => Outcome::Refused(why::STATE),
         }
-        self.refuse(why, now_ms);
-        None
-    }
-
-    fn report_progress(&mut self, done: u32) {
-        let size = self.rx.size().max(1);
-        let tenths = (u64::from(done) * 10 / u64::from(size)).min(10) as u8;
-        if tenths > self.progress {
-            self.progress = tenths;
-            info!(
-                "update: {} % received ({} of {} bytes)",
-                tenths * 10,
-                done,
-                size
-            );
-        }
-    }
-}
-
-/// Everything of `bytes` into the link (the transmit ring takes a YMODEM answer whole).
-fn send(io: &mut impl ConsoleIo, mut bytes: &[u8]) {
-    for _ in 0..8 {
-        if bytes.is_empty() {
-            return;
-        }
-        let n = io.write(bytes);
-        bytes = bytes.get(n..).unwrap_or(&[]);
-    }
-}
-
-/// Program a block at `offset`: whole words; a last block that is not (a file that is
-/// not a signed image) is padded with erased bytes, and refused at the trailer check.
-fn program<D: NorFlash>(dfu: &mut D, offset: u32, data: &[u8]) -> Result<(), D::Error> {
-    let whole = data.len() / 4 * 4;
-    let (words, rest) = data.split_at(whole);
-    if !words.is_empty() {
-        dfu.write(offset, words)?;
-    }
-    if !rest.is_empty() {
-        let mut last = [0xFF; 4];
-        for (d, s) in last.iter_mut().zip(rest) {
-            *d = *s;
-        }
-        dfu.write(offset + whole as u32, &last)?;
-    }
-    Ok(())
-}
-
-fn abort_text(a: Abort) -> &'static str {
-    match a {
-        Abort::Cancelled => why::CANCELLED,
-        Abort::NoSize => why::NO_SIZE,
-        Abort::TooLarge => why::TOO_LARGE,
-        Abort::Sequence => why::SEQUENCE,
-        Abort::Short => why::SHORT,
-        Abort::Local => why::SILENCE,
-    }
-}
-
-/// The file of `size` bytes in DFU page 0: its trailer checked, then embassy-boot's
-/// verification, which marks it for the swap only if the signature holds.
-fn verify<D: NorFlash, S: NorFlash>(
-    dfu: &mut D,
-    state: &mut S,
-    key: &[u8; 32],
-    size: u32,
-) -> Outcome {
-    let mut head = [0u8; 8];
-    let mut tail = [0u8; TRAILER_LEN];
-    let tail_at = size.saturating_sub(TRAILER_LEN as u32);
-    if size < (TRAILER_LEN + 8) as u32 {
-        return Outcome::Refused(crate::update::Refusal::TooShort.text());
-    }
-    if dfu.read(0, &mut head).is_err() || dfu.read(tail_at, &mut tail).is_err() {
-        return Outcome::Refused(why::FLASH);
-    }
-    let trailer = match check(size, &head, &tail, ACTIVE_BASE, PAGE_LEN) {
-        Ok(t) => t,
-        Err(r) => return Outcome::Refused(r.text()),
-    };
-    let mut h = [0u8; HEADER_LEN];
-    let version = (trailer.len >= HEADER_OFFSET + HEADER_LEN as u32)
-        .then(|| dfu.read(HEADER_OFFSET, &mut h).ok())
-        .flatten()
-        .and_then(|()| Header::parse(&h))
-        .map(|h| h.version);
-    // embassy-boot's state buffer is one word of STATE (its own assertion).
-    if S::WRITE_SIZE != 4 {
-        return Outcome::Refused(why::STATE);
-    }
-    let mut aligned = [0u8; 4];
-    let mut updater = BlockingFirmwareUpdater::new(
-        FirmwareUpdaterConfig {
-            dfu: &mut *dfu,
-            state: &mut *state,
-        },
-        &mut aligned,
-    );
-    info!(
-        "update: {} bytes received; verifying the signature",
-        trailer.len
-    );
-    match updater.verify_and_mark_updated(key, &trailer.signature, trailer.len) {
-        Ok(()) => Outcome::Verified {
-            len: trailer.len,
-            version,
-        },
-        Err(FirmwareUpdaterError::Signature(_)) => Outcome::Refused(why::SIGNATURE),
-        Err(FirmwareUpdaterError::BadState) => Outcome::Refused(why::TRIAL),
-        Err(FirmwareUpdaterError::Flash(_)) => Outcome::Refused(why::STATE),
     }
 }
 
@@ -425,6 +437,12 @@ fn decimal(v: u32, buf: &mut [u8; 10]) -> &[u8] {
 /// console): at rest, READY low and requests refused for the whole update; the
 /// session starts once the reply is out ([`Console::take_update`]).
 pub(super) fn begin<B: Bsp>(console: &mut Console, ctrl: &mut Controller<B>) {
+    if !console.has_updater() {
+        console.reply_parts(&[
+            b"error: no field update here (a simulator has no update partition): flash a board, or use the virtual board (vboard)\r\n",
+        ]);
+        return;
+    }
     if let Err(e) = ctrl.begin_update() {
         console.err(&e);
         return;
