@@ -8,7 +8,8 @@
 //! ModelName [`MODEL_NAME`], 0x80 the unit's serial number (as passed to
 //! [`Server::poll`](super::Server::poll), at most [`SERIAL_OBJECT_MAX`] bytes), and the
 //! images (issue 21): 0x81 the previous image's version (`none`), 0x82 the key the
-//! image verifies updates with (`test` or `integrator`), 0x83 the last update rolled
+//! image verifies updates with (`test` or `integrator`; `unknown` without an image
+//! header: the simulators), 0x83 the last update rolled
 //! back (`no`, its version, or `yes` when its version is not known). A
 //! stream that does not fit one reply sets "more follows" and the next object id; a
 //! stream request for an object id that does not exist restarts at object 0 (the spec's
@@ -64,7 +65,7 @@ struct Texts {
     previous_len: usize,
     rolled: [u8; VERSION_TEXT_MAX],
     rolled_len: usize,
-    test_key: bool,
+    key: &'static [u8],
 }
 
 impl Texts {
@@ -76,7 +77,11 @@ impl Texts {
             previous_len: 0,
             rolled: [0; VERSION_TEXT_MAX],
             rolled_len: 0,
-            test_key: r.test_key,
+            key: match (r.running, r.test_key) {
+                (None, _) => b"unknown",
+                (Some(_), true) => b"test",
+                (Some(_), false) => b"integrator",
+            },
         };
         let put = |v: Option<Version>, dflt: &[u8], buf: &mut [u8; VERSION_TEXT_MAX]| match v {
             Some(v) => v.write_text(buf),
@@ -108,13 +113,7 @@ fn device_object<'a>(
         1 => PRODUCT_CODE.as_bytes(),
         2 => t.running.get(..t.running_len)?,
         OBJECT_PREVIOUS => t.previous.get(..t.previous_len)?,
-        OBJECT_KEY => {
-            if t.test_key {
-                b"test"
-            } else {
-                b"integrator"
-            }
-        }
+        OBJECT_KEY => t.key,
         OBJECT_ROLLED_BACK => t.rolled.get(..t.rolled_len)?,
         4 => names.product.as_bytes(),
         5 => MODEL_NAME.as_bytes(),
