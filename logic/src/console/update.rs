@@ -27,7 +27,7 @@
 //! line is let go quiet first (the sender's last bytes are not taken for commands).
 //!
 //! Nothing is printed while the transfer runs: the link carries YMODEM then. The
-//! session runs in the board's idle loop ([`UpdateSession::poll`]), without the
+//! session runs in the board's idle loop (`UpdateSession::poll`, feature `updater`), without the
 //! controller; the flash it writes through is the board's (DFU page 0 and STATE behind
 //! the controller's owner, at rest). No `core::fmt`: fixed texts and a hand-written
 //! decimal.
