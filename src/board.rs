@@ -467,7 +467,7 @@ mod app {
                 Ok(()) => defmt::info!("update: trial boot confirmed, this image is kept"),
                 Err(e) => defmt::warn!(
                     "update: trial boot not confirmed ({}): the next reset rolls back",
-                    defmt::Debug2Format(&e)
+                    e
                 ),
             },
             flash::BootTrial::RolledBack => {

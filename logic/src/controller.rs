@@ -614,9 +614,10 @@ impl Refusal {
     }
 }
 
-impl core::fmt::Display for Refusal {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(match self {
+impl Refusal {
+    /// What the console says (one line; `Display` writes the same).
+    pub const fn message(self) -> &'static str {
+        match self {
             Self::EstopOpen => "refused: the E-STOP input is open",
             Self::NotIdle => "refused: not idle",
             Self::Uncalibrated => {
@@ -630,7 +631,13 @@ impl core::fmt::Display for Refusal {
             Self::MaintenanceMode => {
                 "refused: a technician has the machine in maintenance mode (console)"
             }
-        })
+        }
+    }
+}
+
+impl core::fmt::Display for Refusal {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.message())
     }
 }
 
@@ -660,9 +667,10 @@ pub enum MaintError {
     OptionBytes,
 }
 
-impl core::fmt::Display for MaintError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(match self {
+impl MaintError {
+    /// What the console says (one line; `Display` writes the same).
+    pub const fn message(self) -> &'static str {
+        match self {
             Self::Moving => "refused while a docking is moving",
             Self::NotAtRest => {
                 "the flash is written only at rest (a motor on, the axis held, or a Modbus \
@@ -681,7 +689,13 @@ impl core::fmt::Display for MaintError {
                 "the cone has docked since it was installed: its bore is no longer its new \
                  bore, so it cannot be the baseline (the nominal 26.000 mm stays assumed)"
             }
-        })
+        }
+    }
+}
+
+impl core::fmt::Display for MaintError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.message())
     }
 }
 
@@ -701,14 +715,21 @@ pub enum CalibrateError {
     Storage,
 }
 
-impl core::fmt::Display for CalibrateError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(match self {
+impl CalibrateError {
+    /// What the console says (one line; `Display` writes the same).
+    pub const fn message(self) -> &'static str {
+        match self {
             Self::Moving => "refused while a docking is moving",
             Self::NotEnoughSamples => "not enough samples at rest yet; try again in a second",
             Self::Implausible => "implausible reading; check the load cell and the applied load",
             Self::Storage => "could not write to the odometer flash; nothing changed",
-        })
+        }
+    }
+}
+
+impl core::fmt::Display for CalibrateError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.message())
     }
 }
 

@@ -58,18 +58,35 @@ pub enum AuthError {
     InvalidPin,
 }
 
+impl AuthError {
+    /// Write the message (one line; `Display` writes the same), without core::fmt
+    /// (issue 20).
+    pub fn write_message(&self, f: &mut dyn super::json::Sink) -> fmt::Result {
+        let (head, n, tail) = match *self {
+            Self::NoPinSet => ("no maintenance PIN set; use 'pin set <new_pin>'", None, ""),
+            Self::WrongPin { attempts_left } => (
+                "wrong PIN; ",
+                Some(u64::from(attempts_left)),
+                " attempt(s) left",
+            ),
+            Self::LockedOut { remaining_s } => (
+                "too many wrong PINs; locked for ",
+                Some(u64::from(remaining_s)),
+                " s",
+            ),
+            Self::InvalidPin => ("PIN must be 4-12 digits", None, ""),
+        };
+        f.put(head)?;
+        if let Some(n) = n {
+            super::json::write_u64(f, n)?;
+        }
+        f.put(tail)
+    }
+}
+
 impl fmt::Display for AuthError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Self::NoPinSet => f.write_str("no maintenance PIN set; use 'pin set <new_pin>'"),
-            Self::WrongPin { attempts_left } => {
-                write!(f, "wrong PIN; {attempts_left} attempt(s) left")
-            }
-            Self::LockedOut { remaining_s } => {
-                write!(f, "too many wrong PINs; locked for {remaining_s} s")
-            }
-            Self::InvalidPin => f.write_str("PIN must be 4-12 digits"),
-        }
+        self.write_message(f)
     }
 }
 

@@ -575,21 +575,32 @@ fn hint(arg: &str) -> &'static str {
     }
 }
 
+impl ParseError {
+    /// Write the message (one line; `Display` writes the same). Pieces, not `write!`:
+    /// the console writes no number or text through core::fmt (issue 20).
+    pub fn write_message(&self, f: &mut dyn super::json::Sink) -> fmt::Result {
+        let parts: [&str; 5] = match self {
+            Self::Empty => ["empty line; type 'help'", "", "", "", ""],
+            Self::UnknownCommand(w) => ["unknown command '", w.as_str(), "'; type 'help'", "", ""],
+            Self::UnknownOption => ["unknown option; only --json is accepted", "", "", "", ""],
+            Self::MissingArgument(a) => ["missing <", a, "> (", hint(a), ")"],
+            Self::BadArgument(a) => ["bad <", a, ">; expected ", hint(a), ""],
+            Self::ExtraArgument => ["too many arguments; type 'help'", "", "", "", ""],
+            Self::JsonNotSupported => [
+                "--json only applies to help, version, status, wear, history, measurements, faults",
+                "",
+                "",
+                "",
+                "",
+            ],
+        };
+        parts.iter().try_for_each(|p| f.put(p))
+    }
+}
+
 impl fmt::Display for ParseError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Self::Empty => f.write_str("empty line; type 'help'"),
-            Self::UnknownCommand(w) => {
-                write!(f, "unknown command '{}'; type 'help'", w.as_str())
-            }
-            Self::UnknownOption => f.write_str("unknown option; only --json is accepted"),
-            Self::MissingArgument(a) => write!(f, "missing <{}> ({})", a, hint(a)),
-            Self::BadArgument(a) => write!(f, "bad <{}>; expected {}", a, hint(a)),
-            Self::ExtraArgument => f.write_str("too many arguments; type 'help'"),
-            Self::JsonNotSupported => f.write_str(
-                "--json only applies to help, version, status, wear, history, measurements, faults",
-            ),
-        }
+        self.write_message(f)
     }
 }
 

@@ -49,7 +49,7 @@ use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
 use super::auth::{make_pin_record, MaintenanceAuth, PinRecord};
 use super::fields::{Fields, JsonFields, TextFields};
-use super::json::JsonObject;
+use super::json::{write_i64, write_u64, JsonObject, Sink};
 use super::line::{LineEvent, LineReader, BS, CR, DEL, ESC, LF, MAX_BYTES_PER_POLL, TAB};
 use super::parse::{parse, Command, COMMANDS};
 use super::reports::{
@@ -173,8 +173,64 @@ impl Write for Out {
 
 /// Write ` key=` and a fixed-point value (`value_scaled` with `decimals` decimals).
 fn kv_fixed(o: &mut Out, key: &str, value_scaled: i64, decimals: u8) -> fmt::Result {
-    write!(o, " {key}=")?;
+    kv(o, key)?;
     super::json::write_fixed(o, value_scaled, decimals)
+}
+
+/// Write ` key=` (its value follows).
+fn kv(o: &mut Out, key: &str) -> fmt::Result {
+    o.write_str(" ")?;
+    o.write_str(key)?;
+    o.write_str("=")
+}
+
+/// Write each of `parts` in turn (a reply's literal text and the values between).
+fn write_all(o: &mut Out, parts: &[&str]) -> fmt::Result {
+    parts.iter().try_for_each(|p| o.write_str(p))
+}
+
+/// A reply's message: written piece by piece, never through core::fmt's `write!`
+/// (issue 20: the console's replies are literal text, decimal numbers and fixed-point
+/// values; core::fmt's machinery and an `Arguments` at every reply cost the image
+/// more than the text itself).
+trait Message {
+    fn write_to(&self, w: &mut dyn Sink) -> fmt::Result;
+}
+
+impl Message for &str {
+    fn write_to(&self, w: &mut dyn Sink) -> fmt::Result {
+        w.put(self)
+    }
+}
+
+impl Message for crate::controller::Refusal {
+    fn write_to(&self, w: &mut dyn Sink) -> fmt::Result {
+        w.put(self.message())
+    }
+}
+
+impl Message for crate::controller::MaintError {
+    fn write_to(&self, w: &mut dyn Sink) -> fmt::Result {
+        w.put(self.message())
+    }
+}
+
+impl Message for crate::controller::CalibrateError {
+    fn write_to(&self, w: &mut dyn Sink) -> fmt::Result {
+        w.put(self.message())
+    }
+}
+
+impl Message for super::parse::ParseError {
+    fn write_to(&self, w: &mut dyn Sink) -> fmt::Result {
+        self.write_message(w)
+    }
+}
+
+impl Message for super::auth::AuthError {
+    fn write_to(&self, w: &mut dyn Sink) -> fmt::Result {
+        self.write_message(w)
+    }
 }
 
 /// The console.
@@ -294,7 +350,18 @@ impl Console {
     /// naming the firmware and why it reset, then the prompt.
     pub fn banner(&mut self, reset: &str) {
         let v = env!("CARGO_PKG_VERSION");
-        self.reply(|o| write!(o, "# docking-controller {v} reset={reset}; type 'help'\r\n"));
+        self.reply(|o| {
+            write_all(
+                o,
+                &[
+                    "# docking-controller ",
+                    v,
+                    " reset=",
+                    reset,
+                    "; type 'help'\r\n",
+                ],
+            )
+        });
         self.prompt();
     }
 
@@ -326,8 +393,8 @@ impl Console {
             return;
         }
         let st = self.term.state.unwrap_or("ready");
-        let sign = if self.term.maint { '#' } else { '>' };
-        let _ = write!(self.out, "{st}{sign} ");
+        let sign = if self.term.maint { "# " } else { "> " };
+        let _ = write_all(&mut self.out, &[st, sign]);
     }
 
     /// Erase the characters of the line being typed from the screen.
@@ -514,7 +581,7 @@ impl Console {
                     }
                 }
                 Some(LineEvent::Error(e)) => {
-                    self.reply(|o| write!(o, "error: {}\r\n", e.message()));
+                    self.reply(|o| write_all(o, &["error: ", e.message(), "\r\n"]));
                     self.prompt();
                 }
                 Some(LineEvent::Line(l)) => {
@@ -643,7 +710,7 @@ impl Console {
     }
 
     /// Write one reply as a JSON object on one line (`f` fills in the fields).
-    fn reply_json(&mut self, f: impl FnOnce(&mut JsonObject<'_, Out>) -> fmt::Result) {
+    fn reply_json(&mut self, f: impl FnOnce(&mut JsonObject<'_>) -> fmt::Result) {
         self.reply(|o| {
             let mut j = JsonObject::new(o);
             f(&mut j)?;
@@ -652,12 +719,22 @@ impl Console {
         });
     }
 
-    fn err(&mut self, msg: &dyn fmt::Display) {
-        self.reply(|o| write!(o, "error: {msg}\r\n"));
+    fn err(&mut self, msg: &dyn Message) {
+        self.said("error: ", msg);
     }
 
-    fn ok(&mut self, msg: &dyn fmt::Display) {
-        self.reply(|o| write!(o, "ok: {msg}\r\n"));
+    fn ok(&mut self, msg: &dyn Message) {
+        self.said("ok: ", msg);
+    }
+
+    /// `head`, the message, CR LF: one reply (out of line: every `ok` and `error`).
+    #[inline(never)]
+    fn said(&mut self, head: &str, msg: &dyn Message) {
+        self.reply(|o| {
+            o.write_str(head)?;
+            msg.write_to(o)?;
+            o.write_str("\r\n")
+        });
     }
 
     fn pin_record<B: Bsp>(ctrl: &mut Controller<B>) -> Option<PinRecord> {
@@ -772,7 +849,7 @@ impl Console {
             Command::Help { topic, json } => self.help(topic, json),
             Command::Echo { on: None } => {
                 let on = if self.term.quiet { "off" } else { "on" };
-                self.reply(|o| write!(o, "echo={on}\r\n"));
+                self.reply(|o| write_all(o, &["echo=", on, "\r\n"]));
             }
             Command::Echo { on: Some(on) } => {
                 self.term.quiet = !on;
@@ -790,7 +867,7 @@ impl Console {
                         Ok(())
                     });
                 } else {
-                    self.reply(|o| write!(o, "docking-controller {v}\r\n"));
+                    self.reply(|o| write_all(o, &["docking-controller ", v, "\r\n"]));
                 }
             }
             Command::Status { json } => self.defer(Report::Status(status_view(ctrl, maint)), json),
@@ -850,7 +927,11 @@ impl Console {
             },
             Command::BorShow => {
                 let l = ctrl.bor_level();
-                self.reply(|o| write!(o, "bor level={} ({})\r\n", l, bor_text(l)));
+                self.reply(|o| {
+                    o.write_str("bor level=")?;
+                    write_u64(o, u64::from(l))?;
+                    write_all(o, &[" (", bor_text(l), ")\r\n"])
+                });
             }
             Command::BorSet => match ctrl.program_bor() {
                 Ok(3) => self.ok(&"BOR level 3 (2.70 V) was set already"),
@@ -865,11 +946,11 @@ impl Console {
             Command::ModbusShow => {
                 let st = crate::modbus::ModbusSettings::stored(ctrl);
                 self.reply(|o| {
-                    write!(
-                        o,
-                        "modbus unit={} baud={} format=8E1 (stored; the line uses them from the boot after they were stored)\r\n",
-                        st.unit, st.baud
-                    )
+                    o.write_str("modbus unit=")?;
+                    write_u64(o, u64::from(st.unit))?;
+                    o.write_str(" baud=")?;
+                    write_u64(o, u64::from(st.baud))?;
+                    o.write_str(" format=8E1 (stored; the line uses them from the boot after they were stored)\r\n")
                 });
             }
             Command::ModbusSet { unit, baud } => {
@@ -900,7 +981,9 @@ impl Console {
                     self.audit(ctrl, action::CONE_REPLACE, now_ms, detail.as_bytes());
                     let id = ctrl.odometer().cone().id;
                     self.reply(|o| {
-                            write!(o, "ok: cone {id} installed ({}, serial {serial}); cone counters start at zero;", material.name())?;
+                            o.write_str("ok: cone ")?;
+                            write_u64(o, u64::from(id))?;
+                            write_all(o, &[" installed (", material.name(), ", serial ", serial, "); cone counters start at zero;"])?;
                             match bore_um {
                                 Some(b) => kv_fixed(o, "baseline_bore_mm", b as i64, 3),
                                 None => o.write_str(" no baseline: the nominal 26.000 mm is assumed until `measure --baseline`"),
@@ -922,7 +1005,11 @@ impl Console {
                         now_ms,
                         &c.offset_counts.to_le_bytes(),
                     );
-                    self.reply(|o| write!(o, "ok: tare offset_counts={}\r\n", c.offset_counts));
+                    self.reply(|o| {
+                        o.write_str("ok: tare offset_counts=")?;
+                        write_i64(o, i64::from(c.offset_counts))?;
+                        o.write_str("\r\n")
+                    });
                 }
                 Err(e) => self.err(&e),
             },
@@ -936,11 +1023,9 @@ impl Console {
                             &force_mn.to_le_bytes(),
                         );
                         self.reply(|o| {
-                            write!(
-                                o,
-                                "ok: span set, mn_per_count_q32={}\r\n",
-                                c.mn_per_count_q32
-                            )
+                            o.write_str("ok: span set, mn_per_count_q32=")?;
+                            write_i64(o, c.mn_per_count_q32)?;
+                            o.write_str("\r\n")
                         });
                     }
                     Err(e) => self.err(&e),
@@ -1009,7 +1094,11 @@ impl Console {
                 .unwrap_or(0);
             self.reply(|o| {
                 for c in COMMANDS.iter().filter(shown) {
-                    write!(o, "{:<width$}  {}\r\n", c.usage, c.what)?;
+                    o.write_str(c.usage)?;
+                    for _ in c.usage.len()..width {
+                        o.write_str(" ")?;
+                    }
+                    write_all(o, &["  ", c.what, "\r\n"])?;
                 }
                 o.write_str(
                     "(maint: needs `maint <pin>`, and all but undock a machine at rest)\r\n",
@@ -1083,7 +1172,9 @@ impl Console {
             self.reply(|o| {
                 o.write_str("ok: baseline")?;
                 kv_fixed(o, "bore_mm", bore_um as i64, 3)?;
-                write!(o, " cone={} (its wear is measured from it)\r\n", m.cone_id)
+                kv(o, "cone")?;
+                write_u64(o, u64::from(m.cone_id))?;
+                o.write_str(" (its wear is measured from it)\r\n")
             });
             return;
         }
@@ -1094,13 +1185,15 @@ impl Console {
         self.reply(|o| {
             o.write_str("ok:")?;
             kv_fixed(o, "bore_mm", bore_um as i64, 3)?;
-            write!(o, " cone_cycle={}", m.cone_cycle)?;
+            kv(o, "cone_cycle")?;
+            write_u64(o, u64::from(m.cone_cycle))?;
             kv_fixed(o, "measured_wear_mm", m.wear_nm(base) as i64, 6)?;
             kv_fixed(o, "model_wear_mm", m.model_nm as i64, 6)?;
             kv_fixed(o, "wear_estimate_mm", est.wear_nm as i64, 6)?;
             kv_fixed(o, "estimate_low_mm", est.low_nm as i64, 6)?;
             kv_fixed(o, "estimate_high_mm", est.high_nm as i64, 6)?;
-            write!(o, " remaining_estimate_cycles={}", est.remaining_cycles)?;
+            kv(o, "remaining_estimate_cycles")?;
+            write_u64(o, u64::from(est.remaining_cycles))?;
             kv_fixed(o, "baseline_bore_mm", base as i64, 3)?;
             if assumed {
                 o.write_str(
