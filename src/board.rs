@@ -430,8 +430,8 @@ mod app {
         // Another machine's guard envelope, hold force and nominal load-distance, if the
         // image was built for one (`DOCKING_TUNING`, see build.rs and docs/simulator.md).
         tuning::apply(&mut cfg);
-        let ctrl = match Controller::new(parts, cfg) {
-            Ok(c) => cx.local.ctrl_slot.write(c),
+        let ctrl = match Controller::new_in(cx.local.ctrl_slot, parts, cfg) {
+            Ok(c) => c,
             Err(_) => halt_safe(),
         };
         let rate_sps = ctrl.sample_rate_sps();

@@ -849,6 +849,31 @@ impl HistoryEntry {
 impl<B: Bsp> Controller<B> {
     /// Take the parts, put every motor output in its safe state, start at `now_us`.
     pub fn new(parts: Parts<B>, cfg: ControllerConfig) -> Result<Self, StartError> {
+        let mut slot = None;
+        Self::new_with(parts, cfg, |c| slot.insert(c))?;
+        // `new_with` placed the controller when it returned `Ok`.
+        slot.ok_or(StartError::Pin)
+    }
+
+    /// [`Controller::new`], built in `slot` (the board's static): the controller is
+    /// never built on the stack and copied from there (it is KiBs: init's stack frame,
+    /// and the code that built and then copied it, issue 20). Nothing is written to
+    /// `slot` unless this returns `Ok`.
+    pub fn new_in(
+        slot: &mut core::mem::MaybeUninit<Self>,
+        parts: Parts<B>,
+        cfg: ControllerConfig,
+    ) -> Result<&mut Self, StartError> {
+        Self::new_with(parts, cfg, |c| slot.write(c))
+    }
+
+    /// The constructor: the controller is built by `place`, where it will live.
+    #[inline(always)]
+    fn new_with<'s>(
+        parts: Parts<B>,
+        cfg: ControllerConfig,
+        place: impl FnOnce(Self) -> &'s mut Self,
+    ) -> Result<&'s mut Self, StartError> {
         let prop = Propulsion::new(parts.en_n, parts.dir, parts.pulses, cfg.machine)
             .map_err(|_| StartError::Pin)?;
         let lock =
@@ -920,7 +945,7 @@ impl<B: Bsp> Controller<B> {
             odo.wear_nm(),
             odo.lifetime().cycles
         );
-        let mut me = Self {
+        let me = place(Self {
             cfg,
             prop,
             lock,
@@ -1005,7 +1030,7 @@ impl<B: Bsp> Controller<B> {
                 events: Deque::new(),
                 events_dropped: 0,
             },
-        };
+        });
         me.load_readings();
         me.load_history();
         me.load_cached_records();
