@@ -715,7 +715,7 @@ mod app {
     ])]
     fn idle(cx: idle::Context) -> ! {
         let mailbox = &owner::MAILBOX;
-        cx.local.console.seed(*cx.local.entropy);
+        cx.local.console.seed(cx.local.entropy);
         // The greeting: firmware, why it reset, the prompt (a terminal's first line).
         let (mut reset, mut state) = (None, "unknown");
         mailbox.call(&mut |c| (reset, state) = (c.last_reset(), c.state().name()));

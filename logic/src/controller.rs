@@ -2357,7 +2357,12 @@ impl<B: Bsp> Controller<B> {
         }
         if !baseline {
             if self.readings.is_full() {
-                self.readings.remove(0);
+                // The oldest out: swapped to the end and dropped (`remove(0)`'s
+                // overlapping copy would link the 1.5 KB memmove for this alone).
+                for i in 1..self.readings.len() {
+                    self.readings.swap(i - 1, i);
+                }
+                self.readings.pop();
             }
             let _ = self.readings.push(m);
         }
@@ -2490,7 +2495,15 @@ impl<B: Bsp> Controller<B> {
         // both sectors (milliseconds) with the controller held.
         let mut n = 0;
         for e in self.store.recent_cycles.iter().rev().take(max) {
-            out(*e);
+            // Field by field: a whole-entry copy here is a `memmove` (see
+            // `console::reports::fault_records`).
+            out(HistoryEntry {
+                lifetime_cycle: e.lifetime_cycle,
+                cone_cycle: e.cone_cycle,
+                cone_id: e.cone_id,
+                w_q1: e.w_q1,
+                wear_nm: e.wear_nm,
+            });
             n += 1;
         }
         n

@@ -273,13 +273,32 @@ pub(super) fn wear_view<B: Bsp>(ctrl: &Controller<B>) -> WearView {
     }
 }
 
+/// The recent faults, copied field by field: a whole-record copy out of the
+/// controller (not provably apart from the view) is a `memmove`, and it and
+/// [`Controller::history`]'s were the last callers of its 1.5 KB (issue 20).
+fn fault_records<B: Bsp>(
+    ctrl: &Controller<B>,
+) -> heapless::Vec<crate::controller::FaultRecord, 16> {
+    let mut recs = heapless::Vec::new();
+    for r in ctrl.faults() {
+        let _ = recs.push(crate::controller::FaultRecord {
+            kind: r.kind,
+            cycle: r.cycle,
+            phase: r.phase,
+            t_ms: r.t_ms,
+            peak_force_mn: r.peak_force_mn,
+        });
+    }
+    recs
+}
+
 /// `faults`' data (with the controller).
 pub(super) fn faults_view<B: Bsp>(ctrl: &Controller<B>) -> FaultsView {
     FaultsView {
         active: ctrl.status().fault.map(|f| f.name()),
         count: ctrl.fault_count(),
         overloads: ctrl.odometer().lifetime().overload_events,
-        recs: ctrl.faults().copied().collect(),
+        recs: fault_records(ctrl),
         resets: ctrl.reset_counts(),
         // Records waiting for a rest to be written, and those the full queue dropped.
         queued: ctrl.records_queued(),

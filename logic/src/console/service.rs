@@ -481,8 +481,8 @@ impl Console {
 
     /// Seed the PIN salts with `entropy` (for a console built in a static before the
     /// board could gather any).
-    pub fn seed(&mut self, entropy: [u8; 32]) {
-        self.entropy = entropy;
+    pub fn seed(&mut self, entropy: &[u8; 32]) {
+        self.entropy.copy_from_slice(entropy);
     }
 
     /// Replies dropped because the output ring was full.
