@@ -31,7 +31,8 @@ import sys
 
 DEFAULT_ELF = "target/thumbv7em-none-eabihf/release/docking-controller"
 FLASH_TYPES = set("tTrRdDvVwW")
-FLASH_SECTIONS = (".vector_table", ".text", ".rodata", ".data")
+# .text.estop: the E-STOP handler alone, aligned to a flash cache line (estop.x).
+FLASH_SECTIONS = (".vector_table", ".text.estop", ".text", ".rodata", ".data")
 
 
 def run(cmd):
