@@ -807,7 +807,7 @@ mod app {
             console.observe(owner::state_name(), now_ms);
             // The events for the log, as the service took them out.
             while let Some(ev) = cx.local.log_rx.dequeue() {
-                defmt::info!("t={=u64} ms {}", ev.t_ms, ev.event);
+                ev.log();
             }
         }
     }

@@ -667,6 +667,7 @@ impl<'a> Args<'a> {
 
 /// Parse one console line (see the module doc for the grammar): its first word names
 /// the [`COMMANDS`] entry whose parser reads the rest.
+#[inline(never)]
 pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
     let mut tokens = line.split([' ', '\t']).filter(|t| !t.is_empty());
     let word = tokens.next().ok_or(ParseError::Empty)?;

@@ -57,8 +57,8 @@ use super::reports::{
     status_fields, status_view, wear_fields, wear_view, FaultsView, HistoryEntries,
     MeasurementsView, StatusView, WearView,
 };
-use crate::controller::{Bsp, Controller};
 use crate::hal::ConsoleIo;
+use crate::machine::Machine;
 use crate::odometer::{kind, SERIAL_MAX};
 use crate::sequencer::Request;
 use crate::storage::PAYLOAD_MAX;
@@ -348,6 +348,7 @@ impl Console {
 
     /// The boot banner: one line with a fixed prefix (`# `, so a script can skip it)
     /// naming the firmware and why it reset, then the prompt.
+    #[inline(never)]
     pub fn banner(&mut self, reset: &str) {
         let v = env!("CARGO_PKG_VERSION");
         self.reply(|o| {
@@ -367,6 +368,7 @@ impl Console {
 
     /// What the prompt shows: the machine's state, and maintenance mode at `now_ms`
     /// (the board tells the console each turn; a command's run tells it too).
+    #[inline(never)]
     pub fn observe(&mut self, state: &'static str, now_ms: u64) {
         self.term.state = Some(state);
         self.term.maint = self.auth.is_active(now_ms);
@@ -407,6 +409,7 @@ impl Console {
     /// An interactive terminal's keys, before the line reader sees a byte: arrows
     /// (Up recalls the previous line, Down clears, the rest do nothing), Ctrl-C, Ctrl-U,
     /// backspace's rub-out. Returns the byte for the reader, `None` when taken here.
+    #[inline(never)]
     fn edit_key(&mut self, byte: u8) -> Option<u8> {
         match self.term.esc {
             1 => {
@@ -495,7 +498,7 @@ impl Console {
         self.auth.is_active(now_ms)
     }
 
-    fn flush(&mut self, io: &mut impl ConsoleIo) {
+    fn flush(&mut self, io: &mut dyn ConsoleIo) {
         while !self.out.buf.is_empty() {
             let (a, b) = self.out.buf.as_slices();
             let chunk = if a.is_empty() { b } else { a };
@@ -513,10 +516,10 @@ impl Console {
     /// phases in one call: [`Self::read_line`], [`Self::run_line`] (the only one that
     /// needs the controller), [`Self::finish`]; the board calls them apart so that it
     /// holds the controller for the run only.
-    pub fn poll<B: Bsp>(
+    pub fn poll(
         &mut self,
-        ctrl: &mut Controller<B>,
-        io: &mut impl ConsoleIo,
+        ctrl: &mut dyn Machine,
+        io: &mut dyn ConsoleIo,
         now_ms: u64,
     ) -> ConsolePoll {
         self.observe(ctrl.state().name(), now_ms);
@@ -534,10 +537,8 @@ impl Console {
 
     /// Phase 1, without the controller: take input bytes (at most
     /// `MAX_BYTES_PER_POLL`) until a whole line is in; bad input is answered here.
-    pub fn read_line(
-        &mut self,
-        io: &mut impl ConsoleIo,
-    ) -> (Option<String<LINE_MAX>>, ConsolePoll) {
+    #[inline(never)]
+    pub fn read_line(&mut self, io: &mut dyn ConsoleIo) -> (Option<String<LINE_MAX>>, ConsolePoll) {
         self.flush(io);
         let mut st = ConsolePoll::default();
         while st.bytes_in < MAX_BYTES_PER_POLL {
@@ -603,6 +604,7 @@ impl Console {
     /// computed. The controller learns the new maintenance mode from
     /// [`Self::maintenance_active`] (the board and [`Self::poll`] tell it after each
     /// command).
+    #[inline(never)]
     pub fn finish(&mut self, now_ms: u64) -> u32 {
         let json = self.deferred.report_json;
         match core::mem::replace(&mut self.deferred.report, Report::None) {
@@ -645,7 +647,8 @@ impl Console {
 
     /// Phase 4, with the controller again: store what [`Self::finish`] prepared (a new
     /// PIN record: written at rest only, else refused), then the prompt.
-    pub fn store<B: Bsp>(&mut self, ctrl: &mut Controller<B>, now_ms: u64) {
+    #[inline(never)]
+    pub fn store(&mut self, ctrl: &mut dyn Machine, now_ms: u64) {
         if core::mem::take(&mut self.deferred.pin_rec_ready) {
             let rec = self.deferred.pin_rec;
             match ctrl.store_record(kind::PIN, &rec) {
@@ -684,7 +687,8 @@ impl Console {
     }
 
     /// Send what is in the output ring (as much as the link takes).
-    pub fn flush_output(&mut self, io: &mut impl ConsoleIo) {
+    #[inline(never)]
+    pub fn flush_output(&mut self, io: &mut dyn ConsoleIo) {
         self.flush(io);
     }
 
@@ -737,7 +741,7 @@ impl Console {
         });
     }
 
-    fn pin_record<B: Bsp>(ctrl: &mut Controller<B>) -> Option<PinRecord> {
+    fn pin_record(ctrl: &mut dyn Machine) -> Option<PinRecord> {
         let mut buf = [0u8; 48];
         let n = ctrl.load_record(kind::PIN, &mut buf)?;
         PinRecord::from_bytes(buf.get(..n)?)
@@ -759,9 +763,9 @@ impl Console {
 
     /// A command to the controller ([`Controller::command`]): on acceptance the audit
     /// record `act` (if any) and `ok_msg`, else the refusal.
-    fn request<B: Bsp>(
+    fn request(
         &mut self,
-        ctrl: &mut Controller<B>,
+        ctrl: &mut dyn Machine,
         r: Request,
         act: Option<u8>,
         now_ms: u64,
@@ -778,7 +782,7 @@ impl Console {
         }
     }
 
-    fn audit<B: Bsp>(&mut self, ctrl: &mut Controller<B>, act: u8, now_ms: u64, detail: &[u8]) {
+    fn audit(&mut self, ctrl: &mut dyn Machine, act: u8, now_ms: u64, detail: &[u8]) {
         let odo = ctrl.odometer();
         let mut rec = AuditLayout {
             action: act,
@@ -813,13 +817,14 @@ impl Console {
     /// compressions, milliseconds) waits for [`Self::finish`], without the controller,
     /// and a new PIN record is stored by [`Self::store`]. Returns the PIN hashes
     /// computed here (none).
-    pub fn run_line<B: Bsp>(&mut self, ctrl: &mut Controller<B>, line: &str, now_ms: u64) -> u32 {
+    #[inline(never)]
+    pub fn run_line(&mut self, ctrl: &mut dyn Machine, line: &str, now_ms: u64) -> u32 {
         let hashes = self.run_command(ctrl, line, now_ms);
         self.term.state = Some(ctrl.state().name());
         hashes
     }
 
-    fn run_command<B: Bsp>(&mut self, ctrl: &mut Controller<B>, line: &str, now_ms: u64) -> u32 {
+    fn run_command(&mut self, ctrl: &mut dyn Machine, line: &str, now_ms: u64) -> u32 {
         let cmd = match parse(line) {
             Ok(c) => c,
             Err(e) => {
@@ -874,7 +879,7 @@ impl Console {
             Command::Wear { json } => self.defer(Report::Wear(wear_view(ctrl)), json),
             Command::History { n, json } => {
                 let mut entries = HistoryEntries::new();
-                ctrl.history(n as usize, |e| {
+                ctrl.history(n as usize, &mut |e| {
                     let _ = entries.push(e);
                 });
                 self.defer(Report::History(entries), json)
@@ -1149,13 +1154,7 @@ impl Console {
         self.report(json, &mut |f| faults_fields(f, v));
     }
 
-    fn measure<B: Bsp>(
-        &mut self,
-        ctrl: &mut Controller<B>,
-        bore_um: u32,
-        baseline: bool,
-        now_ms: u64,
-    ) {
+    fn measure(&mut self, ctrl: &mut dyn Machine, bore_um: u32, baseline: bool, now_ms: u64) {
         let m = match ctrl.add_measurement(bore_um, baseline) {
             Ok(m) => m,
             Err(e) => {

@@ -1,7 +1,7 @@
 // The register map's table, once: docs/modbus-map.md is this module's doc.
 #![doc = include_str!("../../../docs/modbus-map.md")]
 
-use crate::controller::{Bsp, Controller};
+use crate::machine::Machine;
 use crate::odometer::WearLevel;
 use crate::sequencer::{Request, State};
 
@@ -254,7 +254,7 @@ fn sat_u16(v: u64) -> u16 {
 }
 
 /// The status word (input register 0; discrete inputs 0–11).
-pub fn status_word<B: Bsp>(ctrl: &Controller<B>) -> u16 {
+pub fn status_word(ctrl: &dyn Machine) -> u16 {
     let s = ctrl.status();
     let h = s.handshake;
     let bits = [
@@ -278,7 +278,7 @@ pub fn status_word<B: Bsp>(ctrl: &Controller<B>) -> u16 {
 
 /// The input registers now, 0..[`ir::COUNT`] (reserved addresses 0; the last command
 /// and its result, 8–9, are the [`Server`](super::Server)'s and read 0 here).
-pub fn input_registers<B: Bsp>(ctrl: &Controller<B>) -> [u16; ir::COUNT as usize] {
+pub fn input_registers(ctrl: &dyn Machine) -> [u16; ir::COUNT as usize] {
     let mut r = [0u16; ir::COUNT as usize];
     let mut set = |addr: u16, v: u16| {
         if let Some(x) = r.get_mut(usize::from(addr)) {
@@ -316,7 +316,8 @@ pub fn input_registers<B: Bsp>(ctrl: &Controller<B>) -> [u16; ir::COUNT as usize
     set32(ir::FAULTS_LIFETIME, life.faults);
     set32(ir::FAULTS_SINCE_BOOT, ctrl.fault_count());
     set32(ir::OVERLOAD_TRIPS_SINCE_BOOT, ctrl.overload_trips());
-    let last = ctrl.faults().last().copied();
+    let mut last = None;
+    ctrl.each_fault(&mut |f| last = Some(*f));
     set32(ir::LAST_FAULT_CYCLE, last.map_or(0, |f| f.cycle));
 
     set(ir::WEAR_UM, sat_u16(u64::from(odo.wear_nm() / 1_000)));

@@ -41,7 +41,8 @@ use rmodbus::{ErrorKind, ModbusProto};
 use super::ident::device_identification;
 use super::map::{input_registers, ir, status, status_word, Command, COIL_COUNT, HOLDING_COUNT};
 use super::{crc16, exception, BROADCAST, MAX_FRAME, MIN_FRAME};
-use crate::controller::{Bsp, Controller, Source};
+use crate::controller::Source;
+use crate::machine::Machine;
 
 /// What to send (`out[0]` holds the unit address).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -146,10 +147,10 @@ fn in_map(address: u16, count: u16, len: u16) -> bool {
 }
 
 /// Run the commands of `mask` (bit n = coil n). See the module doc for the rules.
-fn run_commands<B: Bsp>(
+fn run_commands(
     mask: u8,
     broadcast: bool,
-    ctrl: &mut Controller<B>,
+    ctrl: &mut dyn Machine,
     session: &mut Session,
 ) -> Result<(), ErrorKind> {
     let stop_bit = 1u8 << Command::Stop.coil();
@@ -192,12 +193,12 @@ fn bit(data: &[u8], i: usize) -> bool {
     data.get(i / 8).is_some_and(|b| b >> (i % 8) & 1 != 0)
 }
 
-fn write_coils<B: Bsp>(
+fn write_coils(
     address: u16,
     count: u16,
     data: &[u8],
     broadcast: bool,
-    ctrl: &mut Controller<B>,
+    ctrl: &mut dyn Machine,
     session: &mut Session,
 ) -> Result<(), ErrorKind> {
     if !in_map(address, count, COIL_COUNT) {
@@ -209,12 +210,12 @@ fn write_coils<B: Bsp>(
     run_commands(mask, broadcast, ctrl, session)
 }
 
-fn write_registers<B: Bsp>(
+fn write_registers(
     address: u16,
     count: u16,
     data: &[u8],
     broadcast: bool,
-    ctrl: &mut Controller<B>,
+    ctrl: &mut dyn Machine,
     session: &mut Session,
 ) -> Result<(), ErrorKind> {
     if !in_map(address, count, HOLDING_COUNT) {
@@ -233,12 +234,12 @@ fn write_registers<B: Bsp>(
     run_commands(mask, broadcast, ctrl, session)
 }
 
-fn read_words<B: Bsp>(
+fn read_words(
     function: u8,
     address: u16,
     count: u16,
     buf: &mut [u8],
-    ctrl: &Controller<B>,
+    ctrl: &dyn Machine,
     session: &Session,
 ) -> Result<(), ErrorKind> {
     let len = if function == 0x04 {
@@ -272,12 +273,12 @@ fn read_words<B: Bsp>(
     Ok(())
 }
 
-fn read_bits<B: Bsp>(
+fn read_bits(
     function: u8,
     address: u16,
     count: u16,
     buf: &mut [u8],
-    ctrl: &Controller<B>,
+    ctrl: &dyn Machine,
 ) -> Result<(), ErrorKind> {
     let len = if function == 0x02 {
         status::COUNT
@@ -302,12 +303,12 @@ fn read_bits<B: Bsp>(
 }
 
 /// Functions 0x01–0x06, 0x0F, 0x10 through rmodbus (the frame checked already).
-fn standard<B: Bsp>(
+fn standard(
     frame: &[u8],
     unit: u8,
     function: u8,
     broadcast: bool,
-    ctrl: &mut Controller<B>,
+    ctrl: &mut dyn Machine,
     out: &mut [u8; MAX_FRAME],
     session: &mut Session,
 ) -> Reply {
@@ -366,10 +367,10 @@ fn seal(out: &mut [u8; MAX_FRAME], len: usize) -> Option<usize> {
     Some(len + 2)
 }
 
-pub(super) fn process<B: Bsp>(
+pub(super) fn process(
     frame: &[u8],
     unit: u8,
-    ctrl: &mut Controller<B>,
+    ctrl: &mut dyn Machine,
     unit_serial: &str,
     out: &mut [u8; MAX_FRAME],
     session: &mut Session,
@@ -429,10 +430,10 @@ pub(super) fn process<B: Bsp>(
 ///
 /// Stateless: the last command and its result (input registers 8–9) are kept by a
 /// [`Server`](super::Server); here they read 0.
-pub fn handle_frame<B: Bsp>(
+pub fn handle_frame(
     frame: &[u8],
     unit: u8,
-    ctrl: &mut Controller<B>,
+    ctrl: &mut dyn Machine,
     unit_serial: &str,
     out: &mut [u8; MAX_FRAME],
 ) -> Option<usize> {
