@@ -43,7 +43,6 @@ use core::fmt::{self, Write};
 use core::mem::size_of;
 
 use heapless::{Deque, String};
-use sha2::{Digest, Sha256};
 use zerocopy::byteorder::little_endian::{U16, U32, U64};
 use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
@@ -749,11 +748,11 @@ impl Console {
 
     fn new_salt(&mut self, now_ms: u64) -> [u8; 16] {
         self.salts_made = self.salts_made.wrapping_add(1);
-        let mut h = Sha256::new();
-        h.update(self.entropy);
-        h.update(self.salts_made.to_le_bytes());
-        h.update(now_ms.to_le_bytes());
-        let d = h.finalize();
+        let d = super::auth::sha256_short(&[
+            &self.entropy,
+            &self.salts_made.to_le_bytes(),
+            &now_ms.to_le_bytes(),
+        ]);
         let mut salt = [0u8; 16];
         if let Some(src) = d.get(..16) {
             salt.copy_from_slice(src);
