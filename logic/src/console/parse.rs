@@ -553,26 +553,34 @@ pub enum ParseError {
     JsonNotSupported,
 }
 
-/// What an argument must look like, for error messages.
+/// What each argument must look like, for error messages: a table searched in order
+/// (a `match` on strings compiled to a comparison chain three times its size).
+const HINTS: [(&str, &str); 17] = [
+    ("N", "1..100"),
+    ("material", "zqsn5-2 | qsn6-6-3 | cf-peek"),
+    ("serial", "1-20 chars of A-Z a-z 0-9 _ -"),
+    ("bore_diameter_mm", "20.000..40.000, up to 3 decimals"),
+    ("d0_mm", "20.000..40.000, up to 3 decimals"),
+    ("force_n", "1.000..900.000, up to 3 decimals"),
+    ("pin", "4-12 digits"),
+    ("new_pin", "4-12 digits"),
+    ("cone subcommand", "replace"),
+    ("calibrate subcommand", "tare | span"),
+    ("pin subcommand", "set"),
+    ("bor subcommand", "set"),
+    ("rate_sps", "10 | 80"),
+    ("unit", "1..247"),
+    ("baud", "9600 | 19200 | 38400 | 57600 | 115200"),
+    ("echo setting", "on | off"),
+    ("command", "a command word, e.g. 'help dock'"),
+];
+
+/// What an argument must look like, for error messages (`see 'help'` for any other).
 fn hint(arg: &str) -> &'static str {
-    match arg {
-        "N" => "1..100",
-        "material" => "zqsn5-2 | qsn6-6-3 | cf-peek",
-        "serial" => "1-20 chars of A-Z a-z 0-9 _ -",
-        "bore_diameter_mm" | "d0_mm" => "20.000..40.000, up to 3 decimals",
-        "force_n" => "1.000..900.000, up to 3 decimals",
-        "pin" | "new_pin" => "4-12 digits",
-        "cone subcommand" => "replace",
-        "calibrate subcommand" => "tare | span",
-        "pin subcommand" => "set",
-        "bor subcommand" => "set",
-        "rate_sps" => "10 | 80",
-        "unit" => "1..247",
-        "baud" => "9600 | 19200 | 38400 | 57600 | 115200",
-        "echo setting" => "on | off",
-        "command" => "a command word, e.g. 'help dock'",
-        _ => "see 'help'",
-    }
+    HINTS
+        .iter()
+        .find(|(a, _)| *a == arg)
+        .map_or("see 'help'", |&(_, h)| h)
 }
 
 impl ParseError {
@@ -773,13 +781,14 @@ fn modbus_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
         [] => Ok(Command::ModbusShow),
         [unit, baud] => {
             let unit = (unit.len() <= 3 && unit.bytes().all(|b| b.is_ascii_digit()))
-                .then(|| unit.parse::<u8>().ok())
+                .then(|| parse_u32(unit))
                 .flatten()
+                .and_then(|u| u8::try_from(u).ok())
                 .filter(|u| (1..=247).contains(u))
                 .ok_or(ParseError::BadArgument("unit"))?;
             let baud = crate::modbus::BAUD_RATES
                 .into_iter()
-                .find(|b| baud.parse::<u32>().ok() == Some(*b) && baud.len() <= 6)
+                .find(|b| parse_u32(baud) == Some(*b) && baud.len() <= 6)
                 .ok_or(ParseError::BadArgument("baud"))?;
             Ok(Command::ModbusSet { unit, baud })
         }
@@ -893,6 +902,20 @@ fn bore(t: &str, name: &'static str) -> Result<u32, ParseError> {
         .ok_or(ParseError::BadArgument(name))
 }
 
+/// `s` as `u32::from_str` reads it: an optional `+`, then decimal digits; `None` on
+/// anything else or on overflow. By hand: core's generic integer parser, instantiated
+/// for `u8` and `u32`, cost more flash than `modbus`'s two arguments are worth (issue
+/// 20).
+fn parse_u32(s: &str) -> Option<u32> {
+    let d = s.strip_prefix('+').unwrap_or(s);
+    if d.is_empty() || !d.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    d.bytes().try_fold(0u32, |v, b| {
+        v.checked_mul(10)?.checked_add(u32::from(b - b'0'))
+    })
+}
+
 /// `history` count: 1..=3 ASCII digits, value 1..=100.
 fn parse_count(s: &str) -> Option<u16> {
     if !(1..=3).contains(&s.len()) || !s.bytes().all(|b| b.is_ascii_digit()) {
@@ -946,6 +969,31 @@ mod tests {
                 "docs/console.md does not list `{}`",
                 c.usage
             );
+        }
+    }
+
+    /// `parse_u32` reads what `u32::from_str` reads, and refuses what it refuses.
+    #[test]
+    fn u32_as_from_str_reads_it() {
+        for t in [
+            "0",
+            "7",
+            "+7",
+            "09600",
+            "+19200",
+            "4294967295",
+            "4294967296",
+            "",
+            "+",
+            "-1",
+            "+-1",
+            "1.0",
+            " 1",
+            "1 ",
+            "12a",
+            "99999999999",
+        ] {
+            assert_eq!(parse_u32(t), t.parse::<u32>().ok(), "{t:?}");
         }
     }
 

@@ -237,16 +237,21 @@ pub const FIRMWARE_VERSION: [u16; 3] = [
 
 /// mN → 0.1 N, rounded to the nearest, saturating to `i16`, as a register.
 pub(super) fn decinewtons(mn: i32) -> u16 {
-    let mn = i64::from(mn);
-    let dn = (mn + if mn >= 0 { 50 } else { -50 }) / 100;
-    dn.clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16 as u16
+    in_units(mn, 100)
 }
 
 /// µm → 0.01 mm, rounded to the nearest, saturating to `i16`, as a register.
 pub(super) fn centimillimetres(um: i32) -> u16 {
-    let um = i64::from(um);
-    let v = (um + if um >= 0 { 5 } else { -5 }) / 10;
-    v.clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16 as u16
+    in_units(um, 10)
+}
+
+/// `v / unit` rounded to the nearest (halves away from zero), saturating to `i16`, as
+/// a register (`unit` even). Out of line: four registers take it (issue 20).
+#[inline(never)]
+fn in_units(v: i32, unit: i32) -> u16 {
+    let (v, unit) = (i64::from(v), i64::from(unit));
+    let q = (v + if v >= 0 { unit / 2 } else { -unit / 2 }) / unit;
+    q.clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16 as u16
 }
 
 fn sat_u16(v: u64) -> u16 {
