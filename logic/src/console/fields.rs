@@ -195,6 +195,18 @@ impl<'w> JsonFields<'w> {
     pub fn finish(self) -> fmt::Result {
         self.w.put("}")
     }
+
+    /// An array of strings, `"key":["a","b"]` (JSON only: `help --json`'s list).
+    pub fn strings(&mut self, key: &str, items: &mut dyn Iterator<Item = &str>) -> fmt::Result {
+        self.value(key)?.put("[")?;
+        for (i, s) in items.enumerate() {
+            if i > 0 {
+                self.w.put(",")?;
+            }
+            write_str_escaped(self.w, s)?;
+        }
+        self.w.put("]")
+    }
 }
 
 impl Fields for JsonFields<'_> {
@@ -321,6 +333,16 @@ mod tests {
         let (t, j) = both(&|f| f.records("history", 0, &mut |_, _| Ok(())));
         assert_eq!(t, "");
         assert_eq!(j, r#"{"history":[]}"#);
+    }
+
+    #[test]
+    fn a_json_array_of_strings() {
+        let mut j = String::new();
+        let mut w = JsonFields::new(&mut j).unwrap();
+        w.strings("a", &mut ["x", "y\""].into_iter()).unwrap();
+        w.strings("b", &mut core::iter::empty()).unwrap();
+        w.finish().unwrap();
+        assert_eq!(j, r#"{"a":["x","y\""],"b":[]}"#);
     }
 
     #[test]

@@ -48,7 +48,7 @@ use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
 use super::auth::{make_pin_record, MaintenanceAuth, PinRecord};
 use super::fields::{Fields, JsonFields, TextFields};
-use super::json::{write_i64, write_u64, JsonObject, Sink};
+use super::json::{write_i64, write_u64, Sink};
 use super::line::{LineEvent, LineReader, BS, CR, DEL, ESC, LF, MAX_BYTES_PER_POLL, TAB};
 use super::parse::{parse, Command, COMMANDS};
 use super::reports::{
@@ -712,16 +712,6 @@ impl Console {
         }
     }
 
-    /// Write one reply as a JSON object on one line (`f` fills in the fields).
-    fn reply_json(&mut self, f: impl FnOnce(&mut JsonObject<'_>) -> fmt::Result) {
-        self.reply(|o| {
-            let mut j = JsonObject::new(o);
-            f(&mut j)?;
-            j.finish()?;
-            o.write_str("\r\n")
-        });
-    }
-
     fn err(&mut self, msg: &dyn Message) {
         self.said("error: ", msg);
     }
@@ -866,9 +856,9 @@ impl Console {
             Command::Version { json } => {
                 let v = env!("CARGO_PKG_VERSION");
                 if json {
-                    self.reply_json(|j| {
-                        j.str("name", "docking-controller")?.str("version", v)?;
-                        Ok(())
+                    self.report(true, &mut |f| {
+                        f.str("name", "docking-controller")?;
+                        f.str("version", v)
                     });
                 } else {
                     self.reply(|o| write_all(o, &["docking-controller ", v, "\r\n"]));
@@ -1069,25 +1059,24 @@ impl Console {
     fn help(&mut self, topic: Option<&str>, json: bool) {
         let shown = |c: &&super::parse::CommandHelp| topic.is_none_or(|t| c.word == t);
         if json {
-            self.reply_json(|j| {
-                j.array("commands", |a| {
-                    for c in COMMANDS.iter().filter(shown) {
-                        a.str(c.usage)?;
-                    }
-                    Ok(())
+            // Through the reports' JSON writer (`JsonFields`), as `version --json`.
+            let n = COMMANDS.iter().filter(shown).count();
+            self.reply(|o| {
+                let mut j = JsonFields::new(o)?;
+                j.strings(
+                    "commands",
+                    &mut COMMANDS.iter().filter(shown).map(|c| c.usage),
+                )?;
+                j.records("help", n, &mut |i, x| {
+                    let Some(c) = COMMANDS.iter().filter(shown).nth(i) else {
+                        return Ok(());
+                    };
+                    x.str("command", c.word)?;
+                    x.str("usage", c.usage)?;
+                    x.str("what", c.what)
                 })?;
-                j.array("help", |a| {
-                    for c in COMMANDS.iter().filter(shown) {
-                        a.object(|x| {
-                            x.str("command", c.word)?
-                                .str("usage", c.usage)?
-                                .str("what", c.what)?;
-                            Ok(())
-                        })?;
-                    }
-                    Ok(())
-                })?;
-                Ok(())
+                j.finish()?;
+                o.write_str("\r\n")
             });
         } else {
             let width = COMMANDS
