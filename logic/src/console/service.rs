@@ -1100,7 +1100,8 @@ impl Console {
         }
     }
 
-    /// Leave `report` for [`Self::finish`].
+    /// Leave `report` for [`Self::finish`] (out of line: one copy of the move).
+    #[inline(never)]
     fn defer(&mut self, report: Report, json: bool) {
         self.deferred.report = report;
         self.deferred.report_json = json;
