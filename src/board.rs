@@ -445,14 +445,14 @@ mod app {
         ));
         kernel.configure(ctrl.kernel_config(), now);
         defmt::info!(
-            "docking-controller {} booted; motors safe; HX711 at {} SPS; BOR level {}",
+            "docking-controller {=str} booted; motors safe; HX711 at {=u32} SPS; BOR level {=u8}",
             env!("CARGO_PKG_VERSION"),
             rate_sps,
             bor
         );
         if bor != 3 {
             defmt::warn!(
-                "BOR level {} (3 = 2.70 V wanted): program it at rest with `bor set`",
+                "BOR level {=u8} (3 = 2.70 V wanted): program it at rest with `bor set`",
                 bor
             );
         }

@@ -287,7 +287,7 @@ impl Timed {
     /// once, here, not inlined into the board's loop (issue 20).
     #[inline(never)]
     pub fn log(&self) {
-        info!("t={} ms {:?}", self.t_ms, self.event);
+        info!("t={=u64} ms {}", self.t_ms, self.event);
     }
 }
 
@@ -911,7 +911,7 @@ impl<B: Bsp> Controller<B> {
             error!("odometer flash unreadable: wear is counted in RAM only");
         } else if open_report.corrupt > 0 {
             warn!(
-                "odometer log: {} corrupt or torn record(s) skipped",
+                "odometer log: {=u32} corrupt or torn record(s) skipped",
                 open_report.corrupt
             );
         }
@@ -948,7 +948,7 @@ impl<B: Bsp> Controller<B> {
         let odo = restore(cfg.wear, cone, state, cfg.default_material);
 
         info!(
-            "odometer: cone {} ({}), {} cycles, wear {} nm; lifetime {} cycles",
+            "odometer: cone {=u16} ({=str}), {=u32} cycles, wear {=u32} nm; lifetime {=u32} cycles",
             odo.cone().id,
             odo.cone().material.name(),
             odo.cone().cycles,
@@ -1088,7 +1088,10 @@ impl<B: Bsp> Controller<B> {
             // load–distance no completed cycle will count: it is the cone's now.
             let w = self.odo.fold_pending();
             if w > 0 {
-                info!("odometer: {} mN·µm of an unfinished cycle counted", w / 2);
+                info!(
+                    "odometer: {=u64} mN·µm of an unfinished cycle counted",
+                    w / 2
+                );
                 self.store.persist_pending = true;
             }
             self.persist();
@@ -1143,7 +1146,7 @@ impl<B: Bsp> Controller<B> {
         self.store.storage_failures = self.store.storage_failures.saturating_add(1);
         if self.store.storage_failures >= STORAGE_ATTEMPTS {
             error!(
-                "odometer: flash failed {} times in a row; storage fault",
+                "odometer: flash failed {=u8} times in a row; storage fault",
                 self.store.storage_failures
             );
             self.store.storage_blocked = true;
@@ -1158,10 +1161,10 @@ impl<B: Bsp> Controller<B> {
     pub fn boot(&mut self, cause: ResetCause, crash: Option<Crash>, journals: &[Journal]) {
         self.diag.resets.count(cause);
         self.diag.last_reset = Some(cause);
-        info!("reset cause: {}", cause.name());
+        info!("reset cause: {=str}", cause.name());
         if let Some(c) = crash {
             error!(
-                "the last run crashed: {} at pc {:#x} (lr {:#x}, cfsr {:#x}, line {})",
+                "the last run crashed: {=str} at pc {=u32:#x} (lr {=u32:#x}, cfsr {=u32:#x}, line {=u32})",
                 c.kind.name(),
                 c.pc,
                 c.lr,
@@ -1175,7 +1178,7 @@ impl<B: Bsp> Controller<B> {
         {
             if self.odo.journal() != before {
                 warn!(
-                    "odometer: {} mN·µm and {} cycle(s) the reset cut off recovered from RAM",
+                    "odometer: {=u64} mN·µm and {=u32} cycle(s) the reset cut off recovered from RAM",
                     w / 2,
                     self.odo.cone().cycles.saturating_sub(before.cone_cycles)
                 );
@@ -1378,7 +1381,7 @@ impl<B: Bsp> Controller<B> {
                 Verdict::Warn => {
                     if !self.guard.warning {
                         warn!(
-                            "force {} mN above the warning level (limit {} mN)",
+                            "force {=i32} mN above the warning level (limit {=i32} mN)",
                             self.guard.force_mn, self.guard.limit_mn
                         );
                         self.push_event(st.now_ms, Event::ForceWarning(self.guard.force_mn));
@@ -1446,7 +1449,7 @@ impl<B: Bsp> Controller<B> {
             // once READY).
             if let Some(r) = r {
                 if let Err(why) = self.command_from(Source::Plc, r) {
-                    warn!("DOCK {:?} refused ({})", r, why);
+                    warn!("DOCK {} refused ({})", r, why);
                     self.push_event(st.now_ms, Event::RemoteRefused(why));
                 }
             }
@@ -1461,7 +1464,7 @@ impl<B: Bsp> Controller<B> {
             // Its stops are accounted for by the fault latched here.
             self.gate.seen_stop = self.gate.seen_stop.max(es.stop);
             let open_us = (!self.plc.estop_open).then(|| es.closed_us.wrapping_sub(es.opened_us));
-            warn!("E-STOP: {} edge(s), open {:?} us", new_edges, open_us);
+            warn!("E-STOP: {=u32} edge(s), open {} us", new_edges, open_us);
             self.push_event(
                 st.now_ms,
                 Event::EstopEdges {
@@ -1493,7 +1496,7 @@ impl<B: Bsp> Controller<B> {
             }
             if self.plc.hold_out >= 2 {
                 warn!(
-                    "mated force {} mN outside {}±{} mN: the vehicle pulls or drifts",
+                    "mated force {=i32} mN outside {=i32}±{=i32} mN: the vehicle pulls or drifts",
                     self.guard.force_mn, self.cfg.hold_expected_mn, HOLD_TOLERANCE_MN
                 );
                 st.fault = st.fault.or(Some(FaultKind::HoldForce));
@@ -1521,7 +1524,7 @@ impl<B: Bsp> Controller<B> {
             // Worn out: no new docking until the cone is replaced.
             request = None;
             error!(
-                "start refused: cone worn to {} nm (limit {} nm); replace it",
+                "start refused: cone worn to {=u32} nm (limit {=u32} nm); replace it",
                 self.odo.wear_nm(),
                 self.cfg.wear.limit_nm
             );
@@ -1727,7 +1730,7 @@ impl<B: Bsp> Controller<B> {
             || drift_mn.unsigned_abs() > self.cfg.tare_tolerance_mn.unsigned_abs()
         {
             error!(
-                "implausible tare: {} counts ({} mN from calibration)",
+                "implausible tare: {=i32} counts ({=i32} mN from calibration)",
                 mean, drift_mn
             );
             return TareResult::Implausible;
@@ -1742,7 +1745,7 @@ impl<B: Bsp> Controller<B> {
         if phase != self.contact.phase {
             self.contact.phase = phase;
             if let Some(p) = phase {
-                info!("contact phase {}", p.number());
+                info!("contact phase {=u8}", p.number());
                 self.push_event(now_ms, Event::Phase(p));
             }
         }
@@ -1771,7 +1774,7 @@ impl<B: Bsp> Controller<B> {
                 if self.contact.mismatch_run >= 3 && !self.contact.mismatch_reported {
                     self.contact.mismatch_reported = true;
                     warn!(
-                        "phase {} by position, but {} mN contradicts it",
+                        "phase {=u8} by position, but {=i32} mN contradicts it",
                         p.number(),
                         self.guard.force_mn
                     );
@@ -1786,7 +1789,7 @@ impl<B: Bsp> Controller<B> {
         match ev {
             SeqEvent::Fault(kind) => {
                 error!(
-                    "fault {} in cycle {} at {} ms, force {} mN",
+                    "fault {=str} in cycle {=u32} at {=u64} ms, force {=i32} mN",
                     kind.name(),
                     self.seq.cycle_number(),
                     now_ms,
@@ -1812,16 +1815,16 @@ impl<B: Bsp> Controller<B> {
                 // The level the machine acts on (the estimate's band, once measured).
                 c.level = self.wear_level();
                 info!(
-                    "cycle {} completed: cone cycle {}, wear {} nm, remaining {} cycles",
+                    "cycle {=u32} completed: cone cycle {=u32}, wear {=u32} nm, remaining {=u32} cycles",
                     n, c.cone_cycle, c.wear_nm, c.remaining_cycles
                 );
                 match c.level {
                     WearLevel::Ok => {}
                     WearLevel::Warning => {
-                        warn!("cone wear {} nm is past the warning level", c.wear_nm)
+                        warn!("cone wear {=u32} nm is past the warning level", c.wear_nm)
                     }
                     WearLevel::Limit => error!(
-                        "cone wear {} nm reached the limit: replace the cone",
+                        "cone wear {=u32} nm reached the limit: replace the cone",
                         c.wear_nm
                     ),
                 }
@@ -1829,11 +1832,11 @@ impl<B: Bsp> Controller<B> {
                 self.store.persist_pending = true;
                 self.store.persist_cycle_end = true;
             }
-            SeqEvent::CycleStarted(n) => info!("cycle {} started", n),
+            SeqEvent::CycleStarted(n) => info!("cycle {=u32} started", n),
             SeqEvent::FaultCleared => info!("fault cleared; recovering"),
             SeqEvent::Homed => info!("homed"),
             SeqEvent::RequestRefused(r) => warn!(
-                "request {:?} refused in state {}",
+                "request {} refused in state {=str}",
                 r,
                 self.seq.state().name()
             ),
@@ -2054,11 +2057,11 @@ impl<B: Bsp> Controller<B> {
         self.flash_turn()?;
         match self.options.program_bor_level_3() {
             Ok(()) => {
-                info!("BOR level 3 programmed (was {})", from);
+                info!("BOR level 3 programmed (was {=u8})", from);
                 Ok(from)
             }
             Err(sr) => {
-                error!("BOR programming failed: FLASH_SR {:#x}", sr);
+                error!("BOR programming failed: FLASH_SR {=u32:#x}", sr);
                 Err(MaintError::OptionBytes)
             }
         }
@@ -2068,7 +2071,10 @@ impl<B: Bsp> Controller<B> {
     /// PLC's motion requests (Modbus, the DOCK pin) are refused while it lasts.
     pub fn set_maintenance_mode(&mut self, on: bool) {
         if on != self.plc.maintenance_mode {
-            info!("maintenance mode {}", if on { "entered" } else { "ended" });
+            info!(
+                "maintenance mode {=str}",
+                if on { "entered" } else { "ended" }
+            );
         }
         self.plc.maintenance_mode = on;
     }
@@ -2208,7 +2214,7 @@ impl<B: Bsp> Controller<B> {
         self.readings.clear();
         self.refit();
         info!(
-            "cone {} installed: {} serial {}",
+            "cone {=u16} installed: {=str} serial {=str}",
             self.odo.cone().id,
             material.name(),
             serial
@@ -2475,7 +2481,7 @@ impl<B: Bsp> Controller<B> {
         self.cell.cal = cal;
         self.cell.calibrated = true;
         info!(
-            "load cell calibrated: offset {} counts, {} mN/count (Q32.32)",
+            "load cell calibrated: offset {=i32} counts, {=i64} mN/count (Q32.32)",
             cal.offset_counts, cal.mn_per_count_q32
         );
         Ok(cal)

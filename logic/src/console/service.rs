@@ -786,7 +786,7 @@ impl Console {
         }
         let at = AUDIT_HEAD_LEN + detail.len().min(AUDIT_DETAIL_MAX);
         info!(
-            "maintenance: action {} at lifetime cycle {}",
+            "maintenance: action {=u8} at lifetime cycle {=u32}",
             act,
             odo.lifetime().cycles
         );

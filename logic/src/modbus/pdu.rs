@@ -165,12 +165,12 @@ fn run_commands(
     session.last_command = cmd.code();
     session.last_result = match result {
         Ok(()) => {
-            info!("modbus: {:?}", cmd);
+            info!("modbus: {}", cmd);
             session.accepted = session.accepted.saturating_add(1);
             0
         }
         Err(r) => {
-            warn!("modbus: {:?} {}", cmd, r);
+            warn!("modbus: {} {}", cmd, r);
             u16::from(r.code())
         }
     };
