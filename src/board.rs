@@ -21,8 +21,8 @@ use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m_rt::{exception, ExceptionFrame};
 use defmt_rtt as _;
 use docking_logic::console::service::Console;
+use docking_logic::controller::Handshake;
 use docking_logic::controller::{Bsp, Controller, ControllerConfig, Parts};
-use docking_logic::controller::{Handshake, Timed};
 use docking_logic::diag::{file_tail, Crash, CrashKind, ResetCause};
 use docking_logic::hal::StopLatch;
 use docking_logic::hal::Watchdog;
@@ -311,8 +311,6 @@ mod app {
         stop: BoardStop,
         events_tx: Producer<'static, KernelEvent>,
         events_rx: Consumer<'static, KernelEvent>,
-        log_tx: Producer<'static, Timed>,
-        log_rx: Consumer<'static, Timed>,
         step_gen: step::StepGen,
         console_isr: console::ConsoleIsr,
         term: console::BoardConsole,
@@ -324,7 +322,6 @@ mod app {
 
     #[init(local = [
         events: Queue<KernelEvent, 16> = Queue::new(),
-        log: Queue<Timed, 9> = Queue::new(),
         mb_rx: Queue<(u16, u64), 64> = Queue::new(),
         mb_tx: Queue<u8, 257> = Queue::new(),
         tx_ring: Queue<u8, 1025> = Queue::new(),
@@ -528,7 +525,6 @@ mod app {
         tim2.cr1().write(|w| w.cen().set_bit());
 
         let (events_tx, events_rx) = cx.local.events.split();
-        let (log_tx, log_rx) = cx.local.log.split();
         (
             Shared { ctrl, kernel },
             Local {
@@ -546,8 +542,6 @@ mod app {
                 stop: BoardStop,
                 events_tx,
                 events_rx,
-                log_tx,
-                log_rx,
                 step_gen: step::StepGen::new(step),
                 console_isr: console::ConsoleIsr { tx, tx_out },
                 term: console::BoardConsole::new(tx_in),
@@ -674,10 +668,9 @@ mod app {
     /// The service (`owner.rs`): idle's jobs and the flash's turn, with the controller,
     /// only in the window after a step; what idle reads published. Same priority as
     /// `control`: neither preempts the other.
-    #[task(binds = SPI1, priority = 1, shared = [ctrl], local = [log_tx])]
+    #[task(binds = SPI1, priority = 1, shared = [ctrl])]
     fn service(mut cx: service::Context) {
         let now_low = clock::now_us_low();
-        let log_tx = cx.local.log_tx;
         cx.shared.ctrl.lock(|ctrl| {
             let period_us = 1_000_000 / ctrl.sample_rate_sps().max(1);
             if !owner::in_window(now_low, period_us, tim2_left_us()) {
@@ -687,10 +680,6 @@ mod app {
             owner::MAILBOX.serve(ctrl);
             // The flash's turn (at rest only: `Controller::at_rest`).
             ctrl.background();
-            while log_tx.ready() {
-                let Some(ev) = ctrl.next_event() else { break };
-                let _ = log_tx.enqueue(ev);
-            }
             owner::publish_state(ctrl.state());
         });
         IDLE_WORK.store(true, Ordering::Relaxed);
@@ -704,7 +693,6 @@ mod app {
         entropy,
         modbus_line,
         modbus_settings,
-        log_rx,
         // In a static (616 bytes), all-zero so that it is in `.bss` (not copied from
         // flash): its settings are set first thing in `idle`.
         server: docking_logic::modbus::Server =
@@ -805,10 +793,6 @@ mod app {
             owner::MAINTENANCE.store(console.maintenance_active(now_ms), Ordering::Relaxed);
             owner::BUS_BUSY.store(line.sending(), Ordering::Relaxed);
             console.observe(owner::state_name(), now_ms);
-            // The events for the log, as the service took them out.
-            while let Some(ev) = cx.local.log_rx.dequeue() {
-                ev.log();
-            }
         }
     }
 }

@@ -281,16 +281,6 @@ pub struct Timed {
     pub event: Event,
 }
 
-impl Timed {
-    /// Log it (info: `t=… ms` and the event), as the board's idle loop does for each
-    /// event the service hands it. Out of line: the event's encoding is then compiled
-    /// once, here, not inlined into the board's loop (issue 20).
-    #[inline(never)]
-    pub fn log(&self) {
-        info!("t={=u64} ms {}", self.t_ms, self.event);
-    }
-}
-
 /// What one `poll` did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct PollResult {
