@@ -56,7 +56,7 @@ use crate::profile::{ContactPhase, BOUNDARY_UM, STROKE_UM};
 use crate::propulsion::Propulsion;
 use crate::safety::{EstopEvents, GuardMode, KernelConfig, KernelEvent, BACKOFF_RISE_MN};
 use crate::sequencer::{AxisCmd, FaultKind, Inputs, Request, SeqEvent, Sequencer, State, Switches};
-use crate::storage::{OpenReport, RecordLog};
+use crate::storage::{OpenReport, RecordLog, PAYLOAD_MAX};
 
 /// The hardware a controller runs on (board support package).
 pub trait Bsp {
@@ -799,6 +799,23 @@ pub enum StartError {
     Pin,
 }
 
+/// The payload of the newest record of `kind` in `log`, copied into `buf` (`None`: none,
+/// or the log unreadable). One out-of-line read for the constructor's six: the
+/// `Result<Option<Record>>` each returned by value and copied through `ok`, `flatten` and
+/// `and_then` at every call cost 0.4 KB of flash (issue 20).
+#[inline(never)]
+fn newest<'b, F: NorFlash>(
+    log: &mut Option<RecordLog<F>>,
+    kind: u8,
+    buf: &'b mut [u8; PAYLOAD_MAX],
+) -> Option<&'b [u8]> {
+    let r = log.as_mut()?.latest(kind).ok()??;
+    let d = r.data();
+    let dst = buf.get_mut(..d.len())?;
+    dst.copy_from_slice(d);
+    Some(dst)
+}
+
 fn closed<P: InputPin>(p: &mut P) -> Result<bool, ()> {
     p.is_low().map_err(|_| ())
 }
@@ -884,19 +901,11 @@ impl<B: Bsp> Controller<B> {
             Ok((log, report)) => (Some(log), report),
             Err(_) => (None, OpenReport::default()),
         };
-        let (cone, state) = match log.as_mut() {
-            Some(l) => (
-                l.latest(odometer::kind::CONE)
-                    .ok()
-                    .flatten()
-                    .and_then(|r| odometer::cone_from_bytes(r.data())),
-                l.latest(odometer::kind::STATE)
-                    .ok()
-                    .flatten()
-                    .and_then(|r| StateRecord::from_bytes(r.data())),
-            ),
-            None => (None, None),
-        };
+        let mut buf = [0u8; PAYLOAD_MAX];
+        let cone =
+            newest(&mut log, odometer::kind::CONE, &mut buf).and_then(odometer::cone_from_bytes);
+        let state =
+            newest(&mut log, odometer::kind::STATE, &mut buf).and_then(StateRecord::from_bytes);
         if log.is_none() {
             error!("odometer flash unreadable: wear is counted in RAM only");
         } else if open_report.corrupt > 0 {
@@ -908,10 +917,8 @@ impl<B: Bsp> Controller<B> {
         let fresh = cone.is_none();
         // A technician's calibration from flash overrides the built-in default; without
         // one the machine refuses to dock (the default is a datasheet guess).
-        let stored_cal = log
-            .as_mut()
-            .and_then(|l| l.latest(odometer::kind::CALIBRATION).ok().flatten())
-            .and_then(|r| calibration_from_bytes(r.data()));
+        let stored_cal = newest(&mut log, odometer::kind::CALIBRATION, &mut buf)
+            .and_then(calibration_from_bytes);
         let calibrated = stored_cal.is_some();
         if !calibrated {
             warn!("load cell not calibrated: docking refused until a technician calibrates it");
@@ -919,22 +926,16 @@ impl<B: Bsp> Controller<B> {
         let cal0 = stored_cal.unwrap_or(cfg.calibration);
         // The HX711's rate as commissioned (else the build's default).
         let mut cfg = cfg;
-        if let Some(st) = log
-            .as_mut()
-            .and_then(|l| l.latest(odometer::kind::SETTINGS).ok().flatten())
-            .and_then(|r| Settings::from_bytes(r.data()))
+        if let Some(st) =
+            newest(&mut log, odometer::kind::SETTINGS, &mut buf).and_then(Settings::from_bytes)
         {
             cfg.sample_rate_sps = st.rate_sps;
         }
-        let resets = log
-            .as_mut()
-            .and_then(|l| l.latest(odometer::kind::RESETS).ok().flatten())
-            .and_then(|r| ResetCounts::from_bytes(r.data()))
+        let resets = newest(&mut log, odometer::kind::RESETS, &mut buf)
+            .and_then(ResetCounts::from_bytes)
             .unwrap_or_default();
-        let last_crash = log
-            .as_mut()
-            .and_then(|l| l.latest(odometer::kind::CRASH).ok().flatten())
-            .and_then(|r| Crash::from_bytes(r.data()));
+        let last_crash =
+            newest(&mut log, odometer::kind::CRASH, &mut buf).and_then(Crash::from_bytes);
         let odo = restore(cfg.wear, cone, state, cfg.default_material);
 
         info!(
