@@ -152,37 +152,39 @@ impl Watchdog for BoardWatchdog {
     }
 }
 
-/// Seed for PIN salts: the chip's 96-bit unique ID and the microsecond clock at boot.
-fn entropy() -> [u8; 32] {
+/// The chip's 96-bit unique ID as the serial and the salts use it: X and Y (little
+/// endian) and the 7-byte lot number (the wafer number is not in it), then a zero byte.
+fn uid_bytes() -> [u8; 12] {
     let uid = stm32f4xx_hal::signature::Uid::get();
+    let (x, y) = (uid.x().to_le_bytes(), uid.y().to_le_bytes());
+    let mut b = [0u8; 12];
+    for (d, s) in b
+        .iter_mut()
+        .zip(x.iter().chain(&y).chain(uid.lot_num().as_bytes()))
+    {
+        *d = *s;
+    }
+    b
+}
+
+/// Seed for PIN salts: the chip's unique ID (its 11 bytes) and the microsecond clock at
+/// boot.
+fn entropy() -> [u8; 32] {
     let mut e = [0u8; 32];
-    let parts: [&[u8]; 4] = [
-        &uid.x().to_le_bytes(),
-        &uid.y().to_le_bytes(),
-        uid.lot_num().as_bytes(),
-        &clock::now_us().to_le_bytes(),
-    ];
-    for (slot, &b) in e.iter_mut().zip(parts.into_iter().flatten()) {
-        *slot = b;
+    if let (Some(id), Some(t)) = (e.get_mut(..11), uid_bytes().get(..11)) {
+        id.copy_from_slice(t);
+    }
+    if let Some(t) = e.get_mut(11..19) {
+        t.copy_from_slice(&clock::now_us().to_le_bytes());
     }
     e
 }
 
 /// The chip's 96-bit unique ID in hex (24 characters): the unit's serial number.
 fn unit_serial() -> [u8; 24] {
-    let uid = stm32f4xx_hal::signature::Uid::get();
-    let mut bytes = [0u8; 12];
-    let parts: [&[u8]; 3] = [
-        &uid.x().to_le_bytes(),
-        &uid.y().to_le_bytes(),
-        uid.lot_num().as_bytes(),
-    ];
-    for (slot, &b) in bytes.iter_mut().zip(parts.into_iter().flatten()) {
-        *slot = b;
-    }
     const HEX: &[u8; 16] = b"0123456789ABCDEF";
     let mut out = [b'0'; 24];
-    for (pair, b) in out.chunks_exact_mut(2).zip(bytes) {
+    for (pair, b) in out.chunks_exact_mut(2).zip(uid_bytes()) {
         if let [hi, lo] = pair {
             *hi = HEX.get(usize::from(b >> 4)).copied().unwrap_or(b'0');
             *lo = HEX.get(usize::from(b & 0xF)).copied().unwrap_or(b'0');
