@@ -587,22 +587,28 @@ impl ParseError {
     /// Write the message (one line; `Display` writes the same). Pieces, not `write!`:
     /// the console writes no number or text through core::fmt (issue 20).
     pub fn write_message(&self, f: &mut dyn super::json::Sink) -> fmt::Result {
-        let parts: [&str; 5] = match self {
-            Self::Empty => ["empty line; type 'help'", "", "", "", ""],
-            Self::UnknownCommand(w) => ["unknown command '", w.as_str(), "'; type 'help'", "", ""],
-            Self::UnknownOption => ["unknown option; only --json is accepted", "", "", "", ""],
-            Self::MissingArgument(a) => ["missing <", a, "> (", hint(a), ")"],
-            Self::BadArgument(a) => ["bad <", a, ">; expected ", hint(a), ""],
-            Self::ExtraArgument => ["too many arguments; type 'help'", "", "", "", ""],
-            Self::JsonNotSupported => [
+        // A fixed text, or a head, an argument, a middle and the argument's hint.
+        let (head, arg, mid, tail) = match self {
+            Self::Empty => ("empty line; type 'help'", "", "", ""),
+            Self::UnknownCommand(w) => ("unknown command '", w.as_str(), "'; type 'help'", ""),
+            Self::UnknownOption => ("unknown option; only --json is accepted", "", "", ""),
+            Self::MissingArgument(a) => ("missing <", *a, "> (", ")"),
+            Self::BadArgument(a) => ("bad <", *a, ">; expected ", ""),
+            Self::ExtraArgument => ("too many arguments; type 'help'", "", "", ""),
+            Self::JsonNotSupported => (
                 "--json only applies to help, version, status, wear, history, measurements, faults",
                 "",
                 "",
                 "",
-                "",
-            ],
+            ),
         };
-        parts.iter().try_for_each(|p| f.put(p))
+        f.put(head)?;
+        f.put(arg)?;
+        f.put(mid)?;
+        if let Self::MissingArgument(a) | Self::BadArgument(a) = self {
+            f.put(hint(a))?;
+        }
+        f.put(tail)
     }
 }
 

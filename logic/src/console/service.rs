@@ -606,13 +606,14 @@ impl Console {
     #[inline(never)]
     pub fn finish(&mut self, now_ms: u64) -> u32 {
         let json = self.deferred.report_json;
-        match core::mem::replace(&mut self.deferred.report, Report::None) {
+        let report = core::mem::replace(&mut self.deferred.report, Report::None);
+        match &report {
             Report::None => {}
-            Report::Status(v) => self.render_status(&v, json),
-            Report::Wear(v) => self.render_wear(&v, json),
-            Report::Faults(v) => self.render_faults(&v, json),
-            Report::Measurements(v) => self.render_measurements(&v, json),
-            Report::History(entries) => self.render_history(&entries, json),
+            Report::Status(v) => self.render_status(v, json),
+            Report::Wear(v) => self.render_wear(v, json),
+            Report::Faults(v) => self.render_faults(v, json),
+            Report::Measurements(v) => self.render_measurements(v, json),
+            Report::History(entries) => self.render_history(entries, json),
         }
         let hashed = self.finish_login(now_ms) + self.finish_pin_set(now_ms);
         self.term.maint = self.auth.is_active(now_ms);

@@ -262,23 +262,19 @@ fn sat_u16(v: u64) -> u16 {
 pub fn status_word(ctrl: &dyn Machine) -> u16 {
     let s = ctrl.status();
     let h = s.handshake;
-    let bits = [
-        (h.ready, status::READY),
-        (h.mated, status::MATED),
-        (s.state.is_moving(), status::MOVING),
-        (h.fault, status::FAULT),
-        (s.warning, status::WARNING),
-        (h.maintenance, status::MAINTENANCE),
-        (ctrl.calibrated(), status::CALIBRATED),
-        (h.estop, status::ESTOP_OPEN),
-        (h.dock, status::DOCK_INPUT),
-        (s.wear_level == WearLevel::Limit, status::WORN_OUT),
-        (s.state.is_docking(), status::DOCKING),
-        (ctrl.maintenance_mode(), status::MAINTENANCE_MODE),
-    ];
-    bits.iter()
-        .filter(|(on, _)| *on)
-        .fold(0, |w, (_, bit)| w | bit)
+    let bit = |on: bool, b: u16| if on { b } else { 0 };
+    bit(h.ready, status::READY)
+        | bit(h.mated, status::MATED)
+        | bit(s.state.is_moving(), status::MOVING)
+        | bit(h.fault, status::FAULT)
+        | bit(s.warning, status::WARNING)
+        | bit(h.maintenance, status::MAINTENANCE)
+        | bit(ctrl.calibrated(), status::CALIBRATED)
+        | bit(h.estop, status::ESTOP_OPEN)
+        | bit(h.dock, status::DOCK_INPUT)
+        | bit(s.wear_level == WearLevel::Limit, status::WORN_OUT)
+        | bit(s.state.is_docking(), status::DOCKING)
+        | bit(ctrl.maintenance_mode(), status::MAINTENANCE_MODE)
 }
 
 /// The input registers now, 0..[`ir::COUNT`] (reserved addresses 0; the last command
