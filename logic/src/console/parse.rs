@@ -83,36 +83,49 @@ type Parser = for<'a> fn(&Args<'a>) -> Result<Command<'a>, ParseError>;
 /// first word here and runs that entry's parser, and `help` prints it.
 #[derive(Clone, Copy)]
 pub struct CommandHelp {
-    /// The first word (what `help <command>` takes).
-    pub word: &'static str,
-    /// The syntax.
+    /// The syntax (its first word is the command's, [`Self::word`]).
     pub usage: &'static str,
     /// What it does, one line.
     pub what: &'static str,
     parse: Parser,
 }
 
+impl CommandHelp {
+    /// The first word (what `help <command>` takes): the usage's, up to its first space
+    /// (not stored apart: issue 20).
+    pub fn word(&self) -> &'static str {
+        let n = self.usage.bytes().position(|b| b == b' ');
+        self.usage
+            .get(..n.unwrap_or(self.usage.len()))
+            .unwrap_or(self.usage)
+    }
+}
+
 impl core::fmt::Debug for CommandHelp {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_struct("CommandHelp")
-            .field("word", &self.word)
+            .field("word", &self.word())
             .field("usage", &self.usage)
             .finish()
     }
 }
 
+/// One entry: `word` must be the first word of `usage` (checked when the table is
+/// built, at compile time).
 const fn c(
     word: &'static str,
     usage: &'static str,
     what: &'static str,
     parse: Parser,
 ) -> CommandHelp {
-    CommandHelp {
-        word,
-        usage,
-        what,
-        parse,
+    let (w, u) = (word.as_bytes(), usage.as_bytes());
+    assert!(w.len() <= u.len() && (u.len() == w.len() || u[w.len()] == b' '));
+    let mut i = 0;
+    while i < w.len() {
+        assert!(w[i] == u[i], "a command's word starts its usage");
+        i += 1;
     }
+    CommandHelp { usage, what, parse }
 }
 
 /// Every console command, in `help`'s order.
@@ -687,7 +700,7 @@ pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
     let word = tokens.next().ok_or(ParseError::Empty)?;
     let entry = COMMANDS
         .iter()
-        .find(|c| c.word == word)
+        .find(|c| c.word() == word)
         .ok_or(ParseError::UnknownCommand(Snippet::new(word)))?;
     let a = Args::collect(tokens)?;
     (entry.parse)(&a)
@@ -699,7 +712,7 @@ fn help_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
     }
     let topic = match a.pos.as_slice() {
         [] => None,
-        [t] if COMMANDS.iter().any(|c| c.word == *t) => Some(*t),
+        [t] if COMMANDS.iter().any(|c| c.word() == *t) => Some(*t),
         [_] => return Err(ParseError::BadArgument("command")),
         _ => return Err(ParseError::ExtraArgument),
     };

@@ -1058,7 +1058,7 @@ impl Console {
     /// `help`: every command (aligned: usage, then what it does), or those of one
     /// word (`help calibrate`: both of its forms).
     fn help(&mut self, topic: Option<&str>, json: bool) {
-        let shown = |c: &&super::parse::CommandHelp| topic.is_none_or(|t| c.word == t);
+        let shown = |c: &&super::parse::CommandHelp| topic.is_none_or(|t| c.word() == t);
         if json {
             // Through the reports' JSON writer (`JsonFields`), as `version --json`.
             let n = COMMANDS.iter().filter(shown).count();
@@ -1072,7 +1072,7 @@ impl Console {
                     let Some(c) = COMMANDS.iter().filter(shown).nth(i) else {
                         return Ok(());
                     };
-                    x.str("command", c.word)?;
+                    x.str("command", c.word())?;
                     x.str("usage", c.usage)?;
                     x.str("what", c.what)
                 })?;
