@@ -183,7 +183,7 @@ fn entropy() -> [u8; 32] {
 /// The chip's 96-bit unique ID in hex (24 characters): the unit's serial number.
 fn unit_serial() -> [u8; 24] {
     const HEX: &[u8; 16] = b"0123456789ABCDEF";
-    let mut out = [b'0'; 24];
+    let mut out = [0u8; 24]; // every byte written below
     for (pair, b) in out.chunks_exact_mut(2).zip(uid_bytes()) {
         if let [hi, lo] = pair {
             *hi = HEX.get(usize::from(b >> 4)).copied().unwrap_or(b'0');

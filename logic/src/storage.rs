@@ -660,10 +660,10 @@ impl<F: NorFlash> RecordLog<F> {
             return Err(StorageError::TooLarge);
         }
         let len = u8::try_from(data.len()).map_err(|_| StorageError::TooLarge)?;
-        let mut payload = [ERASED; PAYLOAD_MAX];
-        for (dst, src) in payload.iter_mut().zip(data) {
-            *dst = *src;
-        }
+        // The data, then erased bytes: built byte by byte (a 0xFF fill first linked
+        // compiler_builtins' memset for this alone).
+        let payload: [u8; PAYLOAD_MAX] =
+            core::array::from_fn(|i| data.get(i).copied().unwrap_or(ERASED));
         if self.next_slot >= self.slots_per_sector {
             self.move_to_next_sector()?;
         }

@@ -774,17 +774,16 @@ impl Console {
 
     fn audit(&mut self, ctrl: &mut dyn Machine, act: u8, now_ms: u64, detail: &[u8]) {
         let odo = ctrl.odometer();
-        let mut rec = AuditLayout {
+        let rec = AuditLayout {
             action: act,
             lifetime_cycle: odo.lifetime().cycles.into(),
             cone_id: odo.cone().id.into(),
             cone_cycle: odo.cone().cycles.into(),
             t_ms: now_ms.into(),
-            detail: [0; AUDIT_DETAIL_MAX],
+            // Byte by byte, not zero-filled then copied: a zero fill of these unaligned
+            // bytes was one of the three calls that linked compiler_builtins' memclr.
+            detail: core::array::from_fn(|i| detail.get(i).copied().unwrap_or(0)),
         };
-        for (d, s) in rec.detail.iter_mut().zip(detail) {
-            *d = *s;
-        }
         let at = AUDIT_HEAD_LEN + detail.len().min(AUDIT_DETAIL_MAX);
         info!(
             "maintenance: action {=u8} at lifetime cycle {=u32}",
@@ -966,13 +965,13 @@ impl Console {
                 bore_um,
             } => match ctrl.replace_cone_measured(material, serial, bore_um) {
                 Ok(()) => {
-                    let mut detail = ConeReplaceDetail {
+                    // Built byte by byte (no zero fill first: see `audit`).
+                    let detail = ConeReplaceDetail {
                         material: material.code(),
-                        serial: [0; SERIAL_MAX],
+                        serial: core::array::from_fn(|i| {
+                            serial.as_bytes().get(i).copied().unwrap_or(0)
+                        }),
                     };
-                    for (d, s) in detail.serial.iter_mut().zip(serial.bytes()) {
-                        *d = s;
-                    }
                     self.audit(ctrl, action::CONE_REPLACE, now_ms, detail.as_bytes());
                     let id = ctrl.odometer().cone().id;
                     self.reply(|o| {

@@ -244,16 +244,17 @@ fn read_words(
     if !in_map(address, count, len) {
         return Err(ILLEGAL_DATA_ADDRESS);
     }
-    if function != 0x04 {
-        return Ok(()); // the command register reads 0 (the buffer is zeroed)
-    }
-    let mut regs = input_registers(ctrl);
-    for (addr, v) in [
-        (ir::LAST_COMMAND, session.last_command),
-        (ir::LAST_COMMAND_RESULT, session.last_result),
-    ] {
-        if let Some(r) = regs.get_mut(usize::from(addr)) {
-            *r = v;
+    // The command register (function 0x03) reads 0.
+    let mut regs = [0u16; ir::COUNT as usize];
+    if function == 0x04 {
+        regs = input_registers(ctrl);
+        for (addr, v) in [
+            (ir::LAST_COMMAND, session.last_command),
+            (ir::LAST_COMMAND_RESULT, session.last_result),
+        ] {
+            if let Some(r) = regs.get_mut(usize::from(addr)) {
+                *r = v;
+            }
         }
     }
     let src = regs
@@ -282,16 +283,23 @@ fn read_bits(
     if !in_map(address, count, len) {
         return Err(ILLEGAL_DATA_ADDRESS);
     }
-    if function != 0x02 {
-        return Ok(()); // momentary command coils read 0
-    }
-    let word = status_word(ctrl);
-    for i in 0..usize::from(count) {
-        if word >> (usize::from(address) + i) & 1 != 0 {
-            if let Some(b) = buf.get_mut(i / 8) {
-                *b |= 1 << (i % 8);
+    // Momentary command coils (function 0x01) read 0.
+    let word = if function == 0x02 {
+        u32::from(status_word(ctrl))
+    } else {
+        0
+    };
+    // Each byte whole (nothing zeroes the buffer first): bit k of byte j is input
+    // `address + 8j + k`, for the `count` inputs asked for.
+    for (j, b) in buf.iter_mut().enumerate() {
+        let mut v = 0u8;
+        for k in 0..8 {
+            let i = 8 * j + k;
+            if i < usize::from(count) && word >> (usize::from(address) + i) & 1 != 0 {
+                v |= 1 << k;
             }
         }
+        *b = v;
     }
     Ok(())
 }
@@ -328,10 +336,11 @@ fn standard(
                 count.saturating_mul(2)
             };
             let n = usize::from(n);
+            // Every byte is written by the read (no `fill`: the only zeroing of an
+            // unaligned buffer in the image, which linked compiler_builtins' memclr).
             let Some(buf) = out.get_mut(3..3 + n) else {
                 return Reply::None;
             };
-            buf.fill(0);
             let read = if function <= 0x02 {
                 read_bits(function, address, count, buf, ctrl)
             } else {
