@@ -43,28 +43,37 @@ impl<W: Write + ?Sized> Sink for W {
 }
 
 /// Write `s` as a quoted, escaped JSON string.
+///
+/// Over the bytes, not the chars: every character escaped is recognised by its UTF-8
+/// bytes (C0 and DEL: one byte; C1: `C2 80`–`C2 9F`; U+2028/U+2029: `E2 80 A8`/`A9`),
+/// and what lies between is passed on whole (issue 20: no UTF-8 decoding linked for
+/// it). The same output as escaping each `char` (`char::is_control`, U+2028, U+2029).
 pub fn write_str_escaped(w: &mut dyn Sink, s: &str) -> fmt::Result {
     w.put("\"")?;
-    let mut start = 0;
-    for (i, c) in s.char_indices() {
-        let esc = match c {
-            '"' => Some("\\\""),
-            '\\' => Some("\\\\"),
-            _ => None,
-        };
-        let needs_u = c.is_control() || c == '\u{2028}' || c == '\u{2029}';
-        if esc.is_none() && !needs_u {
-            continue;
-        }
-        w.put(s.get(start..i).unwrap_or(""))?;
-        match esc {
-            Some(e) => w.put(e)?,
-            None => {
-                w.put("\\u")?;
-                write_hex(w, u32::from(c), 4)?;
+    let b = s.as_bytes();
+    let (mut start, mut i) = (0, 0);
+    while let Some(&x) = b.get(i) {
+        // (the escape, the code point for a \uXXXX, the bytes it spans)
+        let (esc, code, len) = match (x, b.get(i + 1).copied(), b.get(i + 2).copied()) {
+            (b'"', _, _) => ("\\\"", 0, 1),
+            (b'\\', _, _) => ("\\\\", 0, 1),
+            (0..=0x1F | 0x7F, _, _) => ("", u32::from(x), 1),
+            (0xC2, Some(c @ 0x80..=0x9F), _) => ("", u32::from(c), 2),
+            (0xE2, Some(0x80), Some(c @ (0xA8 | 0xA9))) => ("", 0x2000 | u32::from(c & 0x3F), 3),
+            _ => {
+                i += 1;
+                continue;
             }
+        };
+        w.put(s.get(start..i).unwrap_or(""))?;
+        if esc.is_empty() {
+            w.put("\\u")?;
+            write_hex(w, code, 4)?;
+        } else {
+            w.put(esc)?;
         }
-        start = i + c.len_utf8();
+        i += len;
+        start = i;
     }
     w.put(s.get(start..).unwrap_or(""))?;
     w.put("\"")
@@ -459,6 +468,45 @@ mod tests {
                 write_hex(&mut s, v, 4).unwrap();
                 assert_eq!(s, format!("{v:04x}"));
             }
+        }
+    }
+
+    /// The byte-wise escaper writes what escaping each `char` wrote (the code before
+    /// issue 20, kept here), for strings made of every kind of character it treats.
+    #[test]
+    fn escaping_by_bytes_is_escaping_by_chars() {
+        extern crate std;
+        use std::string::String;
+        fn by_chars(s: &str) -> String {
+            let mut o = String::from("\"");
+            for c in s.chars() {
+                match c {
+                    '"' => o.push_str("\\\""),
+                    '\\' => o.push_str("\\\\"),
+                    c if c.is_control() || c == '\u{2028}' || c == '\u{2029}' => {
+                        o.push_str(&std::format!("\\u{:04x}", u32::from(c)))
+                    }
+                    c => o.push(c),
+                }
+            }
+            o.push('"');
+            o
+        }
+        let pieces = [
+            "a", "\"", "\\", "\n", "\u{0}", "\u{1f}", " ", "\u{7f}", "\u{80}", "\u{9f}", "\u{a0}",
+            "é", "\u{2027}", "\u{2028}", "\u{2029}", "\u{202a}", "€", "😀", "\u{c2}", "\u{2000}",
+        ];
+        let mut x: u32 = 7;
+        for _ in 0..2_000 {
+            let mut s = String::new();
+            for _ in 0..(x % 7) {
+                x = x.wrapping_mul(1_103_515_245).wrapping_add(12_345);
+                s.push_str(pieces[(x >> 16) as usize % pieces.len()]);
+            }
+            x = x.wrapping_mul(1_103_515_245).wrapping_add(12_345);
+            let mut got = String::new();
+            write_str_escaped(&mut got, &s).unwrap();
+            assert_eq!(got, by_chars(&s), "{s:?}");
         }
     }
 

@@ -529,13 +529,19 @@ impl Snippet {
     /// `...` appended when truncated.
     pub fn new(word: &str) -> Self {
         let mut s = heapless::String::new();
-        for (i, c) in word.chars().enumerate() {
+        // Character by character, counted at the first byte of each (UTF-8 continuation
+        // bytes, `10xxxxxx`, are no character of their own): no decoding (issue 20).
+        let starts = word.bytes().filter(|&b| b & 0xC0 != 0x80);
+        for (i, b) in starts.enumerate() {
             if i >= Self::KEEP {
                 let _ = s.push_str("...");
                 break;
             }
-            let c = if c.is_ascii_graphic() { c } else { '?' };
-            let _ = s.push(c);
+            let _ = s.push(if b.is_ascii_graphic() {
+                char::from(b)
+            } else {
+                '?'
+            });
         }
         Self(s)
     }
