@@ -190,7 +190,7 @@ fn random_frames() -> Vec<Vec<u8>> {
 
 fn session() -> String {
     let mut t = String::new();
-    let mut run = |t: &mut String, name: &str, r: &mut Rig, frames: &[Vec<u8>]| {
+    let run = |t: &mut String, name: &str, r: &mut Rig, frames: &[Vec<u8>]| {
         let _ = writeln!(t, "# {name}");
         for f in frames {
             let mut out = [0u8; MAX_FRAME];

@@ -112,6 +112,10 @@ impl core::fmt::Debug for CommandHelp {
 
 /// One entry: `word` must be the first word of `usage` (checked when the table is
 /// built, at compile time).
+// Evaluated only to build the constant table: an index out of bounds here (there is
+// none: `i < w.len() <= u.len()`) would fail the build, not the firmware; `get` is not
+// available in a const fn.
+#[allow(clippy::indexing_slicing)]
 const fn c(
     word: &'static str,
     usage: &'static str,
