@@ -36,6 +36,7 @@ fn main() {
     println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rerun-if-changed=odometer-guard.x");
     println!("cargo:rerun-if-changed=persist.x");
+    println!("cargo:rerun-if-changed=hot.x");
     println!("cargo:rerun-if-changed=build.rs");
     if env::var("CARGO_CFG_TARGET_OS").as_deref() != Ok("none") {
         return;
@@ -44,8 +45,12 @@ fn main() {
     fs::copy("memory.x", out.join("memory.x")).expect("copy memory.x");
     fs::copy("odometer-guard.x", out.join("odometer-guard.x")).expect("copy odometer-guard.x");
     fs::copy("persist.x", out.join("persist.x")).expect("copy persist.x");
+    fs::copy("hot.x", out.join("hot.x")).expect("copy hot.x");
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rustc-link-arg-bins=--nmagic");
+    // Before link.x: its input sections (the safety path's handlers) must be taken before
+    // link.x's `*(.text .text.*)` takes every function (hot.x).
+    println!("cargo:rustc-link-arg-bins=-Thot.x");
     println!("cargo:rustc-link-arg-bins=-Tlink.x");
     println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
     println!("cargo:rustc-link-arg-bins=-Todometer-guard.x");
