@@ -446,7 +446,7 @@ pub(super) fn process(
 /// Handle one request frame (address, PDU, CRC) as unit `unit`: the reply (CRC
 /// included) in `out[..n]`, `Some(n)`, or `None` when nothing is to be sent (under 4
 /// bytes, a bad CRC, another unit, a broadcast). Reads do not change the controller; a
-/// command goes through [`Controller::command`]. `unit_serial` is the unit's serial
+/// command goes through [`Machine::command_from`]. `unit_serial` is the unit's serial
 /// number (device identification object 0x80).
 ///
 /// Stateless: the last command and its result (input registers 8–9) are kept by a
