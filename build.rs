@@ -59,6 +59,7 @@ fn main() {
     println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rerun-if-changed=odometer-guard.x");
     println!("cargo:rerun-if-changed=persist.x");
+    println!("cargo:rerun-if-changed=hot.x");
     println!("cargo:rerun-if-changed=build.rs");
     if env::var("CARGO_CFG_TARGET_OS").as_deref() != Ok("none") {
         return;
@@ -69,8 +70,12 @@ fn main() {
     fs::copy("persist.x", out.join("persist.x")).expect("copy persist.x");
     fs::write(out.join("active.x"), active_x()).expect("write active.x");
     fs::write(out.join("image-header.x"), image_header_x()).expect("write image-header.x");
+    fs::copy("hot.x", out.join("hot.x")).expect("copy hot.x");
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rustc-link-arg-bins=--nmagic");
+    // Before link.x: its input sections (the safety path's handlers) must be taken before
+    // link.x's `*(.text .text.*)` takes every function (hot.x).
+    println!("cargo:rustc-link-arg-bins=-Thot.x");
     println!("cargo:rustc-link-arg-bins=-Tlink.x");
     println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
     println!("cargo:rustc-link-arg-bins=-Todometer-guard.x");
@@ -83,15 +88,16 @@ fn main() {
     println!("cargo:rustc-link-arg-bins=--icf=all");
 }
 
-/// The FLASH region: ACTIVE, as the shared partition map has it, and `.text` after the
-/// image header (memory.x includes this: cortex-m-rt takes `_stext` from there).
+/// The FLASH region: ACTIVE, as the shared partition map has it (memory.x includes
+/// this). `.text` starts after the image header and the safety path's `.text.hot`:
+/// hot.x defines `_stext` after `.text.hot`, which lands after `.image_header` (both
+/// are inserted after `.vector_table`; image-header.x's assertions check the header's
+/// place).
 fn active_x() -> String {
-    use header::{HEADER_LEN, HEADER_OFFSET};
     use layout::{ACTIVE_BASE, ACTIVE_LEN};
     format!(
         "/* Written by build.rs from update-layout (the partition map): ACTIVE. */\n\
-         MEMORY\n{{\n  FLASH : ORIGIN = {ACTIVE_BASE:#010x}, LENGTH = {}K\n}}\n\
-         _stext = ORIGIN(FLASH) + {HEADER_OFFSET:#x} + {HEADER_LEN};\n",
+         MEMORY\n{{\n  FLASH : ORIGIN = {ACTIVE_BASE:#010x}, LENGTH = {}K\n}}\n",
         ACTIVE_LEN / 1024
     )
 }

@@ -23,8 +23,8 @@ use cortex_m_rt::{exception, ExceptionFrame};
 use defmt_rtt as _;
 use docking_logic::console::service::Console;
 use docking_logic::console::update::{Outcome as UpdateOutcome, UpdateSession};
+use docking_logic::controller::Handshake;
 use docking_logic::controller::{Bsp, Controller, ControllerConfig, Parts};
-use docking_logic::controller::{Handshake, Timed};
 use docking_logic::diag::{file_tail, Crash, CrashKind, ResetCause};
 use docking_logic::hal::StopLatch;
 use docking_logic::hal::Watchdog;
@@ -154,37 +154,39 @@ impl Watchdog for BoardWatchdog {
     }
 }
 
-/// Seed for PIN salts: the chip's 96-bit unique ID and the microsecond clock at boot.
-fn entropy() -> [u8; 32] {
+/// The chip's 96-bit unique ID as the serial and the salts use it: X and Y (little
+/// endian) and the 7-byte lot number (the wafer number is not in it), then a zero byte.
+fn uid_bytes() -> [u8; 12] {
     let uid = stm32f4xx_hal::signature::Uid::get();
+    let (x, y) = (uid.x().to_le_bytes(), uid.y().to_le_bytes());
+    let mut b = [0u8; 12];
+    for (d, s) in b
+        .iter_mut()
+        .zip(x.iter().chain(&y).chain(uid.lot_num().as_bytes()))
+    {
+        *d = *s;
+    }
+    b
+}
+
+/// Seed for PIN salts: the chip's unique ID (its 11 bytes) and the microsecond clock at
+/// boot.
+fn entropy() -> [u8; 32] {
     let mut e = [0u8; 32];
-    let parts: [&[u8]; 4] = [
-        &uid.x().to_le_bytes(),
-        &uid.y().to_le_bytes(),
-        uid.lot_num().as_bytes(),
-        &clock::now_us().to_le_bytes(),
-    ];
-    for (slot, &b) in e.iter_mut().zip(parts.into_iter().flatten()) {
-        *slot = b;
+    if let (Some(id), Some(t)) = (e.get_mut(..11), uid_bytes().get(..11)) {
+        id.copy_from_slice(t);
+    }
+    if let Some(t) = e.get_mut(11..19) {
+        t.copy_from_slice(&clock::now_us().to_le_bytes());
     }
     e
 }
 
 /// The chip's 96-bit unique ID in hex (24 characters): the unit's serial number.
 fn unit_serial() -> [u8; 24] {
-    let uid = stm32f4xx_hal::signature::Uid::get();
-    let mut bytes = [0u8; 12];
-    let parts: [&[u8]; 3] = [
-        &uid.x().to_le_bytes(),
-        &uid.y().to_le_bytes(),
-        uid.lot_num().as_bytes(),
-    ];
-    for (slot, &b) in bytes.iter_mut().zip(parts.into_iter().flatten()) {
-        *slot = b;
-    }
     const HEX: &[u8; 16] = b"0123456789ABCDEF";
-    let mut out = [b'0'; 24];
-    for (pair, b) in out.chunks_exact_mut(2).zip(bytes) {
+    let mut out = [0u8; 24]; // every byte written below
+    for (pair, b) in out.chunks_exact_mut(2).zip(uid_bytes()) {
         if let [hi, lo] = pair {
             *hi = HEX.get(usize::from(b >> 4)).copied().unwrap_or(b'0');
             *lo = HEX.get(usize::from(b & 0xF)).copied().unwrap_or(b'0');
@@ -313,8 +315,6 @@ mod app {
         stop: BoardStop,
         events_tx: Producer<'static, KernelEvent>,
         events_rx: Consumer<'static, KernelEvent>,
-        log_tx: Producer<'static, Timed>,
-        log_rx: Consumer<'static, Timed>,
         step_gen: step::StepGen,
         console_isr: console::ConsoleIsr,
         term: console::BoardConsole,
@@ -326,7 +326,6 @@ mod app {
 
     #[init(local = [
         events: Queue<KernelEvent, 16> = Queue::new(),
-        log: Queue<Timed, 9> = Queue::new(),
         mb_rx: Queue<(u16, u64), 64> = Queue::new(),
         mb_tx: Queue<u8, 257> = Queue::new(),
         tx_ring: Queue<u8, 1025> = Queue::new(),
@@ -432,8 +431,8 @@ mod app {
         // Another machine's guard envelope, hold force and nominal load-distance, if the
         // image was built for one (`DOCKING_TUNING`, see build.rs and docs/simulator.md).
         tuning::apply(&mut cfg);
-        let ctrl = match Controller::new(parts, cfg) {
-            Ok(c) => cx.local.ctrl_slot.write(c),
+        let ctrl = match Controller::new_in(cx.local.ctrl_slot, parts, cfg) {
+            Ok(c) => c,
             Err(_) => halt_safe(),
         };
         let rate_sps = ctrl.sample_rate_sps();
@@ -447,14 +446,14 @@ mod app {
         ));
         kernel.configure(ctrl.kernel_config(), now);
         defmt::info!(
-            "docking-controller {} booted; motors safe; HX711 at {} SPS; BOR level {}",
+            "docking-controller {=str} booted; motors safe; HX711 at {=u32} SPS; BOR level {=u8}",
             env!("CARGO_PKG_VERSION"),
             rate_sps,
             bor
         );
         if bor != 3 {
             defmt::warn!(
-                "BOR level {} (3 = 2.70 V wanted): program it at rest with `bor set`",
+                "BOR level {=u8} (3 = 2.70 V wanted): program it at rest with `bor set`",
                 bor
             );
         }
@@ -473,7 +472,7 @@ mod app {
                 Err(e) => {
                     defmt::warn!(
                         "update: trial boot not confirmed ({}): the next reset rolls back",
-                        defmt::Debug2Format(&e)
+                        e
                     );
                     flash::BootTrial::Confirmed
                 }
@@ -541,7 +540,6 @@ mod app {
         tim2.cr1().write(|w| w.cen().set_bit());
 
         let (events_tx, events_rx) = cx.local.events.split();
-        let (log_tx, log_rx) = cx.local.log.split();
         (
             Shared { ctrl, kernel },
             Local {
@@ -559,8 +557,6 @@ mod app {
                 stop: BoardStop,
                 events_tx,
                 events_rx,
-                log_tx,
-                log_rx,
                 step_gen: step::StepGen::new(step),
                 console_isr: console::ConsoleIsr { tx, tx_out },
                 term: console::BoardConsole::new(tx_in),
@@ -687,10 +683,9 @@ mod app {
     /// The service (`owner.rs`): idle's jobs and the flash's turn, with the controller,
     /// only in the window after a step; what idle reads published. Same priority as
     /// `control`: neither preempts the other.
-    #[task(binds = SPI1, priority = 1, shared = [ctrl], local = [log_tx])]
+    #[task(binds = SPI1, priority = 1, shared = [ctrl])]
     fn service(mut cx: service::Context) {
         let now_low = clock::now_us_low();
-        let log_tx = cx.local.log_tx;
         cx.shared.ctrl.lock(|ctrl| {
             let period_us = 1_000_000 / ctrl.sample_rate_sps().max(1);
             if !owner::in_window(now_low, period_us, tim2_left_us()) {
@@ -700,10 +695,6 @@ mod app {
             owner::MAILBOX.serve(ctrl);
             // The flash's turn (at rest only: `Controller::at_rest`).
             ctrl.background();
-            while log_tx.ready() {
-                let Some(ev) = ctrl.next_event() else { break };
-                let _ = log_tx.enqueue(ev);
-            }
             owner::publish_state(ctrl.state());
         });
         IDLE_WORK.store(true, Ordering::Relaxed);
@@ -717,7 +708,6 @@ mod app {
         entropy,
         modbus_line,
         modbus_settings,
-        log_rx,
         // In a static (616 bytes), all-zero so that it is in `.bss` (not copied from
         // flash): its settings are set first thing in `idle`.
         server: docking_logic::modbus::Server =
@@ -730,7 +720,7 @@ mod app {
     ])]
     fn idle(cx: idle::Context) -> ! {
         let mailbox = &owner::MAILBOX;
-        cx.local.console.seed(*cx.local.entropy);
+        cx.local.console.seed(cx.local.entropy);
         // This image runs `update`'s YMODEM session (below).
         cx.local.console.enable_updater();
         // The greeting: firmware, why it reset, the prompt (a terminal's first line).
@@ -824,9 +814,6 @@ mod app {
                     }
                 }
                 owner::BUS_BUSY.store(line.sending(), Ordering::Relaxed);
-                while let Some(ev) = cx.local.log_rx.dequeue() {
-                    defmt::info!("t={=u64} ms {}", ev.t_ms, ev.event);
-                }
                 continue;
             }
             // The console: a line in without the controller; the command's job; a
@@ -850,10 +837,6 @@ mod app {
             owner::MAINTENANCE.store(console.maintenance_active(now_ms), Ordering::Relaxed);
             owner::BUS_BUSY.store(line.sending(), Ordering::Relaxed);
             console.observe(owner::state_name(), now_ms);
-            // The events for the log, as the service took them out.
-            while let Some(ev) = cx.local.log_rx.dequeue() {
-                defmt::info!("t={=u64} ms {}", ev.t_ms, ev.event);
-            }
         }
     }
 }

@@ -16,7 +16,7 @@ for l in "${levels[@]}"; do
     dir="target/opt-$l"
     CARGO_PROFILE_RELEASE_OPT_LEVEL="$l" cargo build -q --release --target "$T" --target-dir "$dir"
     elf="$dir/$T/release/docking-controller"
-    flash=$(size -A "$elf" | awk '$1 == ".vector_table" || $1 == ".text" || $1 == ".rodata" || $1 == ".data" { t += $2 } END { print t }')
+    flash=$(size -A "$elf" | awk '$1 == ".vector_table" || $1 == ".text.hot" || $1 == ".text" || $1 == ".rodata" || $1 == ".data" { t += $2 } END { print t }')
     json=$(vboard/target/release/vboard scene overload --firmware "$elf" --json)
     python3 - "$l" "$flash" "$json" <<'PY'
 import json, sys

@@ -282,3 +282,25 @@ mod rig {
         assert_eq!(rig.ctrl.odometer().lifetime().cycles, n);
     }
 }
+
+/// The controller keeps the newest `READINGS_KEPT` readings, oldest first: a reading past
+/// that drops the oldest (issue 20 drops it by swaps instead of `Vec::remove(0)`; the
+/// order the fit and `measurements` see must not change).
+#[test]
+fn the_newest_readings_are_kept_in_order_when_one_more_arrives() {
+    use docking_logic::odometer::READINGS_KEPT;
+    use hil_sim::rig::{Rig, RigOptions};
+    let mut r = Rig::new(RigOptions::new(80));
+    for _ in 0..hil_sim::rig::BOOT_TICKS {
+        r.tick();
+    }
+    let extra = 3;
+    let bores: Vec<u32> = (0..(READINGS_KEPT + extra) as u32)
+        .map(|i| 26_000 + i)
+        .collect();
+    for &b in &bores {
+        r.ctrl.add_measurement(b, false).unwrap();
+    }
+    let kept: Vec<u32> = r.ctrl.measurements().iter().map(|m| m.bore_um).collect();
+    assert_eq!(kept, bores[extra..]);
+}

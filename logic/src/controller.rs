@@ -56,7 +56,7 @@ use crate::profile::{ContactPhase, BOUNDARY_UM, STROKE_UM};
 use crate::propulsion::Propulsion;
 use crate::safety::{EstopEvents, GuardMode, KernelConfig, KernelEvent, BACKOFF_RISE_MN};
 use crate::sequencer::{AxisCmd, FaultKind, Inputs, Request, SeqEvent, Sequencer, State, Switches};
-use crate::storage::{OpenReport, RecordLog};
+use crate::storage::{OpenReport, RecordLog, PAYLOAD_MAX};
 
 /// The hardware a controller runs on (board support package).
 pub trait Bsp {
@@ -622,9 +622,10 @@ impl Refusal {
     }
 }
 
-impl core::fmt::Display for Refusal {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(match self {
+impl Refusal {
+    /// What the console says (one line; `Display` writes the same).
+    pub const fn message(self) -> &'static str {
+        match self {
             Self::EstopOpen => "refused: the E-STOP input is open",
             Self::NotIdle => "refused: not idle",
             Self::Uncalibrated => {
@@ -639,7 +640,13 @@ impl core::fmt::Display for Refusal {
                 "refused: a technician has the machine in maintenance mode (console)"
             }
             Self::Updating => "refused: a firmware update is in progress (console)",
-        })
+        }
+    }
+}
+
+impl core::fmt::Display for Refusal {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.message())
     }
 }
 
@@ -669,9 +676,10 @@ pub enum MaintError {
     OptionBytes,
 }
 
-impl core::fmt::Display for MaintError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(match self {
+impl MaintError {
+    /// What the console says (one line; `Display` writes the same).
+    pub const fn message(self) -> &'static str {
+        match self {
             Self::Moving => "refused while a docking is moving",
             Self::NotAtRest => {
                 "the flash is written only at rest (a motor on, the axis held, or a Modbus \
@@ -690,7 +698,13 @@ impl core::fmt::Display for MaintError {
                 "the cone has docked since it was installed: its bore is no longer its new \
                  bore, so it cannot be the baseline (the nominal 26.000 mm stays assumed)"
             }
-        })
+        }
+    }
+}
+
+impl core::fmt::Display for MaintError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.message())
     }
 }
 
@@ -710,14 +724,21 @@ pub enum CalibrateError {
     Storage,
 }
 
-impl core::fmt::Display for CalibrateError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(match self {
+impl CalibrateError {
+    /// What the console says (one line; `Display` writes the same).
+    pub const fn message(self) -> &'static str {
+        match self {
             Self::Moving => "refused while a docking is moving",
             Self::NotEnoughSamples => "not enough samples at rest yet; try again in a second",
             Self::Implausible => "implausible reading; check the load cell and the applied load",
             Self::Storage => "could not write to the odometer flash; nothing changed",
-        })
+        }
+    }
+}
+
+impl core::fmt::Display for CalibrateError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.message())
     }
 }
 
@@ -787,6 +808,23 @@ pub enum StartError {
     Pin,
 }
 
+/// The payload of the newest record of `kind` in `log`, copied into `buf` (`None`: none,
+/// or the log unreadable). One out-of-line read for the constructor's six: the
+/// `Result<Option<Record>>` each returned by value and copied through `ok`, `flatten` and
+/// `and_then` at every call cost 0.4 KB of flash (issue 20).
+#[inline(never)]
+fn newest<'b, F: NorFlash>(
+    log: &mut Option<RecordLog<F>>,
+    kind: u8,
+    buf: &'b mut [u8; PAYLOAD_MAX],
+) -> Option<&'b [u8]> {
+    let r = log.as_mut()?.latest(kind).ok()??;
+    let d = r.data();
+    let dst = buf.get_mut(..d.len())?;
+    dst.copy_from_slice(d);
+    Some(dst)
+}
+
 fn closed<P: InputPin>(p: &mut P) -> Result<bool, ()> {
     p.is_low().map_err(|_| ())
 }
@@ -837,6 +875,31 @@ impl HistoryEntry {
 impl<B: Bsp> Controller<B> {
     /// Take the parts, put every motor output in its safe state, start at `now_us`.
     pub fn new(parts: Parts<B>, cfg: ControllerConfig) -> Result<Self, StartError> {
+        let mut slot = None;
+        Self::new_with(parts, cfg, |c| slot.insert(c))?;
+        // `new_with` placed the controller when it returned `Ok`.
+        slot.ok_or(StartError::Pin)
+    }
+
+    /// [`Controller::new`], built in `slot` (the board's static): the controller is
+    /// never built on the stack and copied from there (it is KiBs: init's stack frame,
+    /// and the code that built and then copied it, issue 20). Nothing is written to
+    /// `slot` unless this returns `Ok`.
+    pub fn new_in(
+        slot: &mut core::mem::MaybeUninit<Self>,
+        parts: Parts<B>,
+        cfg: ControllerConfig,
+    ) -> Result<&mut Self, StartError> {
+        Self::new_with(parts, cfg, |c| slot.write(c))
+    }
+
+    /// The constructor: the controller is built by `place`, where it will live.
+    #[inline(always)]
+    fn new_with<'s>(
+        parts: Parts<B>,
+        cfg: ControllerConfig,
+        place: impl FnOnce(Self) -> &'s mut Self,
+    ) -> Result<&'s mut Self, StartError> {
         let prop = Propulsion::new(parts.en_n, parts.dir, parts.pulses, cfg.machine)
             .map_err(|_| StartError::Pin)?;
         let lock =
@@ -847,34 +910,24 @@ impl<B: Bsp> Controller<B> {
             Ok((log, report)) => (Some(log), report),
             Err(_) => (None, OpenReport::default()),
         };
-        let (cone, state) = match log.as_mut() {
-            Some(l) => (
-                l.latest(odometer::kind::CONE)
-                    .ok()
-                    .flatten()
-                    .and_then(|r| odometer::cone_from_bytes(r.data())),
-                l.latest(odometer::kind::STATE)
-                    .ok()
-                    .flatten()
-                    .and_then(|r| StateRecord::from_bytes(r.data())),
-            ),
-            None => (None, None),
-        };
+        let mut buf = [0u8; PAYLOAD_MAX];
+        let cone =
+            newest(&mut log, odometer::kind::CONE, &mut buf).and_then(odometer::cone_from_bytes);
+        let state =
+            newest(&mut log, odometer::kind::STATE, &mut buf).and_then(StateRecord::from_bytes);
         if log.is_none() {
             error!("odometer flash unreadable: wear is counted in RAM only");
         } else if open_report.corrupt > 0 {
             warn!(
-                "odometer log: {} corrupt or torn record(s) skipped",
+                "odometer log: {=u32} corrupt or torn record(s) skipped",
                 open_report.corrupt
             );
         }
         let fresh = cone.is_none();
         // A technician's calibration from flash overrides the built-in default; without
         // one the machine refuses to dock (the default is a datasheet guess).
-        let stored_cal = log
-            .as_mut()
-            .and_then(|l| l.latest(odometer::kind::CALIBRATION).ok().flatten())
-            .and_then(|r| calibration_from_bytes(r.data()));
+        let stored_cal = newest(&mut log, odometer::kind::CALIBRATION, &mut buf)
+            .and_then(calibration_from_bytes);
         let calibrated = stored_cal.is_some();
         if !calibrated {
             warn!("load cell not calibrated: docking refused until a technician calibrates it");
@@ -882,33 +935,27 @@ impl<B: Bsp> Controller<B> {
         let cal0 = stored_cal.unwrap_or(cfg.calibration);
         // The HX711's rate as commissioned (else the build's default).
         let mut cfg = cfg;
-        if let Some(st) = log
-            .as_mut()
-            .and_then(|l| l.latest(odometer::kind::SETTINGS).ok().flatten())
-            .and_then(|r| Settings::from_bytes(r.data()))
+        if let Some(st) =
+            newest(&mut log, odometer::kind::SETTINGS, &mut buf).and_then(Settings::from_bytes)
         {
             cfg.sample_rate_sps = st.rate_sps;
         }
-        let resets = log
-            .as_mut()
-            .and_then(|l| l.latest(odometer::kind::RESETS).ok().flatten())
-            .and_then(|r| ResetCounts::from_bytes(r.data()))
+        let resets = newest(&mut log, odometer::kind::RESETS, &mut buf)
+            .and_then(ResetCounts::from_bytes)
             .unwrap_or_default();
-        let last_crash = log
-            .as_mut()
-            .and_then(|l| l.latest(odometer::kind::CRASH).ok().flatten())
-            .and_then(|r| Crash::from_bytes(r.data()));
+        let last_crash =
+            newest(&mut log, odometer::kind::CRASH, &mut buf).and_then(Crash::from_bytes);
         let odo = restore(cfg.wear, cone, state, cfg.default_material);
 
         info!(
-            "odometer: cone {} ({}), {} cycles, wear {} nm; lifetime {} cycles",
+            "odometer: cone {=u16} ({=str}), {=u32} cycles, wear {=u32} nm; lifetime {=u32} cycles",
             odo.cone().id,
             odo.cone().material.name(),
             odo.cone().cycles,
             odo.wear_nm(),
             odo.lifetime().cycles
         );
-        let mut me = Self {
+        let me = place(Self {
             cfg,
             prop,
             lock,
@@ -995,7 +1042,7 @@ impl<B: Bsp> Controller<B> {
                 events_dropped: 0,
                 images: crate::update::ImageReport::UNKNOWN,
             },
-        };
+        });
         me.load_readings();
         me.load_history();
         me.load_cached_records();
@@ -1043,7 +1090,10 @@ impl<B: Bsp> Controller<B> {
             // load–distance no completed cycle will count: it is the cone's now.
             let w = self.odo.fold_pending();
             if w > 0 {
-                info!("odometer: {} mN·µm of an unfinished cycle counted", w / 2);
+                info!(
+                    "odometer: {=u64} mN·µm of an unfinished cycle counted",
+                    w / 2
+                );
                 self.store.persist_pending = true;
             }
             self.persist();
@@ -1098,7 +1148,7 @@ impl<B: Bsp> Controller<B> {
         self.store.storage_failures = self.store.storage_failures.saturating_add(1);
         if self.store.storage_failures >= STORAGE_ATTEMPTS {
             error!(
-                "odometer: flash failed {} times in a row; storage fault",
+                "odometer: flash failed {=u8} times in a row; storage fault",
                 self.store.storage_failures
             );
             self.store.storage_blocked = true;
@@ -1113,10 +1163,10 @@ impl<B: Bsp> Controller<B> {
     pub fn boot(&mut self, cause: ResetCause, crash: Option<Crash>, journals: &[Journal]) {
         self.diag.resets.count(cause);
         self.diag.last_reset = Some(cause);
-        info!("reset cause: {}", cause.name());
+        info!("reset cause: {=str}", cause.name());
         if let Some(c) = crash {
             error!(
-                "the last run crashed: {} at pc {:#x} (lr {:#x}, cfsr {:#x}, line {})",
+                "the last run crashed: {=str} at pc {=u32:#x} (lr {=u32:#x}, cfsr {=u32:#x}, line {=u32})",
                 c.kind.name(),
                 c.pc,
                 c.lr,
@@ -1130,7 +1180,7 @@ impl<B: Bsp> Controller<B> {
         {
             if self.odo.journal() != before {
                 warn!(
-                    "odometer: {} mN·µm and {} cycle(s) the reset cut off recovered from RAM",
+                    "odometer: {=u64} mN·µm and {=u32} cycle(s) the reset cut off recovered from RAM",
                     w / 2,
                     self.odo.cone().cycles.saturating_sub(before.cone_cycles)
                 );
@@ -1333,7 +1383,7 @@ impl<B: Bsp> Controller<B> {
                 Verdict::Warn => {
                     if !self.guard.warning {
                         warn!(
-                            "force {} mN above the warning level (limit {} mN)",
+                            "force {=i32} mN above the warning level (limit {=i32} mN)",
                             self.guard.force_mn, self.guard.limit_mn
                         );
                         self.push_event(st.now_ms, Event::ForceWarning(self.guard.force_mn));
@@ -1401,7 +1451,7 @@ impl<B: Bsp> Controller<B> {
             // once READY).
             if let Some(r) = r {
                 if let Err(why) = self.command_from(Source::Plc, r) {
-                    warn!("DOCK {:?} refused ({})", r, why);
+                    warn!("DOCK {} refused ({})", r, why);
                     self.push_event(st.now_ms, Event::RemoteRefused(why));
                 }
             }
@@ -1416,7 +1466,7 @@ impl<B: Bsp> Controller<B> {
             // Its stops are accounted for by the fault latched here.
             self.gate.seen_stop = self.gate.seen_stop.max(es.stop);
             let open_us = (!self.plc.estop_open).then(|| es.closed_us.wrapping_sub(es.opened_us));
-            warn!("E-STOP: {} edge(s), open {:?} us", new_edges, open_us);
+            warn!("E-STOP: {=u32} edge(s), open {} us", new_edges, open_us);
             self.push_event(
                 st.now_ms,
                 Event::EstopEdges {
@@ -1448,7 +1498,7 @@ impl<B: Bsp> Controller<B> {
             }
             if self.plc.hold_out >= 2 {
                 warn!(
-                    "mated force {} mN outside {}±{} mN: the vehicle pulls or drifts",
+                    "mated force {=i32} mN outside {=i32}±{=i32} mN: the vehicle pulls or drifts",
                     self.guard.force_mn, self.cfg.hold_expected_mn, HOLD_TOLERANCE_MN
                 );
                 st.fault = st.fault.or(Some(FaultKind::HoldForce));
@@ -1476,7 +1526,7 @@ impl<B: Bsp> Controller<B> {
             // Worn out: no new docking until the cone is replaced.
             request = None;
             error!(
-                "start refused: cone worn to {} nm (limit {} nm); replace it",
+                "start refused: cone worn to {=u32} nm (limit {=u32} nm); replace it",
                 self.odo.wear_nm(),
                 self.cfg.wear.limit_nm
             );
@@ -1682,7 +1732,7 @@ impl<B: Bsp> Controller<B> {
             || drift_mn.unsigned_abs() > self.cfg.tare_tolerance_mn.unsigned_abs()
         {
             error!(
-                "implausible tare: {} counts ({} mN from calibration)",
+                "implausible tare: {=i32} counts ({=i32} mN from calibration)",
                 mean, drift_mn
             );
             return TareResult::Implausible;
@@ -1697,7 +1747,7 @@ impl<B: Bsp> Controller<B> {
         if phase != self.contact.phase {
             self.contact.phase = phase;
             if let Some(p) = phase {
-                info!("contact phase {}", p.number());
+                info!("contact phase {=u8}", p.number());
                 self.push_event(now_ms, Event::Phase(p));
             }
         }
@@ -1726,7 +1776,7 @@ impl<B: Bsp> Controller<B> {
                 if self.contact.mismatch_run >= 3 && !self.contact.mismatch_reported {
                     self.contact.mismatch_reported = true;
                     warn!(
-                        "phase {} by position, but {} mN contradicts it",
+                        "phase {=u8} by position, but {=i32} mN contradicts it",
                         p.number(),
                         self.guard.force_mn
                     );
@@ -1741,7 +1791,7 @@ impl<B: Bsp> Controller<B> {
         match ev {
             SeqEvent::Fault(kind) => {
                 error!(
-                    "fault {} in cycle {} at {} ms, force {} mN",
+                    "fault {=str} in cycle {=u32} at {=u64} ms, force {=i32} mN",
                     kind.name(),
                     self.seq.cycle_number(),
                     now_ms,
@@ -1767,16 +1817,16 @@ impl<B: Bsp> Controller<B> {
                 // The level the machine acts on (the estimate's band, once measured).
                 c.level = self.wear_level();
                 info!(
-                    "cycle {} completed: cone cycle {}, wear {} nm, remaining {} cycles",
+                    "cycle {=u32} completed: cone cycle {=u32}, wear {=u32} nm, remaining {=u32} cycles",
                     n, c.cone_cycle, c.wear_nm, c.remaining_cycles
                 );
                 match c.level {
                     WearLevel::Ok => {}
                     WearLevel::Warning => {
-                        warn!("cone wear {} nm is past the warning level", c.wear_nm)
+                        warn!("cone wear {=u32} nm is past the warning level", c.wear_nm)
                     }
                     WearLevel::Limit => error!(
-                        "cone wear {} nm reached the limit: replace the cone",
+                        "cone wear {=u32} nm reached the limit: replace the cone",
                         c.wear_nm
                     ),
                 }
@@ -1784,11 +1834,11 @@ impl<B: Bsp> Controller<B> {
                 self.store.persist_pending = true;
                 self.store.persist_cycle_end = true;
             }
-            SeqEvent::CycleStarted(n) => info!("cycle {} started", n),
+            SeqEvent::CycleStarted(n) => info!("cycle {=u32} started", n),
             SeqEvent::FaultCleared => info!("fault cleared; recovering"),
             SeqEvent::Homed => info!("homed"),
             SeqEvent::RequestRefused(r) => warn!(
-                "request {:?} refused in state {}",
+                "request {} refused in state {=str}",
                 r,
                 self.seq.state().name()
             ),
@@ -2013,11 +2063,11 @@ impl<B: Bsp> Controller<B> {
         self.flash_turn()?;
         match self.options.program_bor_level_3() {
             Ok(()) => {
-                info!("BOR level 3 programmed (was {})", from);
+                info!("BOR level 3 programmed (was {=u8})", from);
                 Ok(from)
             }
             Err(sr) => {
-                error!("BOR programming failed: FLASH_SR {:#x}", sr);
+                error!("BOR programming failed: FLASH_SR {=u32:#x}", sr);
                 Err(MaintError::OptionBytes)
             }
         }
@@ -2027,7 +2077,10 @@ impl<B: Bsp> Controller<B> {
     /// PLC's motion requests (Modbus, the DOCK pin) are refused while it lasts.
     pub fn set_maintenance_mode(&mut self, on: bool) {
         if on != self.plc.maintenance_mode {
-            info!("maintenance mode {}", if on { "entered" } else { "ended" });
+            info!(
+                "maintenance mode {=str}",
+                if on { "entered" } else { "ended" }
+            );
         }
         self.plc.maintenance_mode = on;
     }
@@ -2205,7 +2258,7 @@ impl<B: Bsp> Controller<B> {
         self.readings.clear();
         self.refit();
         info!(
-            "cone {} installed: {} serial {}",
+            "cone {=u16} installed: {=str} serial {=str}",
             self.odo.cone().id,
             material.name(),
             serial
@@ -2364,7 +2417,12 @@ impl<B: Bsp> Controller<B> {
         }
         if !baseline {
             if self.readings.is_full() {
-                self.readings.remove(0);
+                // The oldest out: swapped to the end and dropped (`remove(0)`'s
+                // overlapping copy would link the 1.5 KB memmove for this alone).
+                for i in 1..self.readings.len() {
+                    self.readings.swap(i - 1, i);
+                }
+                self.readings.pop();
             }
             let _ = self.readings.push(m);
         }
@@ -2467,7 +2525,7 @@ impl<B: Bsp> Controller<B> {
         self.cell.cal = cal;
         self.cell.calibrated = true;
         info!(
-            "load cell calibrated: offset {} counts, {} mN/count (Q32.32)",
+            "load cell calibrated: offset {=i32} counts, {=i64} mN/count (Q32.32)",
             cal.offset_counts, cal.mn_per_count_q32
         );
         Ok(cal)
@@ -2497,7 +2555,15 @@ impl<B: Bsp> Controller<B> {
         // both sectors (milliseconds) with the controller held.
         let mut n = 0;
         for e in self.store.recent_cycles.iter().rev().take(max) {
-            out(*e);
+            // Field by field: a whole-entry copy here is a `memmove` (see
+            // `console::reports::fault_records`).
+            out(HistoryEntry {
+                lifetime_cycle: e.lifetime_cycle,
+                cone_cycle: e.cone_cycle,
+                cone_id: e.cone_id,
+                w_q1: e.w_q1,
+                wear_nm: e.wear_nm,
+            });
             n += 1;
         }
         n

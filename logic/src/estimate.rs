@@ -122,7 +122,21 @@ fn mul(a: i128, b: i128) -> i128 {
     (a * b) >> 32
 }
 
-// (0 for b = 0: `div_i128`'s.)
+/// `a·b − c·d` (Q32.32): the 2 × 2 system's cross products, out of line (issue 20).
+#[inline(never)]
+fn cross(a: i128, b: i128, c: i128, d: i128) -> i128 {
+    mul(a, b) - mul(c, d)
+}
+
+/// `(a·b) >> 32` for operands and a result within i64 (`mul`'s arithmetic).
+#[inline(never)]
+fn mul64(a: i64, b: i64) -> i64 {
+    ((i128::from(a) * i128::from(b)) >> 32) as i64
+}
+
+// (0 for b = 0: `div_i128`'s.) Out of line too: the 128-bit shift and the signs inlined
+// at each of the fit's divisions cost 0.9 KB (issue 20).
+#[inline(never)]
 fn div(a: i128, b: i128) -> i128 {
     div_i128(a << 32, b)
 }
@@ -157,6 +171,13 @@ fn exp2_i(y_q32: i128) -> i128 {
 /// `u = log2(E + m0) − u_p`, Q32.32.
 fn u_of(e_q32: u64) -> i128 {
     log2_i(e_q32.saturating_add(M0_Q32) as i128) - PIVOT_Q32 as i128
+}
+
+/// The wear depth on the curve at `z = log2(y + c)`, nm (out of line: three uses).
+#[inline(never)]
+fn depth(z: i128) -> u32 {
+    let nm = mul(exp2_i(z) - C_UM, 1000 * ONE) >> 32;
+    nm.clamp(0, u32::MAX as i128) as u32
 }
 
 /// The model's line: α0 = log2(a µm) + b·u_p, β0 = b.
@@ -211,31 +232,54 @@ impl Fit {
         let (mut alpha, mut beta) = (a0, b0);
         let mut cov = (0i128, 0i128, 0i128);
         for pass in 0..PASSES {
-            let (mut p00, mut p01, mut p11) = (PRIOR_PREC_ALPHA, 0i128, PRIOR_PREC_BETA);
-            let (mut r0, mut r1) = (mul(PRIOR_PREC_ALPHA, a0), mul(PRIOR_PREC_BETA, b0));
+            // The sums in i64 (issue 20: the loop's 128-bit adds were most of the fit's
+            // code), exact because none can leave i64 (Q32.32; |v| < 2^k means the
+            // value's magnitude): |u| < 42·2^32 < 2^37.4 and |z| < 2^37 (`log2_i` of a
+            // u64 is in [-32, 32), `u` less the pivot 10); 0 ≤ w ≤ w0 = 2^64 / var ≤
+            // 2^64 / SHAPE_VAR < 2^45.3 (Huber only lowers it); so |w·u|, |w·z| < 2^50.7,
+            // |w·u·u|, |w·u·z| < 2^56.1, and over at most MAX_READINGS = 48 < 2^5.6 of
+            // them, with the prior's terms (< 2^40), every sum stays below 2^61.8 < 2^63.
+            // The slope is within [BETA_MIN, BETA_MAX] at every pass (the prior's, or
+            // clamped below), so `beta·u` < 2^37.4 too; only the residual against the
+            // intercept, which the data do not bound, stays in i128. Each product is
+            // the same `(a·b) >> 32` as `mul`'s; `fit_in_i64_is_the_i128_fit` checks
+            // the bits against the 128-bit loop.
+            let beta64 = beta as i64;
+            let (mut p00, mut p01, mut p11) =
+                (PRIOR_PREC_ALPHA as i64, 0i64, PRIOR_PREC_BETA as i64);
+            let (mut r0, mut r1) = (
+                mul(PRIOR_PREC_ALPHA, a0) as i64,
+                mul(PRIOR_PREC_BETA, b0) as i64,
+            );
             for &(u, z, w0, ksd) in &pts {
-                let (u, z, w0, ksd) = (u as i128, z as i128, w0 as i128, ksd as i128);
                 // Huber: beyond k standard deviations the weight falls as 1/|r|, i.e.
                 // w = w0 · k·sd/|e|.
                 let e = if pass > 0 {
-                    (z - (alpha + mul(beta, u))).abs()
+                    (i128::from(z) - (alpha + i128::from(mul64(beta64, u)))).abs()
                 } else {
                     0
                 };
-                let w = if e > ksd { mul(w0, div(ksd, e)) } else { w0 };
-                let wu = mul(w, u);
+                let ksd = i128::from(ksd);
+                let w = if e > ksd {
+                    mul64(w0, div(ksd, e) as i64)
+                } else {
+                    w0
+                };
+                let wu = mul64(w, u);
                 p00 += w;
                 p01 += wu;
-                p11 += mul(wu, u);
-                r0 += mul(w, z);
-                r1 += mul(wu, z);
+                p11 += mul64(wu, u);
+                r0 += mul64(w, z);
+                r1 += mul64(wu, z);
             }
-            let det = mul(p00, p11) - mul(p01, p01);
+            let (p00, p01, p11) = (i128::from(p00), i128::from(p01), i128::from(p11));
+            let (r0, r1) = (i128::from(r0), i128::from(r1));
+            let det = cross(p00, p11, p01, p01);
             if det <= 0 {
                 return Self::prior();
             }
-            alpha = div(mul(p11, r0) - mul(p01, r1), det);
-            beta = div(mul(p00, r1) - mul(p01, r0), det);
+            alpha = div(cross(p11, r0, p01, r1), det);
+            beta = div(cross(p00, r1, p01, r0), det);
             if !(BETA_MIN..=BETA_MAX).contains(&beta) {
                 // The exponent at its bound: the best line with that slope.
                 beta = beta.clamp(BETA_MIN, BETA_MAX);
@@ -265,10 +309,6 @@ impl Fit {
             + mul(mul(self.c11 as i128, u), u)
             + SHAPE_VAR;
         let sd2 = 2 * sqrt_q32(var);
-        let depth = |z: i128| -> u32 {
-            let nm = mul(exp2_i(z) - C_UM, 1000 * ONE) >> 32;
-            nm.clamp(0, u32::MAX as i128) as u32
-        };
         let wear_nm = if self.readings == 0 {
             depth_nm(e_q32)
         } else {
@@ -296,6 +336,113 @@ mod tests {
 
     fn e(n: u32) -> u64 {
         (n as u64) << 32
+    }
+
+    /// Issue 20's fit, its sums in i64, against the 128-bit loop it replaced (kept here
+    /// as it was): the same bits for readings anywhere in their types' ranges.
+    #[test]
+    fn fit_in_i64_is_the_i128_fit() {
+        let mut x: u64 = 0x2545_f491_4f6c_dd1d;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let extremes_e = [0, 1, 1 << 32, 45_000 << 32, u64::MAX / 3, u64::MAX];
+        let extremes_w = [i32::MIN, -1_000_000, -1, 0, 1, 7_000, 800_000, i32::MAX];
+        for case in 0..400 {
+            let n = 1 + (next() % 60) as usize;
+            let rs: heapless::Vec<Reading, 64> = (0..n)
+                .map(|i| {
+                    let r = next();
+                    let e_q32 = match case % 4 {
+                        0 => extremes_e[(r % 6) as usize],
+                        1 => r,
+                        _ => (i as u64 * 700 + (r % 500)) << 32,
+                    };
+                    let wear_nm = match case % 3 {
+                        0 => extremes_w[((r >> 8) % 8) as usize],
+                        1 => (r >> 16) as i32,
+                        _ => (i as i32) * 900 + ((r >> 20) % 4_000) as i32 - 2_000,
+                    };
+                    Reading { e_q32, wear_nm }
+                })
+                .collect();
+            assert_eq!(Fit::new(&rs), fit_i128(&rs), "case {case}: {rs:?}");
+        }
+    }
+
+    fn fit_i128(readings: &[Reading]) -> Fit {
+        if readings.is_empty() {
+            return Fit::prior();
+        }
+        let (a0, b0) = prior_line();
+        // Per reading, once: u, z, its base weight and Huber's threshold. The
+        // logarithms, roots and divisions are the costly part on the target (software
+        // 128-bit arithmetic): the passes below only multiply (a down-weighted outlier
+        // costs one division).
+        let mut pts: heapless::Vec<(i64, i64, i64, i64), MAX_READINGS> = heapless::Vec::new();
+        let newest = readings.len().saturating_sub(MAX_READINGS);
+        for r in readings.get(newest..).unwrap_or(&[]) {
+            let u = u_of(r.e_q32);
+            // y + c in µm, kept above c/4 (a bore read far below its baseline).
+            let v = (div_i128(r.wear_nm as i128 * ONE, 1000) + C_UM).max(C_UM / 4);
+            let z = log2_i(v);
+            let sz = mul(div(SIGMA_READ_UM, v), LOG2_E);
+            let var = mul(sz, sz) + SHAPE_VAR;
+            // (u, z, base weight 1/var, Huber's threshold k·sd)
+            let _ = pts.push((
+                u as i64,
+                z as i64,
+                div(ONE, var) as i64,
+                mul(HUBER_K, sqrt_q32(var)) as i64,
+            ));
+        }
+        let (mut alpha, mut beta) = (a0, b0);
+        let mut cov = (0i128, 0i128, 0i128);
+        for pass in 0..PASSES {
+            let (mut p00, mut p01, mut p11) = (PRIOR_PREC_ALPHA, 0i128, PRIOR_PREC_BETA);
+            let (mut r0, mut r1) = (mul(PRIOR_PREC_ALPHA, a0), mul(PRIOR_PREC_BETA, b0));
+            for &(u, z, w0, ksd) in &pts {
+                let (u, z, w0, ksd) = (u as i128, z as i128, w0 as i128, ksd as i128);
+                // Huber: beyond k standard deviations the weight falls as 1/|r|, i.e.
+                // w = w0 · k·sd/|e|.
+                let e = if pass > 0 {
+                    (z - (alpha + mul(beta, u))).abs()
+                } else {
+                    0
+                };
+                let w = if e > ksd { mul(w0, div(ksd, e)) } else { w0 };
+                let wu = mul(w, u);
+                p00 += w;
+                p01 += wu;
+                p11 += mul(wu, u);
+                r0 += mul(w, z);
+                r1 += mul(wu, z);
+            }
+            let det = cross(p00, p11, p01, p01);
+            if det <= 0 {
+                return Fit::prior();
+            }
+            alpha = div(cross(p11, r0, p01, r1), det);
+            beta = div(cross(p00, r1, p01, r0), det);
+            if !(BETA_MIN..=BETA_MAX).contains(&beta) {
+                // The exponent at its bound: the best line with that slope.
+                beta = beta.clamp(BETA_MIN, BETA_MAX);
+                alpha = div(r0 - mul(p01, beta), p00);
+            }
+            cov = (div(p11, det), -div(p01, det), div(p00, det));
+        }
+        let n = u16::try_from(pts.len()).unwrap_or(u16::MAX);
+        Fit {
+            alpha: alpha as i64,
+            beta: beta as i64,
+            c00: cov.0 as i64,
+            c01: cov.1 as i64,
+            c11: cov.2 as i64,
+            readings: n,
+        }
     }
 
     #[test]

@@ -36,6 +36,7 @@ pub mod guard;
 pub mod hal;
 pub mod hx711;
 pub mod lock;
+pub mod machine;
 pub mod material;
 pub mod modbus;
 pub mod odometer;

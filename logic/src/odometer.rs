@@ -672,7 +672,8 @@ impl Measurement {
     }
 
     /// Measured wear against `baseline_um`: the bore's growth (not halved: the wear is
-    /// one-sided, `docs/physics.md` §7), nm.
+    /// one-sided, `docs/physics.md` §7), nm. Out of line: five callers.
+    #[inline(never)]
     pub fn wear_nm(&self, baseline_um: u32) -> i32 {
         let d = self.bore_um as i64 - baseline_um as i64;
         (d * 1000).clamp(i32::MIN as i64, i32::MAX as i64) as i32

@@ -565,7 +565,7 @@ impl<F: NorFlash> RecordLog<F> {
         };
         let report = log.scan()?;
         info!(
-            "storage: {} valid, {} corrupt records; sector {} slot {}; unfinished move: {}",
+            "storage: {=u32} valid, {=u32} corrupt records; sector {=u32} slot {=u32}; unfinished move: {=bool}",
             report.valid, report.corrupt, log.cur, log.next_slot, report.unfinished_move
         );
         Ok((log, report))
@@ -624,7 +624,7 @@ impl<F: NorFlash> RecordLog<F> {
             // The newest sector holds an unfinished carried batch: ignore it; the sector
             // before it (full) is current, so the next append redoes the move.
             Some(s) => {
-                warn!("storage: move to sector {} was cut short", s.sector);
+                warn!("storage: move to sector {=u32} was cut short", s.sector);
                 abandoned = Some(s.sector);
                 self.cur = (s.sector + self.sectors - 1) % self.sectors;
                 self.next_slot = self.slots_per_sector;
@@ -660,10 +660,10 @@ impl<F: NorFlash> RecordLog<F> {
             return Err(StorageError::TooLarge);
         }
         let len = u8::try_from(data.len()).map_err(|_| StorageError::TooLarge)?;
-        let mut payload = [ERASED; PAYLOAD_MAX];
-        for (dst, src) in payload.iter_mut().zip(data) {
-            *dst = *src;
-        }
+        // The data, then erased bytes: built byte by byte (a 0xFF fill first linked
+        // compiler_builtins' memset for this alone).
+        let payload: [u8; PAYLOAD_MAX] =
+            core::array::from_fn(|i| data.get(i).copied().unwrap_or(ERASED));
         if self.next_slot >= self.slots_per_sector {
             self.move_to_next_sector()?;
         }
@@ -700,7 +700,7 @@ impl<F: NorFlash> RecordLog<F> {
         }
         // The slot changed since it was indexed (bit flips): use the newest intact one.
         warn!(
-            "storage: record at {} went bad; looking for an older one",
+            "storage: record at {=u32} went bad; looking for an older one",
             offset
         );
         let mut found = None;
@@ -771,7 +771,7 @@ impl<F: NorFlash> RecordLog<F> {
         {
             // Only after bit flips in the current sector; the move rescues it via RAM.
             warn!(
-                "storage: sector {} holds a newest record; not erased early",
+                "storage: sector {=u32} holds a newest record; not erased early",
                 next
             );
             return Ok(());
@@ -914,7 +914,10 @@ impl<F: NorFlash> RecordLog<F> {
                 *m = Some(offset);
             }
         }
-        debug!("storage: moved to sector {}, carried {} records", next, n);
+        debug!(
+            "storage: moved to sector {=u32}, carried {=u8} records",
+            next, n
+        );
         self.cur = next;
         self.next_slot = u32::from(n);
         self.next_ready = false;
@@ -1059,7 +1062,7 @@ impl<F: NorFlash> RecordLog<F> {
         self.flash
             .erase(from, from + self.sector_size)
             .map_err(StorageError::Flash)?;
-        debug!("storage: erased sector {}", sector);
+        debug!("storage: erased sector {=u32}", sector);
         Ok(())
     }
 

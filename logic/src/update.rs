@@ -115,7 +115,7 @@ pub fn vector_table_ok(head: &[u8; 8], base: u32, len: u32) -> bool {
 pub use update_layout::header::{Version, VERSION_TEXT_MAX};
 use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
-use crate::controller::{Bsp, Controller};
+use crate::machine::Machine;
 use crate::odometer::kind;
 
 /// What `version` and Modbus device identification report about the images (issue
@@ -242,7 +242,7 @@ pub fn marked_record(report: &ImageReport, new: Option<Version>) -> ImageRecord 
 /// At boot, after a trial's confirmation: the report, from the facts and the newest
 /// image record, and the record this boot owes (a confirmation; a rollback not yet
 /// recorded). Nothing else is written.
-pub fn at_boot<B: Bsp>(ctrl: &mut Controller<B>, facts: BootFacts) -> ImageReport {
+pub fn at_boot(ctrl: &mut dyn Machine, facts: BootFacts) -> ImageReport {
     use update_layout::state::Boot;
     let mut r = ImageReport {
         running: facts.running,

@@ -91,8 +91,9 @@ fn flush_caches() {
 /// Longest wait for a sector erase: the datasheet's 2 s maximum at ×32, plus half.
 pub const ERASE_TIMEOUT_CYCLES: u32 = 3 * SYSCLK_HZ;
 
-/// Errors of the odometer flash.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Errors of the odometer flash (`defmt::Format` for the log: `Debug2Format` would link
+/// core::fmt's machinery into the image for this one message, issue 20).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
 pub enum OdoFlashError {
     /// Outside the two odometer sectors.
     OutOfBounds,

@@ -35,10 +35,10 @@
 //!
 //! After each run the service publishes, with single-word atomics (no critical
 //! section: nothing may mask the E-STOP), what idle reads between jobs: the state's name
-//! (the console prompt) and the events for the log (a bounded queue; an event that does
-//! not fit waits in the controller's own queue). Idle publishes back the maintenance
-//! mode (the console's login), whether a Modbus reply is on the wire (no flash work
-//! then) and the stack's high-water mark.
+//! (the console prompt). Idle publishes back the maintenance mode (the console's login),
+//! whether a Modbus reply is on the wire (no flash work then) and the stack's high-water
+//! mark. (The log's events are not handed over: the control step logs each one where it
+//! happens; idle logged them a second time up to issue 20.)
 
 use core::cell::UnsafeCell;
 use core::sync::atomic::{AtomicBool, AtomicU32, AtomicU8, Ordering};

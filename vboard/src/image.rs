@@ -229,6 +229,7 @@ pub fn newer_source(elf: &std::path::Path, root: &std::path::Path) -> Option<std
             "memory.x",
             "odometer-guard.x",
             "persist.x",
+            "hot.x",
         ]
         .map(|f| root.join(f)),
     )

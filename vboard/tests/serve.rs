@@ -36,8 +36,14 @@ fn ask(io: &mut (impl Read + Write), cmd: &str, want: &str) -> String {
             Ok(n) if n > 0 => got.push_str(&String::from_utf8_lossy(&buf[..n])),
             _ => std::thread::sleep(Duration::from_millis(20)),
         }
-        if let Some(l) = got.lines().find(|l| l.starts_with(want)) {
-            return l.to_string();
+        // Whole lines only: a read can end in the middle of the reply's line (seen on a
+        // loaded machine: "docking-controller 0.1." compared as the version).
+        if let Some(l) = got
+            .split_inclusive('\n')
+            .filter(|l| l.ends_with('\n'))
+            .find(|l| l.starts_with(want))
+        {
+            return l.trim_end().to_string();
         }
     }
     panic!("no reply starting {want:?} to {cmd:?}; got {got:?}");

@@ -407,7 +407,7 @@ impl Xtask {
     /// tests and its boot scene on the release image.
     fn vboard_tests(&mut self) -> bool {
         let mut ok = self.run("boot", "cargo", &["build", "--release"], &[]);
-        ok &= self.tests("vboard", &["test", "--release"]);
+        ok &= self.tests_in_lanes("vboard", &["--release"]);
         ok &= self.run(
             "vboard",
             "cargo",
@@ -415,6 +415,94 @@ impl Xtask {
             &[],
         );
         ok
+    }
+
+    /// `cargo test ARGS` in `dir`, each test in a process of its own, as many at a time
+    /// as the machine has cores (longest first, [`LONG_FIRST`]): the virtual board's
+    /// binaries are mostly one long emulation each, which cargo would run one binary
+    /// after another with a core idle. Each test's result and time are printed; its
+    /// output only when it fails. Counted into `passed` / `failed` test by test.
+    fn tests_in_lanes(&mut self, dir: &str, args: &[&str]) -> bool {
+        let mut build = vec!["test", "--no-run", "--message-format=json"];
+        build.extend_from_slice(args);
+        let Some(json) = self.output(dir, "cargo", &build) else {
+            println!("FAIL: cargo test --no-run in {dir}");
+            return false;
+        };
+        let mut jobs = Vec::new();
+        for exe in executables(&json) {
+            let list = |extra: &[&str]| {
+                let mut a = vec!["--list", "--format", "terse"];
+                a.extend_from_slice(extra);
+                self.output(dir, &exe, &a).map(|o| test_names(&o))
+            };
+            let (Some(all), Some(ignored)) = (list(&[]), list(&["--ignored"])) else {
+                println!("FAIL: {exe} --list");
+                return false;
+            };
+            jobs.extend(
+                all.into_iter()
+                    .filter(|t| !ignored.contains(t))
+                    .map(|t| (exe.clone(), t)),
+            );
+        }
+        // Longest first (stable: the rest keep cargo's order).
+        jobs.sort_by_key(|(_, t)| {
+            LONG_FIRST
+                .iter()
+                .position(|l| l == t)
+                .unwrap_or(LONG_FIRST.len())
+        });
+        let lanes = std::thread::available_parallelism().map_or(1, |n| n.get());
+        println!("{} tests in {lanes} lanes", jobs.len());
+        let queue = std::sync::Mutex::new(jobs.into_iter());
+        let results = std::sync::Mutex::new((0u64, 0u64));
+        let cwd = self.root.join(dir);
+        std::thread::scope(|s| {
+            for _ in 0..lanes {
+                s.spawn(|| loop {
+                    let next = queue.lock().map(|mut q| q.next()).ok().flatten();
+                    let Some((exe, test)) = next else { break };
+                    let t = Instant::now();
+                    let out = Command::new(&exe)
+                        .args(["--exact", &test, "--test-threads", "1"])
+                        .current_dir(&cwd)
+                        .stdin(Stdio::null())
+                        .output();
+                    let secs = t.elapsed().as_secs_f64();
+                    let name = Path::new(&exe)
+                        .file_name()
+                        .map_or(String::new(), |n| n.to_string_lossy().into_owned());
+                    let bin = name.rsplit_once('-').map_or(name.as_str(), |(b, _)| b);
+                    let ok = out.as_ref().is_ok_and(|o| o.status.success());
+                    println!(
+                        "test {bin}::{test} ... {} ({secs:.1} s)",
+                        if ok { "ok" } else { "FAILED" }
+                    );
+                    if !ok {
+                        match &out {
+                            Ok(o) => {
+                                print!("{}", String::from_utf8_lossy(&o.stdout));
+                                print!("{}", String::from_utf8_lossy(&o.stderr));
+                            }
+                            Err(e) => println!("xtask: {exe}: {e}"),
+                        }
+                    }
+                    if let Ok(mut r) = results.lock() {
+                        if ok {
+                            r.0 += 1;
+                        } else {
+                            r.1 += 1;
+                        }
+                    }
+                });
+            }
+        });
+        let (passed, failed) = results.into_inner().unwrap_or_default();
+        println!("test result (lanes): {passed} passed; {failed} failed");
+        self.passed += passed;
+        self.failed += failed;
+        failed == 0
     }
 
     fn vboard(&mut self) -> bool {
@@ -492,6 +580,47 @@ impl Xtask {
     }
 }
 
+/// The virtual board's longest tests (tens of seconds each; `cargo xtask vboard`
+/// prints every test's time), started first so that the lanes end together. Only a
+/// schedule: a name that no longer exists is skipped, a new long test costs only
+/// the balance.
+const LONG_FIRST: &[&str] = &[
+    "one_seed_at_cpi_1_and_3_and_the_cache_model_under_flood_meets_the_targets",
+    "dock_hold_an_hour_on_the_board_counts_one_cycle_without_wear_while_mated",
+    "a_console_byte_was_lost_while_a_record_was_written",
+    "a_critical_section_restored_from_lr_was_measured_as_still_masked",
+    "overload_stop_waited_for_the_main_loop_at_10_sps_during_a_console_flood",
+    "overload_stop_waited_for_the_main_loop_at_80_sps_during_a_console_flood",
+];
+
+/// The test executables in `cargo test --no-run --message-format=json`'s output (the
+/// artifacts built with the test profile: not the package's own binaries, which are
+/// built too when a test runs them).
+fn executables(json: &str) -> Vec<String> {
+    json.lines()
+        .filter(|l| l.contains("\"reason\":\"compiler-artifact\""))
+        .filter(|l| {
+            // The profile's own `test` (the target object has a `test` key too).
+            l.find("\"profile\":{").is_some_and(|at| {
+                let profile = &l[at..];
+                profile[..profile.find('}').unwrap_or(0)].contains("\"test\":true")
+            })
+        })
+        .filter_map(|l| {
+            let rest = &l[l.find("\"executable\":\"")? + 14..];
+            Some(rest[..rest.find('"')?].to_string())
+        })
+        .collect()
+}
+
+/// The names in a libtest `--list --format terse` output (`name: test`).
+fn test_names(list: &str) -> Vec<String> {
+    list.lines()
+        .filter_map(|l| l.strip_suffix(": test"))
+        .map(str::to_string)
+        .collect()
+}
+
 /// `(passed, failed)` of a libtest summary line
 /// (`test result: ok. 12 passed; 0 failed; 1 ignored; …`).
 fn test_summary(line: &str) -> Option<(u64, u64)> {
@@ -506,7 +635,8 @@ fn test_summary(line: &str) -> Option<(u64, u64)> {
 /// The image's sections as `size -A` reports them, bytes.
 #[derive(Debug, Default, PartialEq)]
 struct Sections {
-    /// .vector_table, .image_header (issue 21), .text, .rodata: in flash.
+    /// .vector_table, .image_header (issue 21), .text.hot (the safety path's handlers,
+    /// hot.x), .text, .rodata: in flash.
     text: u64,
     /// .data: in flash (its load image) and in RAM.
     data: u64,
@@ -526,7 +656,9 @@ impl Sections {
                 continue;
             };
             match name {
-                ".vector_table" | ".image_header" | ".text" | ".rodata" => s.text += n,
+                ".vector_table" | ".image_header" | ".text.hot" | ".text" | ".rodata" => {
+                    s.text += n
+                }
                 ".data" => s.data += n,
                 ".bss" | ".uninit" | ".persist" => s.bss += n,
                 _ => {}
@@ -563,18 +695,35 @@ mod tests {
     }
 
     #[test]
+    fn the_test_executables_and_names_are_read_from_cargo_and_libtest() {
+        let json = concat!(
+            r#"{"reason":"compiler-artifact","target":{"name":"vboard","test":true},"profile":{"opt_level":"3","test":false},"executable":"/t/release/vboard","fresh":true}"#,
+            "\n",
+            r#"{"reason":"compiler-artifact","target":{"name":"sweep"},"profile":{"test":true},"executable":"/t/release/deps/sweep-0123","fresh":true}"#,
+            "\n",
+            r#"{"reason":"build-finished","success":true}"#,
+            "\n"
+        );
+        assert_eq!(executables(json), vec!["/t/release/deps/sweep-0123"]);
+        assert_eq!(
+            test_names("a_b: test\nc: test\nsome_bench: bench\n\n2 tests, 0 benchmarks\n"),
+            vec!["a_b", "c"]
+        );
+    }
+
+    #[test]
     fn the_sections_of_a_size_report_add_up_as_the_budget_counts_them() {
-        let report = "docking-controller  :\nsection   size   addr\n.vector_table   392   134217728\n.text   90000   134218120\n.rodata   14000   0\n.data   476   536895488\n.bss   24000   0\n.uninit   604   0\n.debug_info 99999 0\nTotal 1\n";
+        let report = "docking-controller  :\nsection   size   addr\n.vector_table   392   134217728\n.text.hot   162   134218128\n.text   90000   134218296\n.rodata   14000   0\n.data   476   536895488\n.bss   24000   0\n.uninit   604   0\n.debug_info 99999 0\nTotal 1\n";
         let s = Sections::of(report);
         assert_eq!(
             s,
             Sections {
-                text: 104_392,
+                text: 104_554,
                 data: 476,
                 bss: 24_604
             }
         );
-        assert_eq!(s.flash(), 104_868);
+        assert_eq!(s.flash(), 105_030);
         assert_eq!(s.ram(), 25_080);
     }
 }

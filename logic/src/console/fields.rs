@@ -22,7 +22,6 @@
 //!
 //! ```
 //! use docking_logic::console::fields::{Fields, JsonFields, TextFields};
-//! use core::fmt::Write;
 //! fn report(f: &mut dyn Fields) -> core::fmt::Result {
 //!     f.u64("cycles_completed", 3)?;
 //!     f.bool("in_estop_open", false)?;
@@ -41,9 +40,9 @@
 //! # Ok::<(), core::fmt::Error>(())
 //! ```
 
-use core::fmt::{self, Write};
+use core::fmt;
 
-use super::json::{write_fixed, write_str_escaped};
+use super::json::{write_fixed, write_hex, write_str_escaped, write_u64, Sink};
 
 /// A record's fields, written into a [`Fields`] sink.
 pub type Record<'a> = dyn FnMut(usize, &mut dyn Fields) -> fmt::Result + 'a;
@@ -52,12 +51,12 @@ pub type Record<'a> = dyn FnMut(usize, &mut dyn Fields) -> fmt::Result + 'a;
 pub trait Fields {
     /// Write `key` and what separates it from its value (`key=`, `"key":`, after the
     /// previous field's separator); the value goes to the writer returned.
-    fn value(&mut self, key: &str) -> Result<&mut dyn Write, fmt::Error>;
+    fn value(&mut self, key: &str) -> Result<&mut dyn Sink, fmt::Error>;
     /// A string.
     fn str(&mut self, key: &str, v: &str) -> fmt::Result;
     /// An unsigned integer (the same digits in text and JSON).
     fn u64(&mut self, key: &str, v: u64) -> fmt::Result {
-        write!(self.value(key)?, "{v}")
+        write_u64(self.value(key)?, v)
     }
     /// A fixed-point number: `v / 10^decimals` (the same digits in text and JSON).
     fn fixed(&mut self, key: &str, v: i64, decimals: u8) -> fmt::Result {
@@ -82,7 +81,7 @@ pub trait Fields {
 /// `key=value` text: the report's fields on the first line, each object and record on
 /// a line of its own.
 pub struct TextFields<'w> {
-    w: &'w mut dyn Write,
+    w: &'w mut dyn Sink,
     /// Something is on the current line (the next field is preceded by a space).
     on_line: bool,
     /// Any line begun (the next object or record starts a new line).
@@ -94,7 +93,7 @@ pub struct TextFields<'w> {
 
 impl<'w> TextFields<'w> {
     /// Text into `w`.
-    pub fn new(w: &'w mut dyn Write) -> Self {
+    pub fn new(w: &'w mut dyn Sink) -> Self {
         Self {
             w,
             on_line: false,
@@ -105,7 +104,7 @@ impl<'w> TextFields<'w> {
 
     fn new_line(&mut self) -> fmt::Result {
         if self.started {
-            self.w.write_str("\r\n")?;
+            self.w.put("\r\n")?;
         }
         self.on_line = false;
         self.started = true;
@@ -116,33 +115,35 @@ impl<'w> TextFields<'w> {
     /// End the last line.
     pub fn finish(self) -> fmt::Result {
         if self.started {
-            self.w.write_str("\r\n")?;
+            self.w.put("\r\n")?;
         }
         Ok(())
     }
 }
 
 impl Fields for TextFields<'_> {
-    fn value(&mut self, key: &str) -> Result<&mut dyn Write, fmt::Error> {
+    fn value(&mut self, key: &str) -> Result<&mut dyn Sink, fmt::Error> {
         if self.nested {
             self.new_line()?;
         }
         if self.on_line {
-            self.w.write_char(' ')?;
+            self.w.put(" ")?;
         }
         self.on_line = true;
         self.started = true;
-        self.w.write_str(key)?;
-        self.w.write_char('=')?;
+        self.w.put(key)?;
+        self.w.put("=")?;
         Ok(&mut *self.w)
     }
 
     fn str(&mut self, key: &str, v: &str) -> fmt::Result {
-        self.value(key)?.write_str(v)
+        self.value(key)?.put(v)
     }
 
     fn hex32(&mut self, key: &str, v: u32) -> fmt::Result {
-        write!(self.value(key)?, "{v:#010x}")
+        let w = self.value(key)?;
+        w.put("0x")?;
+        write_hex(w, v, 8)
     }
 
     fn bool(&mut self, key: &str, v: bool) -> fmt::Result {
@@ -159,7 +160,7 @@ impl Fields for TextFields<'_> {
         f: &mut dyn FnMut(&mut dyn Fields) -> fmt::Result,
     ) -> fmt::Result {
         self.new_line()?;
-        self.w.write_str(key)?;
+        self.w.put(key)?;
         self.on_line = true;
         f(self)?;
         self.nested = true;
@@ -178,32 +179,44 @@ impl Fields for TextFields<'_> {
 
 /// One JSON object on one line.
 pub struct JsonFields<'w> {
-    w: &'w mut dyn Write,
+    w: &'w mut dyn Sink,
     /// No field written yet in the innermost object.
     first: bool,
 }
 
 impl<'w> JsonFields<'w> {
     /// An object into `w` (its opening brace written now).
-    pub fn new(w: &'w mut dyn Write) -> Result<Self, fmt::Error> {
-        w.write_char('{')?;
+    pub fn new(w: &'w mut dyn Sink) -> Result<Self, fmt::Error> {
+        w.put("{")?;
         Ok(Self { w, first: true })
     }
 
     /// Close the object.
     pub fn finish(self) -> fmt::Result {
-        self.w.write_char('}')
+        self.w.put("}")
+    }
+
+    /// An array of strings, `"key":["a","b"]` (JSON only: `help --json`'s list).
+    pub fn strings(&mut self, key: &str, items: &mut dyn Iterator<Item = &str>) -> fmt::Result {
+        self.value(key)?.put("[")?;
+        for (i, s) in items.enumerate() {
+            if i > 0 {
+                self.w.put(",")?;
+            }
+            write_str_escaped(self.w, s)?;
+        }
+        self.w.put("]")
     }
 }
 
 impl Fields for JsonFields<'_> {
-    fn value(&mut self, key: &str) -> Result<&mut dyn Write, fmt::Error> {
+    fn value(&mut self, key: &str) -> Result<&mut dyn Sink, fmt::Error> {
         if !self.first {
-            self.w.write_char(',')?;
+            self.w.put(",")?;
         }
         self.first = false;
         write_str_escaped(self.w, key)?;
-        self.w.write_char(':')?;
+        self.w.put(":")?;
         Ok(&mut *self.w)
     }
 
@@ -216,11 +229,11 @@ impl Fields for JsonFields<'_> {
     }
 
     fn bool(&mut self, key: &str, v: bool) -> fmt::Result {
-        self.value(key)?.write_str(if v { "true" } else { "false" })
+        self.value(key)?.put(if v { "true" } else { "false" })
     }
 
     fn none(&mut self, key: &str) -> fmt::Result {
-        self.value(key)?.write_str("null")
+        self.value(key)?.put("null")
     }
 
     fn object(
@@ -228,26 +241,26 @@ impl Fields for JsonFields<'_> {
         key: &str,
         f: &mut dyn FnMut(&mut dyn Fields) -> fmt::Result,
     ) -> fmt::Result {
-        self.value(key)?.write_char('{')?;
+        self.value(key)?.put("{")?;
         self.first = true;
         f(self)?;
         self.first = false;
-        self.w.write_char('}')
+        self.w.put("}")
     }
 
     fn records(&mut self, key: &str, n: usize, item: &mut Record<'_>) -> fmt::Result {
-        self.value(key)?.write_char('[')?;
+        self.value(key)?.put("[")?;
         for i in 0..n {
             if i > 0 {
-                self.w.write_char(',')?;
+                self.w.put(",")?;
             }
-            self.w.write_char('{')?;
+            self.w.put("{")?;
             self.first = true;
             item(i, self)?;
-            self.w.write_char('}')?;
+            self.w.put("}")?;
         }
         self.first = false;
-        self.w.write_char(']')
+        self.w.put("]")
     }
 }
 
@@ -320,6 +333,16 @@ mod tests {
         let (t, j) = both(&|f| f.records("history", 0, &mut |_, _| Ok(())));
         assert_eq!(t, "");
         assert_eq!(j, r#"{"history":[]}"#);
+    }
+
+    #[test]
+    fn a_json_array_of_strings() {
+        let mut j = String::new();
+        let mut w = JsonFields::new(&mut j).unwrap();
+        w.strings("a", &mut ["x", "y\""].into_iter()).unwrap();
+        w.strings("b", &mut core::iter::empty()).unwrap();
+        w.finish().unwrap();
+        assert_eq!(j, r#"{"a":["x","y\""],"b":[]}"#);
     }
 
     #[test]

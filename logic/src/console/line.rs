@@ -316,7 +316,14 @@ impl<const N: usize> LineReader<N> {
         }
         match core::str::from_utf8(&self.buf) {
             Err(_) => Some(LineEvent::Error(LineError::NotUtf8)),
-            Ok(s) if s.chars().any(|c| c != '\t' && c.is_control()) => {
+            // The C0 controls and DEL never reach the buffer (`push`): what is left to
+            // find are the C1 controls, U+0080–U+009F, `C2 80`–`C2 9F` in UTF-8 (by
+            // bytes, not chars: no decoding, issue 20).
+            Ok(s)
+                if s.as_bytes()
+                    .windows(2)
+                    .any(|w| matches!(w, [0xC2, 0x80..=0x9F])) =>
+            {
                 Some(LineEvent::Error(LineError::ControlChar))
             }
             Ok(s) if s.trim_matches([' ', '\t']).is_empty() => None,

@@ -85,36 +85,53 @@ type Parser = for<'a> fn(&Args<'a>) -> Result<Command<'a>, ParseError>;
 /// first word here and runs that entry's parser, and `help` prints it.
 #[derive(Clone, Copy)]
 pub struct CommandHelp {
-    /// The first word (what `help <command>` takes).
-    pub word: &'static str,
-    /// The syntax.
+    /// The syntax (its first word is the command's, [`Self::word`]).
     pub usage: &'static str,
     /// What it does, one line.
     pub what: &'static str,
     parse: Parser,
 }
 
+impl CommandHelp {
+    /// The first word (what `help <command>` takes): the usage's, up to its first space
+    /// (not stored apart: issue 20).
+    pub fn word(&self) -> &'static str {
+        let n = self.usage.bytes().position(|b| b == b' ');
+        self.usage
+            .get(..n.unwrap_or(self.usage.len()))
+            .unwrap_or(self.usage)
+    }
+}
+
 impl core::fmt::Debug for CommandHelp {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_struct("CommandHelp")
-            .field("word", &self.word)
+            .field("word", &self.word())
             .field("usage", &self.usage)
             .finish()
     }
 }
 
+/// One entry: `word` must be the first word of `usage` (checked when the table is
+/// built, at compile time).
+// Evaluated only to build the constant table: an index out of bounds here (there is
+// none: `i < w.len() <= u.len()`) would fail the build, not the firmware; `get` is not
+// available in a const fn.
+#[allow(clippy::indexing_slicing)]
 const fn c(
     word: &'static str,
     usage: &'static str,
     what: &'static str,
     parse: Parser,
 ) -> CommandHelp {
-    CommandHelp {
-        word,
-        usage,
-        what,
-        parse,
+    let (w, u) = (word.as_bytes(), usage.as_bytes());
+    assert!(w.len() <= u.len() && (u.len() == w.len() || u[w.len()] == b' '));
+    let mut i = 0;
+    while i < w.len() {
+        assert!(w[i] == u[i], "a command's word starts its usage");
+        i += 1;
     }
+    CommandHelp { usage, what, parse }
 }
 
 /// Every console command, in `help`'s order.
@@ -530,13 +547,19 @@ impl Snippet {
     /// `...` appended when truncated.
     pub fn new(word: &str) -> Self {
         let mut s = heapless::String::new();
-        for (i, c) in word.chars().enumerate() {
+        // Character by character, counted at the first byte of each (UTF-8 continuation
+        // bytes, `10xxxxxx`, are no character of their own): no decoding (issue 20).
+        let starts = word.bytes().filter(|&b| b & 0xC0 != 0x80);
+        for (i, b) in starts.enumerate() {
             if i >= Self::KEEP {
                 let _ = s.push_str("...");
                 break;
             }
-            let c = if c.is_ascii_graphic() { c } else { '?' };
-            let _ = s.push(c);
+            let _ = s.push(if b.is_ascii_graphic() {
+                char::from(b)
+            } else {
+                '?'
+            });
         }
         Self(s)
     }
@@ -567,43 +590,68 @@ pub enum ParseError {
     JsonNotSupported,
 }
 
-/// What an argument must look like, for error messages.
+/// What each argument must look like, for error messages: a table searched in order
+/// (a `match` on strings compiled to a comparison chain three times its size).
+const HINTS: [(&str, &str); 17] = [
+    ("N", "1..100"),
+    ("material", "zqsn5-2 | qsn6-6-3 | cf-peek"),
+    ("serial", "1-20 chars of A-Z a-z 0-9 _ -"),
+    ("bore_diameter_mm", "20.000..40.000, up to 3 decimals"),
+    ("d0_mm", "20.000..40.000, up to 3 decimals"),
+    ("force_n", "1.000..900.000, up to 3 decimals"),
+    ("pin", "4-12 digits"),
+    ("new_pin", "4-12 digits"),
+    ("cone subcommand", "replace"),
+    ("calibrate subcommand", "tare | span"),
+    ("pin subcommand", "set"),
+    ("bor subcommand", "set"),
+    ("rate_sps", "10 | 80"),
+    ("unit", "1..247"),
+    ("baud", "9600 | 19200 | 38400 | 57600 | 115200"),
+    ("echo setting", "on | off"),
+    ("command", "a command word, e.g. 'help dock'"),
+];
+
+/// What an argument must look like, for error messages (`see 'help'` for any other).
 fn hint(arg: &str) -> &'static str {
-    match arg {
-        "N" => "1..100",
-        "material" => "zqsn5-2 | qsn6-6-3 | cf-peek",
-        "serial" => "1-20 chars of A-Z a-z 0-9 _ -",
-        "bore_diameter_mm" | "d0_mm" => "20.000..40.000, up to 3 decimals",
-        "force_n" => "1.000..900.000, up to 3 decimals",
-        "pin" | "new_pin" => "4-12 digits",
-        "cone subcommand" => "replace",
-        "calibrate subcommand" => "tare | span",
-        "pin subcommand" => "set",
-        "bor subcommand" => "set",
-        "rate_sps" => "10 | 80",
-        "unit" => "1..247",
-        "baud" => "9600 | 19200 | 38400 | 57600 | 115200",
-        "echo setting" => "on | off",
-        "command" => "a command word, e.g. 'help dock'",
-        _ => "see 'help'",
+    HINTS
+        .iter()
+        .find(|(a, _)| *a == arg)
+        .map_or("see 'help'", |&(_, h)| h)
+}
+
+impl ParseError {
+    /// Write the message (one line; `Display` writes the same). Pieces, not `write!`:
+    /// the console writes no number or text through core::fmt (issue 20).
+    pub fn write_message(&self, f: &mut dyn super::json::Sink) -> fmt::Result {
+        // A fixed text, or a head, an argument, a middle and the argument's hint.
+        let (head, arg, mid, tail) = match self {
+            Self::Empty => ("empty line; type 'help'", "", "", ""),
+            Self::UnknownCommand(w) => ("unknown command '", w.as_str(), "'; type 'help'", ""),
+            Self::UnknownOption => ("unknown option; only --json is accepted", "", "", ""),
+            Self::MissingArgument(a) => ("missing <", *a, "> (", ")"),
+            Self::BadArgument(a) => ("bad <", *a, ">; expected ", ""),
+            Self::ExtraArgument => ("too many arguments; type 'help'", "", "", ""),
+            Self::JsonNotSupported => (
+                "--json only applies to help, version, status, wear, history, measurements, faults",
+                "",
+                "",
+                "",
+            ),
+        };
+        f.put(head)?;
+        f.put(arg)?;
+        f.put(mid)?;
+        if let Self::MissingArgument(a) | Self::BadArgument(a) = self {
+            f.put(hint(a))?;
+        }
+        f.put(tail)
     }
 }
 
 impl fmt::Display for ParseError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Self::Empty => f.write_str("empty line; type 'help'"),
-            Self::UnknownCommand(w) => {
-                write!(f, "unknown command '{}'; type 'help'", w.as_str())
-            }
-            Self::UnknownOption => f.write_str("unknown option; only --json is accepted"),
-            Self::MissingArgument(a) => write!(f, "missing <{}> ({})", a, hint(a)),
-            Self::BadArgument(a) => write!(f, "bad <{}>; expected {}", a, hint(a)),
-            Self::ExtraArgument => f.write_str("too many arguments; type 'help'"),
-            Self::JsonNotSupported => f.write_str(
-                "--json only applies to help, version, status, wear, history, measurements, faults",
-            ),
-        }
+        self.write_message(f)
     }
 }
 
@@ -670,12 +718,13 @@ impl<'a> Args<'a> {
 
 /// Parse one console line (see the module doc for the grammar): its first word names
 /// the [`COMMANDS`] entry whose parser reads the rest.
+#[inline(never)]
 pub fn parse(line: &str) -> Result<Command<'_>, ParseError> {
     let mut tokens = line.split([' ', '\t']).filter(|t| !t.is_empty());
     let word = tokens.next().ok_or(ParseError::Empty)?;
     let entry = COMMANDS
         .iter()
-        .find(|c| c.word == word)
+        .find(|c| c.word() == word)
         .ok_or(ParseError::UnknownCommand(Snippet::new(word)))?;
     let a = Args::collect(tokens)?;
     (entry.parse)(&a)
@@ -687,7 +736,7 @@ fn help_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
     }
     let topic = match a.pos.as_slice() {
         [] => None,
-        [t] if COMMANDS.iter().any(|c| c.word == *t) => Some(*t),
+        [t] if COMMANDS.iter().any(|c| c.word() == *t) => Some(*t),
         [_] => return Err(ParseError::BadArgument("command")),
         _ => return Err(ParseError::ExtraArgument),
     };
@@ -775,13 +824,14 @@ fn modbus_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
         [] => Ok(Command::ModbusShow),
         [unit, baud] => {
             let unit = (unit.len() <= 3 && unit.bytes().all(|b| b.is_ascii_digit()))
-                .then(|| unit.parse::<u8>().ok())
+                .then(|| parse_u32(unit))
                 .flatten()
+                .and_then(|u| u8::try_from(u).ok())
                 .filter(|u| (1..=247).contains(u))
                 .ok_or(ParseError::BadArgument("unit"))?;
             let baud = crate::modbus::BAUD_RATES
                 .into_iter()
-                .find(|b| baud.parse::<u32>().ok() == Some(*b) && baud.len() <= 6)
+                .find(|b| parse_u32(baud) == Some(*b) && baud.len() <= 6)
                 .ok_or(ParseError::BadArgument("baud"))?;
             Ok(Command::ModbusSet { unit, baud })
         }
@@ -899,6 +949,20 @@ fn bore(t: &str, name: &'static str) -> Result<u32, ParseError> {
         .ok_or(ParseError::BadArgument(name))
 }
 
+/// `s` as `u32::from_str` reads it: an optional `+`, then decimal digits; `None` on
+/// anything else or on overflow. By hand: core's generic integer parser, instantiated
+/// for `u8` and `u32`, cost more flash than `modbus`'s two arguments are worth (issue
+/// 20).
+fn parse_u32(s: &str) -> Option<u32> {
+    let d = s.strip_prefix('+').unwrap_or(s);
+    if d.is_empty() || !d.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    d.bytes().try_fold(0u32, |v, b| {
+        v.checked_mul(10)?.checked_add(u32::from(b - b'0'))
+    })
+}
+
 /// `history` count: 1..=3 ASCII digits, value 1..=100.
 fn parse_count(s: &str) -> Option<u16> {
     if !(1..=3).contains(&s.len()) || !s.bytes().all(|b| b.is_ascii_digit()) {
@@ -952,6 +1016,31 @@ mod tests {
                 "docs/console.md does not list `{}`",
                 c.usage
             );
+        }
+    }
+
+    /// `parse_u32` reads what `u32::from_str` reads, and refuses what it refuses.
+    #[test]
+    fn u32_as_from_str_reads_it() {
+        for t in [
+            "0",
+            "7",
+            "+7",
+            "09600",
+            "+19200",
+            "4294967295",
+            "4294967296",
+            "",
+            "+",
+            "-1",
+            "+-1",
+            "1.0",
+            " 1",
+            "1 ",
+            "12a",
+            "99999999999",
+        ] {
+            assert_eq!(parse_u32(t), t.parse::<u32>().ok(), "{t:?}");
         }
     }
 

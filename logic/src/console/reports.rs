@@ -9,7 +9,8 @@
 use core::fmt;
 
 use super::fields::Fields;
-use crate::controller::{Bsp, Controller, HistoryEntry};
+use crate::controller::HistoryEntry;
+use crate::machine::Machine;
 
 /// The entries of one `history` reply.
 pub(super) type HistoryEntries =
@@ -236,7 +237,7 @@ pub(super) fn measurements_fields(f: &mut dyn Fields, v: &MeasurementsView) -> f
 }
 
 /// `status`'s data (with the controller).
-pub(super) fn status_view<B: Bsp>(ctrl: &Controller<B>, maint: bool) -> StatusView {
+pub(super) fn status_view(ctrl: &dyn Machine, maint: bool) -> StatusView {
     StatusView {
         s: ctrl.status(),
         calibrated: ctrl.calibrated(),
@@ -247,7 +248,7 @@ pub(super) fn status_view<B: Bsp>(ctrl: &Controller<B>, maint: bool) -> StatusVi
 }
 
 /// `wear`'s data (with the controller).
-pub(super) fn wear_view<B: Bsp>(ctrl: &Controller<B>) -> WearView {
+pub(super) fn wear_view(ctrl: &dyn Machine) -> WearView {
     let odo = ctrl.odometer();
     let cone = *odo.cone();
     let cfg = *odo.config();
@@ -273,13 +274,30 @@ pub(super) fn wear_view<B: Bsp>(ctrl: &Controller<B>) -> WearView {
     }
 }
 
+/// The recent faults, copied field by field: a whole-record copy out of the
+/// controller (not provably apart from the view) is a `memmove`, and it and
+/// [`crate::controller::Controller::history`]'s were the last callers of its 1.5 KB (issue 20).
+fn fault_records(ctrl: &dyn Machine) -> heapless::Vec<crate::controller::FaultRecord, 16> {
+    let mut recs = heapless::Vec::new();
+    ctrl.each_fault(&mut |r| {
+        let _ = recs.push(crate::controller::FaultRecord {
+            kind: r.kind,
+            cycle: r.cycle,
+            phase: r.phase,
+            t_ms: r.t_ms,
+            peak_force_mn: r.peak_force_mn,
+        });
+    });
+    recs
+}
+
 /// `faults`' data (with the controller).
-pub(super) fn faults_view<B: Bsp>(ctrl: &Controller<B>) -> FaultsView {
+pub(super) fn faults_view(ctrl: &dyn Machine) -> FaultsView {
     FaultsView {
         active: ctrl.status().fault.map(|f| f.name()),
         count: ctrl.fault_count(),
         overloads: ctrl.odometer().lifetime().overload_events,
-        recs: ctrl.faults().copied().collect(),
+        recs: fault_records(ctrl),
         resets: ctrl.reset_counts(),
         // Records waiting for a rest to be written, and those the full queue dropped.
         queued: ctrl.records_queued(),
@@ -289,7 +307,7 @@ pub(super) fn faults_view<B: Bsp>(ctrl: &Controller<B>) -> FaultsView {
 }
 
 /// `measurements`' data (with the controller).
-pub(super) fn measurements_view<B: Bsp>(ctrl: &Controller<B>) -> MeasurementsView {
+pub(super) fn measurements_view(ctrl: &dyn Machine) -> MeasurementsView {
     MeasurementsView {
         base: ctrl.baseline_or_nominal(),
         assumed: ctrl.odometer().cone().baseline().is_none(),

@@ -45,13 +45,12 @@ use core::fmt::{self, Write};
 use core::mem::size_of;
 
 use heapless::{Deque, String};
-use sha2::{Digest, Sha256};
 use zerocopy::byteorder::little_endian::{U16, U32, U64};
 use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
 use super::auth::{make_pin_record, MaintenanceAuth, PinRecord};
 use super::fields::{Fields, JsonFields, TextFields};
-use super::json::JsonObject;
+use super::json::{write_i64, write_u64, Sink};
 use super::line::{LineEvent, LineReader, BS, CR, DEL, ESC, LF, MAX_BYTES_PER_POLL, TAB};
 use super::parse::{parse, Command, COMMANDS};
 use super::reports::{
@@ -59,11 +58,12 @@ use super::reports::{
     status_fields, status_view, wear_fields, wear_view, FaultsView, HistoryEntries,
     MeasurementsView, StatusView, WearView,
 };
-use crate::controller::{Bsp, Controller};
 use crate::hal::ConsoleIo;
+use crate::machine::Machine;
 use crate::odometer::{kind, SERIAL_MAX};
 use crate::sequencer::Request;
 use crate::storage::PAYLOAD_MAX;
+use crate::update::VERSION_TEXT_MAX;
 
 const _: () = assert!(size_of::<AuditLayout>() == PAYLOAD_MAX);
 
@@ -179,8 +179,76 @@ impl Write for Out {
 
 /// Write ` key=` and a fixed-point value (`value_scaled` with `decimals` decimals).
 fn kv_fixed(o: &mut Out, key: &str, value_scaled: i64, decimals: u8) -> fmt::Result {
-    write!(o, " {key}=")?;
+    kv(o, key)?;
     super::json::write_fixed(o, value_scaled, decimals)
+}
+
+/// Write ` key=` (its value follows).
+fn kv(o: &mut Out, key: &str) -> fmt::Result {
+    o.write_str(" ")?;
+    o.write_str(key)?;
+    o.write_str("=")
+}
+
+/// Write each of `parts` in turn (a reply's literal text and the values between).
+fn write_all(o: &mut Out, parts: &[&str]) -> fmt::Result {
+    parts.iter().try_for_each(|p| o.write_str(p))
+}
+
+/// The running image's version (its header's), or the build's where no header is known
+/// (the simulators).
+fn running_text<'a>(
+    images: &crate::update::ImageReport,
+    buf: &'a mut [u8; VERSION_TEXT_MAX],
+) -> &'a str {
+    match images.running {
+        Some(_) => super::update::version_text(images.running, buf),
+        None => env!("CARGO_PKG_VERSION"),
+    }
+}
+
+/// A reply's message: written piece by piece, never through core::fmt's `write!`
+/// (issue 20: the console's replies are literal text, decimal numbers and fixed-point
+/// values; core::fmt's machinery and an `Arguments` at every reply cost the image
+/// more than the text itself).
+trait Message {
+    fn write_to(&self, w: &mut dyn Sink) -> fmt::Result;
+}
+
+impl Message for &str {
+    fn write_to(&self, w: &mut dyn Sink) -> fmt::Result {
+        w.put(self)
+    }
+}
+
+impl Message for crate::controller::Refusal {
+    fn write_to(&self, w: &mut dyn Sink) -> fmt::Result {
+        w.put(self.message())
+    }
+}
+
+impl Message for crate::controller::MaintError {
+    fn write_to(&self, w: &mut dyn Sink) -> fmt::Result {
+        w.put(self.message())
+    }
+}
+
+impl Message for crate::controller::CalibrateError {
+    fn write_to(&self, w: &mut dyn Sink) -> fmt::Result {
+        w.put(self.message())
+    }
+}
+
+impl Message for super::parse::ParseError {
+    fn write_to(&self, w: &mut dyn Sink) -> fmt::Result {
+        self.write_message(w)
+    }
+}
+
+impl Message for super::auth::AuthError {
+    fn write_to(&self, w: &mut dyn Sink) -> fmt::Result {
+        self.write_message(w)
+    }
 }
 
 /// The console.
@@ -305,23 +373,34 @@ impl Console {
 
     /// The boot banner: one line with a fixed prefix (`# `, so a script can skip it)
     /// naming the firmware and why it reset, then the prompt.
+    #[inline(never)]
     pub fn banner(&mut self, reset: &str) {
         self.banner_of(&crate::update::ImageReport::UNKNOWN, reset);
     }
 
     /// [`Self::banner`] naming the running image's version (its header's; issue 21).
+    #[inline(never)]
     pub fn banner_of(&mut self, images: &crate::update::ImageReport, reset: &str) {
-        let mut t = [0u8; 24];
-        let v = match images.running {
-            Some(_) => super::update::version_text(images.running, &mut t),
-            None => env!("CARGO_PKG_VERSION"),
-        };
-        self.reply(|o| write!(o, "# docking-controller {v} reset={reset}; type 'help'\r\n"));
+        let mut t = [0u8; VERSION_TEXT_MAX];
+        let v = running_text(images, &mut t);
+        self.reply(|o| {
+            write_all(
+                o,
+                &[
+                    "# docking-controller ",
+                    v,
+                    " reset=",
+                    reset,
+                    "; type 'help'\r\n",
+                ],
+            )
+        });
         self.prompt();
     }
 
     /// What the prompt shows: the machine's state, and maintenance mode at `now_ms`
     /// (the board tells the console each turn; a command's run tells it too).
+    #[inline(never)]
     pub fn observe(&mut self, state: &'static str, now_ms: u64) {
         self.term.state = Some(state);
         self.term.maint = self.auth.is_active(now_ms);
@@ -348,8 +427,8 @@ impl Console {
             return;
         }
         let st = self.term.state.unwrap_or("ready");
-        let sign = if self.term.maint { '#' } else { '>' };
-        let _ = write!(self.out, "{st}{sign} ");
+        let sign = if self.term.maint { "# " } else { "> " };
+        let _ = write_all(&mut self.out, &[st, sign]);
     }
 
     /// Erase the characters of the line being typed from the screen.
@@ -362,6 +441,7 @@ impl Console {
     /// An interactive terminal's keys, before the line reader sees a byte: arrows
     /// (Up recalls the previous line, Down clears, the rest do nothing), Ctrl-C, Ctrl-U,
     /// backspace's rub-out. Returns the byte for the reader, `None` when taken here.
+    #[inline(never)]
     fn edit_key(&mut self, byte: u8) -> Option<u8> {
         match self.term.esc {
             1 => {
@@ -436,8 +516,8 @@ impl Console {
 
     /// Seed the PIN salts with `entropy` (for a console built in a static before the
     /// board could gather any).
-    pub fn seed(&mut self, entropy: [u8; 32]) {
-        self.entropy = entropy;
+    pub fn seed(&mut self, entropy: &[u8; 32]) {
+        self.entropy.copy_from_slice(entropy);
     }
 
     /// Replies dropped because the output ring was full.
@@ -450,7 +530,7 @@ impl Console {
         self.auth.is_active(now_ms)
     }
 
-    fn flush(&mut self, io: &mut impl ConsoleIo) {
+    fn flush(&mut self, io: &mut dyn ConsoleIo) {
         while !self.out.buf.is_empty() {
             let (a, b) = self.out.buf.as_slices();
             let chunk = if a.is_empty() { b } else { a };
@@ -468,10 +548,10 @@ impl Console {
     /// phases in one call: [`Self::read_line`], [`Self::run_line`] (the only one that
     /// needs the controller), [`Self::finish`]; the board calls them apart so that it
     /// holds the controller for the run only.
-    pub fn poll<B: Bsp>(
+    pub fn poll(
         &mut self,
-        ctrl: &mut Controller<B>,
-        io: &mut impl ConsoleIo,
+        ctrl: &mut dyn Machine,
+        io: &mut dyn ConsoleIo,
         now_ms: u64,
     ) -> ConsolePoll {
         self.observe(ctrl.state().name(), now_ms);
@@ -489,10 +569,8 @@ impl Console {
 
     /// Phase 1, without the controller: take input bytes (at most
     /// `MAX_BYTES_PER_POLL`) until a whole line is in; bad input is answered here.
-    pub fn read_line(
-        &mut self,
-        io: &mut impl ConsoleIo,
-    ) -> (Option<String<LINE_MAX>>, ConsolePoll) {
+    #[inline(never)]
+    pub fn read_line(&mut self, io: &mut dyn ConsoleIo) -> (Option<String<LINE_MAX>>, ConsolePoll) {
         self.flush(io);
         let mut st = ConsolePoll::default();
         while st.bytes_in < MAX_BYTES_PER_POLL {
@@ -536,7 +614,7 @@ impl Console {
                     }
                 }
                 Some(LineEvent::Error(e)) => {
-                    self.reply(|o| write!(o, "error: {}\r\n", e.message()));
+                    self.reply(|o| write_all(o, &["error: ", e.message(), "\r\n"]));
                     self.prompt();
                 }
                 Some(LineEvent::Line(l)) => {
@@ -558,15 +636,17 @@ impl Console {
     /// computed. The controller learns the new maintenance mode from
     /// [`Self::maintenance_active`] (the board and [`Self::poll`] tell it after each
     /// command).
+    #[inline(never)]
     pub fn finish(&mut self, now_ms: u64) -> u32 {
         let json = self.deferred.report_json;
-        match core::mem::replace(&mut self.deferred.report, Report::None) {
+        let report = core::mem::replace(&mut self.deferred.report, Report::None);
+        match &report {
             Report::None => {}
-            Report::Status(v) => self.render_status(&v, json),
-            Report::Wear(v) => self.render_wear(&v, json),
-            Report::Faults(v) => self.render_faults(&v, json),
-            Report::Measurements(v) => self.render_measurements(&v, json),
-            Report::History(entries) => self.render_history(&entries, json),
+            Report::Status(v) => self.render_status(v, json),
+            Report::Wear(v) => self.render_wear(v, json),
+            Report::Faults(v) => self.render_faults(v, json),
+            Report::Measurements(v) => self.render_measurements(v, json),
+            Report::History(entries) => self.render_history(entries, json),
         }
         let hashed = self.finish_login(now_ms) + self.finish_pin_set(now_ms);
         self.term.maint = self.auth.is_active(now_ms);
@@ -601,7 +681,8 @@ impl Console {
 
     /// Phase 4, with the controller again: store what [`Self::finish`] prepared (a new
     /// PIN record: written at rest only, else refused), then the prompt.
-    pub fn store<B: Bsp>(&mut self, ctrl: &mut Controller<B>, now_ms: u64) {
+    #[inline(never)]
+    pub fn store(&mut self, ctrl: &mut dyn Machine, now_ms: u64) {
         if core::mem::take(&mut self.deferred.pin_rec_ready) {
             let rec = self.deferred.pin_rec;
             match ctrl.store_record(kind::PIN, &rec) {
@@ -640,7 +721,8 @@ impl Console {
     }
 
     /// Send what is in the output ring (as much as the link takes).
-    pub fn flush_output(&mut self, io: &mut impl ConsoleIo) {
+    #[inline(never)]
+    pub fn flush_output(&mut self, io: &mut dyn ConsoleIo) {
         self.flush(io);
     }
 
@@ -665,23 +747,32 @@ impl Console {
         }
     }
 
-    /// Write one reply as a JSON object on one line (`f` fills in the fields).
-    fn reply_json(&mut self, f: impl FnOnce(&mut JsonObject<'_, Out>) -> fmt::Result) {
-        self.reply(|o| {
-            let mut j = JsonObject::new(o);
-            f(&mut j)?;
-            j.finish()?;
-            o.write_str("\r\n")
-        });
+    fn err(&mut self, msg: &dyn Message) {
+        self.said("error: ", msg);
     }
 
-    pub(super) fn err(&mut self, msg: &dyn fmt::Display) {
-        self.reply(|o| write!(o, "error: {msg}\r\n"));
+    fn ok(&mut self, msg: &dyn Message) {
+        self.said("ok: ", msg);
+    }
+
+    /// `head`, the message, CR LF: one reply (out of line: every `ok` and `error`).
+    #[inline(never)]
+    fn said(&mut self, head: &str, msg: &dyn Message) {
+        self.reply(|o| {
+            o.write_str(head)?;
+            msg.write_to(o)?;
+            o.write_str("\r\n")
+        });
     }
 
     /// One reply of these parts, whole or not at all (no formatting).
     pub(super) fn reply_parts(&mut self, parts: &[&[u8]]) {
         self.reply(|o| parts.iter().try_for_each(|p| o.push(p)));
+    }
+
+    /// `error: ` and a refusal's message (the update's, from its own module).
+    pub(super) fn err_maint(&mut self, e: crate::controller::MaintError) {
+        self.err(&e);
     }
 
     /// `update` was accepted: the board starts its session after this reply.
@@ -710,9 +801,9 @@ impl Console {
     }
 
     /// An audit record of `act` (the update's, from its own module).
-    pub(super) fn audit_action<B: Bsp>(
+    pub(super) fn audit_action(
         &mut self,
-        ctrl: &mut Controller<B>,
+        ctrl: &mut dyn Machine,
         act: u8,
         now_ms: u64,
         detail: &[u8],
@@ -720,11 +811,7 @@ impl Console {
         self.audit(ctrl, act, now_ms, detail);
     }
 
-    fn ok(&mut self, msg: &dyn fmt::Display) {
-        self.reply(|o| write!(o, "ok: {msg}\r\n"));
-    }
-
-    fn pin_record<B: Bsp>(ctrl: &mut Controller<B>) -> Option<PinRecord> {
+    fn pin_record(ctrl: &mut dyn Machine) -> Option<PinRecord> {
         let mut buf = [0u8; 48];
         let n = ctrl.load_record(kind::PIN, &mut buf)?;
         PinRecord::from_bytes(buf.get(..n)?)
@@ -732,11 +819,11 @@ impl Console {
 
     fn new_salt(&mut self, now_ms: u64) -> [u8; 16] {
         self.salts_made = self.salts_made.wrapping_add(1);
-        let mut h = Sha256::new();
-        h.update(self.entropy);
-        h.update(self.salts_made.to_le_bytes());
-        h.update(now_ms.to_le_bytes());
-        let d = h.finalize();
+        let d = super::auth::sha256_short(&[
+            &self.entropy,
+            &self.salts_made.to_le_bytes(),
+            &now_ms.to_le_bytes(),
+        ]);
         let mut salt = [0u8; 16];
         if let Some(src) = d.get(..16) {
             salt.copy_from_slice(src);
@@ -746,9 +833,9 @@ impl Console {
 
     /// A command to the controller ([`Controller::command`]): on acceptance the audit
     /// record `act` (if any) and `ok_msg`, else the refusal.
-    fn request<B: Bsp>(
+    fn request(
         &mut self,
-        ctrl: &mut Controller<B>,
+        ctrl: &mut dyn Machine,
         r: Request,
         act: Option<u8>,
         now_ms: u64,
@@ -765,22 +852,21 @@ impl Console {
         }
     }
 
-    fn audit<B: Bsp>(&mut self, ctrl: &mut Controller<B>, act: u8, now_ms: u64, detail: &[u8]) {
+    fn audit(&mut self, ctrl: &mut dyn Machine, act: u8, now_ms: u64, detail: &[u8]) {
         let odo = ctrl.odometer();
-        let mut rec = AuditLayout {
+        let rec = AuditLayout {
             action: act,
             lifetime_cycle: odo.lifetime().cycles.into(),
             cone_id: odo.cone().id.into(),
             cone_cycle: odo.cone().cycles.into(),
             t_ms: now_ms.into(),
-            detail: [0; AUDIT_DETAIL_MAX],
+            // Byte by byte, not zero-filled then copied: a zero fill of these unaligned
+            // bytes was one of the three calls that linked compiler_builtins' memclr.
+            detail: core::array::from_fn(|i| detail.get(i).copied().unwrap_or(0)),
         };
-        for (d, s) in rec.detail.iter_mut().zip(detail) {
-            *d = *s;
-        }
         let at = AUDIT_HEAD_LEN + detail.len().min(AUDIT_DETAIL_MAX);
         info!(
-            "maintenance: action {} at lifetime cycle {}",
+            "maintenance: action {=u8} at lifetime cycle {=u32}",
             act,
             odo.lifetime().cycles
         );
@@ -800,13 +886,14 @@ impl Console {
     /// compressions, milliseconds) waits for [`Self::finish`], without the controller,
     /// and a new PIN record is stored by [`Self::store`]. Returns the PIN hashes
     /// computed here (none).
-    pub fn run_line<B: Bsp>(&mut self, ctrl: &mut Controller<B>, line: &str, now_ms: u64) -> u32 {
+    #[inline(never)]
+    pub fn run_line(&mut self, ctrl: &mut dyn Machine, line: &str, now_ms: u64) -> u32 {
         let hashes = self.run_command(ctrl, line, now_ms);
         self.term.state = Some(ctrl.state().name());
         hashes
     }
 
-    fn run_command<B: Bsp>(&mut self, ctrl: &mut Controller<B>, line: &str, now_ms: u64) -> u32 {
+    fn run_command(&mut self, ctrl: &mut dyn Machine, line: &str, now_ms: u64) -> u32 {
         let cmd = match parse(line) {
             Ok(c) => c,
             Err(e) => {
@@ -836,7 +923,7 @@ impl Console {
             Command::Help { topic, json } => self.help(topic, json),
             Command::Echo { on: None } => {
                 let on = if self.term.quiet { "off" } else { "on" };
-                self.reply(|o| write!(o, "echo={on}\r\n"));
+                self.reply(|o| write_all(o, &["echo=", on, "\r\n"]));
             }
             Command::Echo { on: Some(on) } => {
                 self.term.quiet = !on;
@@ -852,7 +939,7 @@ impl Console {
             Command::Wear { json } => self.defer(Report::Wear(wear_view(ctrl)), json),
             Command::History { n, json } => {
                 let mut entries = HistoryEntries::new();
-                ctrl.history(n as usize, |e| {
+                ctrl.history(n as usize, &mut |e| {
                     let _ = entries.push(e);
                 });
                 self.defer(Report::History(entries), json)
@@ -905,7 +992,11 @@ impl Console {
             },
             Command::BorShow => {
                 let l = ctrl.bor_level();
-                self.reply(|o| write!(o, "bor level={} ({})\r\n", l, bor_text(l)));
+                self.reply(|o| {
+                    o.write_str("bor level=")?;
+                    write_u64(o, u64::from(l))?;
+                    write_all(o, &[" (", bor_text(l), ")\r\n"])
+                });
             }
             Command::BorSet => match ctrl.program_bor() {
                 Ok(3) => self.ok(&"BOR level 3 (2.70 V) was set already"),
@@ -920,11 +1011,11 @@ impl Console {
             Command::ModbusShow => {
                 let st = crate::modbus::ModbusSettings::stored(ctrl);
                 self.reply(|o| {
-                    write!(
-                        o,
-                        "modbus unit={} baud={} format=8E1 (stored; the line uses them from the boot after they were stored)\r\n",
-                        st.unit, st.baud
-                    )
+                    o.write_str("modbus unit=")?;
+                    write_u64(o, u64::from(st.unit))?;
+                    o.write_str(" baud=")?;
+                    write_u64(o, u64::from(st.baud))?;
+                    o.write_str(" format=8E1 (stored; the line uses them from the boot after they were stored)\r\n")
                 });
             }
             Command::ModbusSet { unit, baud } => {
@@ -945,17 +1036,19 @@ impl Console {
                 bore_um,
             } => match ctrl.replace_cone_measured(material, serial, bore_um) {
                 Ok(()) => {
-                    let mut detail = ConeReplaceDetail {
+                    // Built byte by byte (no zero fill first: see `audit`).
+                    let detail = ConeReplaceDetail {
                         material: material.code(),
-                        serial: [0; SERIAL_MAX],
+                        serial: core::array::from_fn(|i| {
+                            serial.as_bytes().get(i).copied().unwrap_or(0)
+                        }),
                     };
-                    for (d, s) in detail.serial.iter_mut().zip(serial.bytes()) {
-                        *d = s;
-                    }
                     self.audit(ctrl, action::CONE_REPLACE, now_ms, detail.as_bytes());
                     let id = ctrl.odometer().cone().id;
                     self.reply(|o| {
-                            write!(o, "ok: cone {id} installed ({}, serial {serial}); cone counters start at zero;", material.name())?;
+                            o.write_str("ok: cone ")?;
+                            write_u64(o, u64::from(id))?;
+                            write_all(o, &[" installed (", material.name(), ", serial ", serial, "); cone counters start at zero;"])?;
                             match bore_um {
                                 Some(b) => kv_fixed(o, "baseline_bore_mm", b as i64, 3),
                                 None => o.write_str(" no baseline: the nominal 26.000 mm is assumed until `measure --baseline`"),
@@ -977,7 +1070,11 @@ impl Console {
                         now_ms,
                         &c.offset_counts.to_le_bytes(),
                     );
-                    self.reply(|o| write!(o, "ok: tare offset_counts={}\r\n", c.offset_counts));
+                    self.reply(|o| {
+                        o.write_str("ok: tare offset_counts=")?;
+                        write_i64(o, i64::from(c.offset_counts))?;
+                        o.write_str("\r\n")
+                    });
                 }
                 Err(e) => self.err(&e),
             },
@@ -991,11 +1088,9 @@ impl Console {
                             &force_mn.to_le_bytes(),
                         );
                         self.reply(|o| {
-                            write!(
-                                o,
-                                "ok: span set, mn_per_count_q32={}\r\n",
-                                c.mn_per_count_q32
-                            )
+                            o.write_str("ok: span set, mn_per_count_q32=")?;
+                            write_i64(o, c.mn_per_count_q32)?;
+                            o.write_str("\r\n")
                         });
                     }
                     Err(e) => self.err(&e),
@@ -1033,27 +1128,26 @@ impl Console {
     /// `help`: every command (aligned: usage, then what it does), or those of one
     /// word (`help calibrate`: both of its forms).
     fn help(&mut self, topic: Option<&str>, json: bool) {
-        let shown = |c: &&super::parse::CommandHelp| topic.is_none_or(|t| c.word == t);
+        let shown = |c: &&super::parse::CommandHelp| topic.is_none_or(|t| c.word() == t);
         if json {
-            self.reply_json(|j| {
-                j.array("commands", |a| {
-                    for c in COMMANDS.iter().filter(shown) {
-                        a.str(c.usage)?;
-                    }
-                    Ok(())
+            // Through the reports' JSON writer (`JsonFields`), as `version --json`.
+            let n = COMMANDS.iter().filter(shown).count();
+            self.reply(|o| {
+                let mut j = JsonFields::new(o)?;
+                j.strings(
+                    "commands",
+                    &mut COMMANDS.iter().filter(shown).map(|c| c.usage),
+                )?;
+                j.records("help", n, &mut |i, x| {
+                    let Some(c) = COMMANDS.iter().filter(shown).nth(i) else {
+                        return Ok(());
+                    };
+                    x.str("command", c.word())?;
+                    x.str("usage", c.usage)?;
+                    x.str("what", c.what)
                 })?;
-                j.array("help", |a| {
-                    for c in COMMANDS.iter().filter(shown) {
-                        a.object(|x| {
-                            x.str("command", c.word)?
-                                .str("usage", c.usage)?
-                                .str("what", c.what)?;
-                            Ok(())
-                        })?;
-                    }
-                    Ok(())
-                })?;
-                Ok(())
+                j.finish()?;
+                o.write_str("\r\n")
             });
         } else {
             let width = COMMANDS
@@ -1064,7 +1158,11 @@ impl Console {
                 .unwrap_or(0);
             self.reply(|o| {
                 for c in COMMANDS.iter().filter(shown) {
-                    write!(o, "{:<width$}  {}\r\n", c.usage, c.what)?;
+                    o.write_str(c.usage)?;
+                    for _ in c.usage.len()..width {
+                        o.write_str(" ")?;
+                    }
+                    write_all(o, &["  ", c.what, "\r\n"])?;
                 }
                 o.write_str(
                     "(maint: needs `maint <pin>`, and all but undock a machine at rest)\r\n",
@@ -1075,14 +1173,17 @@ impl Console {
 
     /// `version`: the running image (its header's version; the build's without one),
     /// `(test key)` when the built-in key is the test key, the image it replaced, and a
-    /// rollback (issue 21).
+    /// rollback (issue 21). Fields added to 927460b's reply, none renamed: the text's
+    /// first two words and the JSON's `name` and `version` are as they were.
+    #[inline(never)]
     fn version(&mut self, r: &crate::update::ImageReport, json: bool) {
         use super::update::version_text;
-        let (mut a, mut b, mut c) = ([0u8; 24], [0u8; 24], [0u8; 24]);
-        let v = match r.running {
-            Some(_) => version_text(r.running, &mut a),
-            None => env!("CARGO_PKG_VERSION"),
-        };
+        let (mut a, mut b, mut c) = (
+            [0u8; VERSION_TEXT_MAX],
+            [0u8; VERSION_TEXT_MAX],
+            [0u8; VERSION_TEXT_MAX],
+        );
+        let v = running_text(r, &mut a);
         let previous = version_text(r.previous, &mut b);
         let rolled = match (r.rolled_back, r.rolled_back_version) {
             (false, _) => "no",
@@ -1090,37 +1191,42 @@ impl Console {
             (true, Some(x)) => version_text(Some(x), &mut c),
         };
         if json {
-            self.reply_json(|j| {
-                j.str("name", "docking-controller")?
-                    .str("version", v)?
-                    .bool("test_key", r.test_key)?;
+            self.report(true, &mut |f| {
+                f.str("name", "docking-controller")?;
+                f.str("version", v)?;
+                f.bool("test_key", r.test_key)?;
                 match r.previous {
-                    Some(_) => j.str("previous", previous)?,
-                    None => j.null("previous")?,
+                    Some(_) => f.str("previous", previous)?,
+                    None => f.none("previous")?,
                 };
-                j.bool("rolled_back", r.rolled_back)?;
+                f.bool("rolled_back", r.rolled_back)?;
                 match (r.rolled_back, r.rolled_back_version) {
-                    (true, Some(_)) => j.str("rolled_back_version", rolled)?,
-                    _ => j.null("rolled_back_version")?,
-                };
-                Ok(())
+                    (true, Some(_)) => f.str("rolled_back_version", rolled),
+                    _ => f.none("rolled_back_version"),
+                }
             });
         } else {
-            let key: &[u8] = if r.test_key { b" (test key)" } else { b"" };
-            self.reply_parts(&[
-                b"docking-controller ",
-                v.as_bytes(),
-                key,
-                b" previous=",
-                previous.as_bytes(),
-                b" rolled_back=",
-                rolled.as_bytes(),
-                b"\r\n",
-            ]);
+            let key = if r.test_key { " (test key)" } else { "" };
+            self.reply(|o| {
+                write_all(
+                    o,
+                    &[
+                        "docking-controller ",
+                        v,
+                        key,
+                        " previous=",
+                        previous,
+                        " rolled_back=",
+                        rolled,
+                        "\r\n",
+                    ],
+                )
+            });
         }
     }
 
-    /// Leave `report` for [`Self::finish`].
+    /// Leave `report` for [`Self::finish`] (out of line: one copy of the move).
+    #[inline(never)]
     fn defer(&mut self, report: Report, json: bool) {
         self.deferred.report = report;
         self.deferred.report_json = json;
@@ -1162,13 +1268,7 @@ impl Console {
         self.report(json, &mut |f| faults_fields(f, v));
     }
 
-    fn measure<B: Bsp>(
-        &mut self,
-        ctrl: &mut Controller<B>,
-        bore_um: u32,
-        baseline: bool,
-        now_ms: u64,
-    ) {
+    fn measure(&mut self, ctrl: &mut dyn Machine, bore_um: u32, baseline: bool, now_ms: u64) {
         let m = match ctrl.add_measurement(bore_um, baseline) {
             Ok(m) => m,
             Err(e) => {
@@ -1185,7 +1285,9 @@ impl Console {
             self.reply(|o| {
                 o.write_str("ok: baseline")?;
                 kv_fixed(o, "bore_mm", bore_um as i64, 3)?;
-                write!(o, " cone={} (its wear is measured from it)\r\n", m.cone_id)
+                kv(o, "cone")?;
+                write_u64(o, u64::from(m.cone_id))?;
+                o.write_str(" (its wear is measured from it)\r\n")
             });
             return;
         }
@@ -1196,13 +1298,15 @@ impl Console {
         self.reply(|o| {
             o.write_str("ok:")?;
             kv_fixed(o, "bore_mm", bore_um as i64, 3)?;
-            write!(o, " cone_cycle={}", m.cone_cycle)?;
+            kv(o, "cone_cycle")?;
+            write_u64(o, u64::from(m.cone_cycle))?;
             kv_fixed(o, "measured_wear_mm", m.wear_nm(base) as i64, 6)?;
             kv_fixed(o, "model_wear_mm", m.model_nm as i64, 6)?;
             kv_fixed(o, "wear_estimate_mm", est.wear_nm as i64, 6)?;
             kv_fixed(o, "estimate_low_mm", est.low_nm as i64, 6)?;
             kv_fixed(o, "estimate_high_mm", est.high_nm as i64, 6)?;
-            write!(o, " remaining_estimate_cycles={}", est.remaining_cycles)?;
+            kv(o, "remaining_estimate_cycles")?;
+            write_u64(o, u64::from(est.remaining_cycles))?;
             kv_fixed(o, "baseline_bore_mm", base as i64, 3)?;
             if assumed {
                 o.write_str(

@@ -38,7 +38,7 @@ use update_layout::header::{Version, VERSION_TEXT_MAX};
 use update_layout::layout::PAGE_LEN;
 
 use super::service::{action, Console};
-use crate::controller::{Bsp, Controller};
+use crate::machine::Machine;
 use crate::odometer::kind;
 use crate::update::{marked_record, ImageReport};
 
@@ -436,7 +436,7 @@ fn decimal(v: u32, buf: &mut [u8; 10]) -> &[u8] {
 /// `update` (run with the controller, maintenance mode and rest checked by the
 /// console): at rest, READY low and requests refused for the whole update; the
 /// session starts once the reply is out ([`Console::take_update`]).
-pub(super) fn begin<B: Bsp>(console: &mut Console, ctrl: &mut Controller<B>) {
+pub(super) fn begin(console: &mut Console, ctrl: &mut dyn Machine) {
     if !console.has_updater() {
         console.reply_parts(&[
             b"error: no field update here (a simulator has no update partition): flash a board, or use the virtual board (vboard)\r\n",
@@ -444,7 +444,7 @@ pub(super) fn begin<B: Bsp>(console: &mut Console, ctrl: &mut Controller<B>) {
         return;
     }
     if let Err(e) = ctrl.begin_update() {
-        console.err(&e);
+        console.err_maint(e);
         return;
     }
     let mut n = [0u8; 10];
@@ -459,7 +459,7 @@ pub(super) fn begin<B: Bsp>(console: &mut Console, ctrl: &mut Controller<B>) {
 /// The session ended (with the controller): the audit record, the image record of a
 /// verified update, the reply. A refused update gives the machine back to its
 /// requests; a verified one is followed by the restart (the board's).
-pub fn finish<B: Bsp>(console: &mut Console, ctrl: &mut Controller<B>, out: Outcome, now_ms: u64) {
+pub fn finish(console: &mut Console, ctrl: &mut dyn Machine, out: Outcome, now_ms: u64) {
     let images: ImageReport = ctrl.images();
     let v = |x: Option<Version>| x.map_or([0xFF; 8], Version::to_bytes);
     let (result, len, version) = match out {

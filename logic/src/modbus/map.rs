@@ -1,7 +1,7 @@
 // The register map's table, once: docs/modbus-map.md is this module's doc.
 #![doc = include_str!("../../../docs/modbus-map.md")]
 
-use crate::controller::{Bsp, Controller};
+use crate::machine::Machine;
 use crate::odometer::WearLevel;
 use crate::sequencer::{Request, State};
 
@@ -237,16 +237,21 @@ pub const FIRMWARE_VERSION: [u16; 3] = [
 
 /// mN → 0.1 N, rounded to the nearest, saturating to `i16`, as a register.
 pub(super) fn decinewtons(mn: i32) -> u16 {
-    let mn = i64::from(mn);
-    let dn = (mn + if mn >= 0 { 50 } else { -50 }) / 100;
-    dn.clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16 as u16
+    in_units(mn, 100)
 }
 
 /// µm → 0.01 mm, rounded to the nearest, saturating to `i16`, as a register.
 pub(super) fn centimillimetres(um: i32) -> u16 {
-    let um = i64::from(um);
-    let v = (um + if um >= 0 { 5 } else { -5 }) / 10;
-    v.clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16 as u16
+    in_units(um, 10)
+}
+
+/// `v / unit` rounded to the nearest (halves away from zero), saturating to `i16`, as
+/// a register (`unit` even). Out of line: four registers take it (issue 20).
+#[inline(never)]
+fn in_units(v: i32, unit: i32) -> u16 {
+    let (v, unit) = (i64::from(v), i64::from(unit));
+    let q = (v + if v >= 0 { unit / 2 } else { -unit / 2 }) / unit;
+    q.clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16 as u16
 }
 
 fn sat_u16(v: u64) -> u16 {
@@ -254,31 +259,27 @@ fn sat_u16(v: u64) -> u16 {
 }
 
 /// The status word (input register 0; discrete inputs 0–11).
-pub fn status_word<B: Bsp>(ctrl: &Controller<B>) -> u16 {
+pub fn status_word(ctrl: &dyn Machine) -> u16 {
     let s = ctrl.status();
     let h = s.handshake;
-    let bits = [
-        (h.ready, status::READY),
-        (h.mated, status::MATED),
-        (s.state.is_moving(), status::MOVING),
-        (h.fault, status::FAULT),
-        (s.warning, status::WARNING),
-        (h.maintenance, status::MAINTENANCE),
-        (ctrl.calibrated(), status::CALIBRATED),
-        (h.estop, status::ESTOP_OPEN),
-        (h.dock, status::DOCK_INPUT),
-        (s.wear_level == WearLevel::Limit, status::WORN_OUT),
-        (s.state.is_docking(), status::DOCKING),
-        (ctrl.maintenance_mode(), status::MAINTENANCE_MODE),
-    ];
-    bits.iter()
-        .filter(|(on, _)| *on)
-        .fold(0, |w, (_, bit)| w | bit)
+    let bit = |on: bool, b: u16| if on { b } else { 0 };
+    bit(h.ready, status::READY)
+        | bit(h.mated, status::MATED)
+        | bit(s.state.is_moving(), status::MOVING)
+        | bit(h.fault, status::FAULT)
+        | bit(s.warning, status::WARNING)
+        | bit(h.maintenance, status::MAINTENANCE)
+        | bit(ctrl.calibrated(), status::CALIBRATED)
+        | bit(h.estop, status::ESTOP_OPEN)
+        | bit(h.dock, status::DOCK_INPUT)
+        | bit(s.wear_level == WearLevel::Limit, status::WORN_OUT)
+        | bit(s.state.is_docking(), status::DOCKING)
+        | bit(ctrl.maintenance_mode(), status::MAINTENANCE_MODE)
 }
 
 /// The input registers now, 0..[`ir::COUNT`] (reserved addresses 0; the last command
 /// and its result, 8–9, are the [`Server`](super::Server)'s and read 0 here).
-pub fn input_registers<B: Bsp>(ctrl: &Controller<B>) -> [u16; ir::COUNT as usize] {
+pub fn input_registers(ctrl: &dyn Machine) -> [u16; ir::COUNT as usize] {
     let mut r = [0u16; ir::COUNT as usize];
     let mut set = |addr: u16, v: u16| {
         if let Some(x) = r.get_mut(usize::from(addr)) {
@@ -316,7 +317,8 @@ pub fn input_registers<B: Bsp>(ctrl: &Controller<B>) -> [u16; ir::COUNT as usize
     set32(ir::FAULTS_LIFETIME, life.faults);
     set32(ir::FAULTS_SINCE_BOOT, ctrl.fault_count());
     set32(ir::OVERLOAD_TRIPS_SINCE_BOOT, ctrl.overload_trips());
-    let last = ctrl.faults().last().copied();
+    let mut last = None;
+    ctrl.each_fault(&mut |f| last = Some(*f));
     set32(ir::LAST_FAULT_CYCLE, last.map_or(0, |f| f.cycle));
 
     set(ir::WEAR_UM, sat_u16(u64::from(odo.wear_nm() / 1_000)));

@@ -4,7 +4,7 @@ use super::framer::RtuFramer;
 use super::pdu::{process, Outcome, Session};
 use super::settings::ModbusSettings;
 use super::MAX_FRAME;
-use crate::controller::{Bsp, Controller};
+use crate::machine::Machine;
 
 /// The server's counters since boot (saturating).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -115,11 +115,13 @@ impl Server {
     }
 
     /// A byte received, stamped at the end of its stop bit (µs).
+    #[inline(never)]
     pub fn on_byte(&mut self, byte: u8, t_us: u64) {
         self.framer.push(byte, t_us);
     }
 
     /// A character received with a line error (parity, framing, noise, overrun), µs.
+    #[inline(never)]
     pub fn on_line_error(&mut self, t_us: u64) {
         self.framer.line_error(t_us);
     }
@@ -133,10 +135,11 @@ impl Server {
     /// At `now_us`: if a request has ended (t3.5 of silence), handle it and return the
     /// reply to send (CRC included), if any. `unit_serial` is the unit's serial number
     /// (device identification object 0x80).
-    pub fn poll<B: Bsp>(
+    #[inline(never)]
+    pub fn poll(
         &mut self,
         now_us: u64,
-        ctrl: &mut Controller<B>,
+        ctrl: &mut dyn Machine,
         unit_serial: &str,
     ) -> Option<&[u8]> {
         let frame = self.framer.poll(now_us)?;

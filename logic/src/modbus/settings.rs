@@ -22,7 +22,7 @@ use zerocopy::byteorder::little_endian::U32;
 use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
 use super::BITS_PER_CHAR;
-use crate::controller::{Bsp, Controller};
+use crate::machine::Machine;
 
 /// The record as laid out in flash (see the module doc).
 #[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned)]
@@ -99,7 +99,7 @@ impl ModbusSettings {
     /// The settings `ctrl`'s odometer log holds (record kind
     /// [`crate::odometer::kind::MODBUS`]), else [`Self::DEFAULT`]: what the board opens
     /// the line with at boot, and what the console's `modbus` shows.
-    pub fn stored<B: Bsp>(ctrl: &mut Controller<B>) -> Self {
+    pub fn stored(ctrl: &mut dyn Machine) -> Self {
         let mut buf = [0u8; Self::LEN];
         ctrl.load_record(crate::odometer::kind::MODBUS, &mut buf)
             .and_then(|n| buf.get(..n))
