@@ -801,10 +801,8 @@ mod app {
             let session = &mut *cx.local.session;
             if session.active() {
                 let flash = core::cell::RefCell::new(update::UpdateFlash);
-                let mut dfu = update_layout::part::Paged::dfu(&flash);
-                let mut state = update_layout::part::State::new(&flash);
                 let key = &update::PUBLIC_KEY;
-                if let Some(out) = session.poll(term, &mut dfu, &mut state, key, now_ms) {
+                if let Some(out) = session.poll(term, &flash, key, now_ms) {
                     mailbox.call(&mut |ctrl| {
                         docking_logic::console::update::finish(console, ctrl, out, now_ms)
                     });

@@ -11,7 +11,7 @@ use docking_logic::console::update::{why, Outcome, UpdateSession};
 use docking_logic::hal::ConsoleIo;
 use hil_sim::update::{other_key_seed, public_key, signed_file, test_key_seed, YmodemSender};
 use update_layout::layout::{ACTIVE_BASE, DFU_PAGES, FLASH_BASE, STATE_BASE, STATE_LEN};
-use update_layout::part::{FlashError, Paged, Sectors, State};
+use update_layout::part::{FlashError, Sectors};
 
 /// The 1 MiB of flash, erased; counts what is written where.
 struct Flash {
@@ -111,10 +111,8 @@ fn deliver_with(file: Vec<u8>, erase_ms: u64) -> (Outcome, Flash, Vec<u8>) {
     // 10 ms a poll, as the board's idle loop at least runs.
     let mut t = 0u64;
     while t < 600_000 {
-        let mut dfu = Paged::dfu(&flash);
-        let mut state = State::new(&flash);
         let erases = flash.borrow().dfu_erases;
-        if let Some(o) = s.poll(&mut link, &mut dfu, &mut state, &key, t) {
+        if let Some(o) = s.poll(&mut link, &flash, &key, t) {
             out = Some(o);
             break;
         }
@@ -240,9 +238,7 @@ fn silence_cancels_the_transfer_after_a_minute_with_c_every_three_seconds() {
     let key = public_key(&test_key_seed());
     let mut out = None;
     for t in (0..80_000u64).step_by(10) {
-        let mut dfu = Paged::dfu(&flash);
-        let mut state = State::new(&flash);
-        if let Some(o) = s.poll(&mut link, &mut dfu, &mut state, &key, t) {
+        if let Some(o) = s.poll(&mut link, &flash, &key, t) {
             out = Some((o, t));
             break;
         }

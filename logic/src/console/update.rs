@@ -93,15 +93,23 @@ pub mod why {
 /// The session (the board's, and the host tests'; feature `updater`).
 #[cfg(feature = "updater")]
 mod session {
+    use core::cell::RefCell;
+
     use embassy_boot::{BlockingFirmwareUpdater, FirmwareUpdaterConfig, FirmwareUpdaterError};
-    use embedded_storage::nor_flash::NorFlash;
+    use embedded_storage::nor_flash::{NorFlash, ReadNorFlash};
     use update_layout::header::{Header, HEADER_LEN, HEADER_OFFSET};
     use update_layout::layout::{ACTIVE_BASE, PAGE_LEN};
+    use update_layout::part::{FlashError, Paged, Sectors, State};
 
     use super::{why, Outcome, IDLE_MS, QUIET_MAX_MS, QUIET_MS, SILENCE_MS};
     use crate::hal::ConsoleIo;
     use crate::update::{check, TRAILER_LEN};
     use crate::ymodem::{Abort, Action, Receiver};
+
+    /// DFU (its two pages, as embassy-boot sees it) over the board's flash.
+    type Dfu<'a> = Paged<'a, dyn Sectors + 'a>;
+    /// STATE over the board's flash.
+    type StateFlash<'a> = State<'a, dyn Sectors + 'a>;
 
     #[derive(Clone, Copy, Debug, PartialEq, Eq)]
     enum Phase {
@@ -173,17 +181,24 @@ mod session {
             };
         }
 
-        /// Run the session: bytes in, flash written through `dfu` (the DFU partition:
-        /// page 0 then page 1, as embassy-boot sees it) and `state` (STATE), YMODEM's
-        /// answers out. `key`: the ed25519 public key built in. `Some` once it has ended.
-        pub fn poll<D: NorFlash, S: NorFlash>(
+        /// Run the session: bytes in, flash written through `flash` (the DFU partition:
+        /// page 0 then page 1, as embassy-boot sees it, and STATE; `update_layout::part`),
+        /// YMODEM's answers out. `key`: the ed25519 public key built in. `Some` once it
+        /// has ended.
+        ///
+        /// Not generic, and out of line: the session, embassy-boot's updater and the
+        /// verification are compiled once, here at the logic crate's opt-level, not in
+        /// the board's idle loop at the image's (issue 21: 96 KiB with the updater).
+        #[inline(never)]
+        pub fn poll<'f>(
             &mut self,
-            io: &mut impl ConsoleIo,
-            dfu: &mut D,
-            state: &mut S,
+            io: &mut dyn ConsoleIo,
+            flash: &'f RefCell<dyn Sectors + 'f>,
             key: &[u8; 32],
             now_ms: u64,
         ) -> Option<Outcome> {
+            let mut dfu = Paged::dfu(flash);
+            let mut state = State::new(flash);
             match self.phase {
                 Phase::Off => None,
                 Phase::Quiet { until, deadline } => {
@@ -200,15 +215,15 @@ mod session {
                     self.phase = Phase::Quiet { until, deadline };
                     None
                 }
-                Phase::Receiving => self.receive(io, dfu, state, key, now_ms),
+                Phase::Receiving => self.receive(io, &mut dfu, &mut state, key, now_ms),
             }
         }
 
-        fn receive<D: NorFlash, S: NorFlash>(
+        fn receive(
             &mut self,
-            io: &mut impl ConsoleIo,
-            dfu: &mut D,
-            state: &mut S,
+            io: &mut dyn ConsoleIo,
+            dfu: &mut Dfu<'_>,
+            state: &mut StateFlash<'_>,
             key: &[u8; 32],
             now_ms: u64,
         ) -> Option<Outcome> {
@@ -284,7 +299,7 @@ mod session {
 
         fn cancel(
             &mut self,
-            io: &mut impl ConsoleIo,
+            io: &mut dyn ConsoleIo,
             why: &'static str,
             now_ms: u64,
         ) -> Option<Outcome> {
@@ -311,7 +326,7 @@ mod session {
     }
 
     /// Everything of `bytes` into the link (the transmit ring takes a YMODEM answer whole).
-    fn send(io: &mut impl ConsoleIo, mut bytes: &[u8]) {
+    fn send(io: &mut dyn ConsoleIo, mut bytes: &[u8]) {
         for _ in 0..8 {
             if bytes.is_empty() {
                 return;
@@ -323,7 +338,7 @@ mod session {
 
     /// Program a block at `offset`: whole words; a last block that is not (a file that is
     /// not a signed image) is padded with erased bytes, and refused at the trailer check.
-    fn program<D: NorFlash>(dfu: &mut D, offset: u32, data: &[u8]) -> Result<(), D::Error> {
+    fn program(dfu: &mut Dfu<'_>, offset: u32, data: &[u8]) -> Result<(), FlashError> {
         let whole = data.len() / 4 * 4;
         let (words, rest) = data.split_at(whole);
         if !words.is_empty() {
@@ -352,12 +367,7 @@ mod session {
 
     /// The file of `size` bytes in DFU page 0: its trailer checked, then embassy-boot's
     /// verification, which marks it for the swap only if the signature holds.
-    fn verify<D: NorFlash, S: NorFlash>(
-        dfu: &mut D,
-        state: &mut S,
-        key: &[u8; 32],
-        size: u32,
-    ) -> Outcome {
+    fn verify(dfu: &mut Dfu<'_>, state: &mut StateFlash<'_>, key: &[u8; 32], size: u32) -> Outcome {
         let mut head = [0u8; 8];
         let mut tail = [0u8; TRAILER_LEN];
         let tail_at = size.saturating_sub(TRAILER_LEN as u32);
@@ -378,7 +388,7 @@ mod session {
             .and_then(|()| Header::parse(&h))
             .map(|h| h.version);
         // embassy-boot's state buffer is one word of STATE (its own assertion).
-        if S::WRITE_SIZE != 4 {
+        if <StateFlash<'_> as NorFlash>::WRITE_SIZE != 4 {
             return Outcome::Refused(why::STATE);
         }
         let mut aligned = [0u8; 4];
