@@ -239,6 +239,54 @@ pub fn marked_record(report: &ImageReport, new: Option<Version>) -> ImageRecord 
     ImageRecord::new(event::MARKED, report.running, report.previous, new)
 }
 
+/// `v`'s text in `buf` (`major.minor.patch`, and `+build` when the build is not 0, as
+/// `update_layout`'s `Version::write_text`), or `otherwise` without a version. Written by
+/// the console's decimal writer: one routine for every number the image prints, no
+/// core::fmt.
+pub fn version_or<'a>(
+    v: Option<Version>,
+    otherwise: &'a str,
+    buf: &'a mut [u8; VERSION_TEXT_MAX],
+) -> &'a str {
+    use crate::console::json::{write_u64, Sink};
+    let Some(v) = v else { return otherwise };
+    let n = {
+        let mut w = Buf { buf, n: 0 };
+        let w_: &mut dyn Sink = &mut w;
+        let parts: [(&str, u32); 4] = [
+            ("", v.major.into()),
+            (".", v.minor.into()),
+            (".", v.patch.into()),
+            ("+", v.build),
+        ];
+        for (i, (sep, x)) in parts.into_iter().enumerate() {
+            if i == 3 && x == 0 {
+                break;
+            }
+            // 24 bytes hold the longest version: never an error.
+            let _ = w_.put(sep).and_then(|()| write_u64(w_, x.into()));
+        }
+        w.n
+    };
+    core::str::from_utf8(buf.get(..n).unwrap_or(&[])).unwrap_or("?")
+}
+
+/// A byte buffer as the console's writers' sink.
+struct Buf<'a> {
+    buf: &'a mut [u8],
+    n: usize,
+}
+
+impl core::fmt::Write for Buf<'_> {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        let end = self.n + s.len();
+        let dst = self.buf.get_mut(self.n..end).ok_or(core::fmt::Error)?;
+        dst.copy_from_slice(s.as_bytes());
+        self.n = end;
+        Ok(())
+    }
+}
+
 /// At boot, after a trial's confirmation: the report, from the facts and the newest
 /// image record, and the record this boot owes (a confirmation; a rollback not yet
 /// recorded). Nothing else is written.

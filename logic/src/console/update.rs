@@ -37,6 +37,7 @@ pub use session::UpdateSession;
 use update_layout::header::{Version, VERSION_TEXT_MAX};
 use update_layout::layout::PAGE_LEN;
 
+use super::json::dec_text;
 use super::service::{action, Console};
 use crate::machine::Machine;
 use crate::odometer::kind;
@@ -417,30 +418,7 @@ mod session {
 
 /// `v`'s text (`none` without one).
 pub fn version_text(v: Option<Version>, buf: &mut [u8; VERSION_TEXT_MAX]) -> &str {
-    match v {
-        Some(v) => {
-            let n = v.write_text(buf);
-            core::str::from_utf8(buf.get(..n).unwrap_or(&[])).unwrap_or("?")
-        }
-        None => "none",
-    }
-}
-
-/// `v` in decimal (`buf` holds any u32).
-fn decimal(v: u32, buf: &mut [u8; 10]) -> &[u8] {
-    let mut i = buf.len();
-    let mut x = v;
-    loop {
-        i -= 1;
-        if let Some(d) = buf.get_mut(i) {
-            *d = b'0' + (x % 10) as u8;
-        }
-        x /= 10;
-        if x == 0 || i == 0 {
-            break;
-        }
-    }
-    buf.get(i..).unwrap_or(&[])
+    crate::update::version_or(v, "none", buf)
 }
 
 /// `update` (run with the controller, maintenance mode and rest checked by the
@@ -457,10 +435,10 @@ pub(super) fn begin(console: &mut Console, ctrl: &mut dyn Machine) {
         console.err_maint(e);
         return;
     }
-    let mut n = [0u8; 10];
+    let mut n = [0u8; 20];
     console.reply_parts(&[
         b"ok: update: send the signed image by YMODEM-1K now (sb -k FILE, or the terminal's YMODEM upload); at most ",
-        decimal(PAGE_LEN, &mut n),
+        dec_text(PAGE_LEN.into(), &mut n).as_bytes(),
         b" bytes; 60 s of silence cancels\r\n",
     ]);
     console.request_update();
@@ -497,12 +475,12 @@ pub fn finish(console: &mut Console, ctrl: &mut dyn Machine, out: Outcome, now_m
             }
             info!("update verified and marked: restarting into it");
             let mut t = [0u8; VERSION_TEXT_MAX];
-            let mut n = [0u8; 10];
+            let mut n = [0u8; 20];
             console.reply_parts(&[
                 b"ok: update verified: version ",
                 version_text(version, &mut t).as_bytes(),
                 b", ",
-                decimal(len, &mut n),
+                dec_text(len.into(), &mut n).as_bytes(),
                 b" bytes, signature good; restarting into it (the old image comes back if it does not confirm)\r\n",
             ]);
         }
@@ -520,10 +498,10 @@ mod tests {
 
     #[test]
     fn decimals_and_versions_are_written_without_core_fmt() {
-        let mut b = [0u8; 10];
-        assert_eq!(decimal(0, &mut b), b"0");
-        assert_eq!(decimal(229_376, &mut b), b"229376");
-        assert_eq!(decimal(u32::MAX, &mut b), b"4294967295");
+        let mut b = [0u8; 20];
+        assert_eq!(dec_text(0, &mut b), "0");
+        assert_eq!(dec_text(229_376, &mut b), "229376");
+        assert_eq!(dec_text(u32::MAX.into(), &mut b), "4294967295");
         let mut t = [0u8; VERSION_TEXT_MAX];
         assert_eq!(version_text(None, &mut t), "none");
         let v = Version {
@@ -533,5 +511,17 @@ mod tests {
             build: 0,
         };
         assert_eq!(version_text(Some(v), &mut t), "0.2.0");
+        let longest = Version {
+            major: 255,
+            minor: 255,
+            patch: 65535,
+            build: u32::MAX,
+        };
+        assert_eq!(
+            version_text(Some(longest), &mut t),
+            "255.255.65535+4294967295"
+        );
+        let built = Version { build: 7, ..v };
+        assert_eq!(version_text(Some(built), &mut t), "0.2.0+7");
     }
 }

@@ -18,7 +18,7 @@
 
 use super::pdu::Reply;
 use super::{exception, MAX_FRAME};
-use crate::update::{ImageReport, Version, VERSION_TEXT_MAX};
+use crate::update::{version_or, ImageReport, VERSION_TEXT_MAX};
 
 /// Object 0, VendorName, unless the commissioning file names the machine's builder
 /// ([`crate::controller::Identity`]).
@@ -57,64 +57,27 @@ const OBJECTS: [u8; 9] = [
     OBJECT_ROLLED_BACK,
 ];
 
-/// The images' texts, written before the objects are.
-struct Texts {
-    running: [u8; VERSION_TEXT_MAX],
-    running_len: usize,
-    previous: [u8; VERSION_TEXT_MAX],
-    previous_len: usize,
-    rolled: [u8; VERSION_TEXT_MAX],
-    rolled_len: usize,
-    key: &'static [u8],
-}
-
-impl Texts {
-    fn of(r: &ImageReport) -> Self {
-        let mut t = Self {
-            running: [0; VERSION_TEXT_MAX],
-            running_len: 0,
-            previous: [0; VERSION_TEXT_MAX],
-            previous_len: 0,
-            rolled: [0; VERSION_TEXT_MAX],
-            rolled_len: 0,
-            key: match (r.running, r.test_key) {
-                (None, _) => b"unknown",
-                (Some(_), true) => b"test",
-                (Some(_), false) => b"integrator",
-            },
-        };
-        let put = |v: Option<Version>, dflt: &[u8], buf: &mut [u8; VERSION_TEXT_MAX]| match v {
-            Some(v) => v.write_text(buf),
-            None => {
-                for (d, s) in buf.iter_mut().zip(dflt) {
-                    *d = *s;
-                }
-                dflt.len().min(VERSION_TEXT_MAX)
-            }
-        };
-        t.running_len = put(r.running, REVISION.as_bytes(), &mut t.running);
-        t.previous_len = put(r.previous, b"none", &mut t.previous);
-        t.rolled_len = match (r.rolled_back, r.rolled_back_version) {
-            (false, _) => put(None, b"no", &mut t.rolled),
-            (true, v) => put(v, b"yes", &mut t.rolled),
-        };
-        t
-    }
+/// The images' texts.
+struct Texts<'a> {
+    running: &'a str,
+    previous: &'a str,
+    rolled: &'a str,
+    key: &'static str,
 }
 
 fn device_object<'a>(
     id: u8,
     serial: &'a str,
     names: crate::controller::Identity,
-    t: &'a Texts,
+    t: &'a Texts<'a>,
 ) -> Option<&'a [u8]> {
     Some(match id {
         0 => names.vendor.as_bytes(),
         1 => PRODUCT_CODE.as_bytes(),
-        2 => t.running.get(..t.running_len)?,
-        OBJECT_PREVIOUS => t.previous.get(..t.previous_len)?,
-        OBJECT_KEY => t.key,
-        OBJECT_ROLLED_BACK => t.rolled.get(..t.rolled_len)?,
+        2 => t.running.as_bytes(),
+        OBJECT_PREVIOUS => t.previous.as_bytes(),
+        OBJECT_KEY => t.key.as_bytes(),
+        OBJECT_ROLLED_BACK => t.rolled.as_bytes(),
         4 => names.product.as_bytes(),
         5 => MODEL_NAME.as_bytes(),
         OBJECT_SERIAL => {
@@ -134,7 +97,24 @@ pub(super) fn device_identification(
     images: &ImageReport,
     out: &mut [u8; MAX_FRAME],
 ) -> Reply {
-    let texts = Texts::of(images);
+    let (mut a, mut b, mut c) = (
+        [0u8; VERSION_TEXT_MAX],
+        [0u8; VERSION_TEXT_MAX],
+        [0u8; VERSION_TEXT_MAX],
+    );
+    let texts = Texts {
+        running: version_or(images.running, REVISION, &mut a),
+        previous: version_or(images.previous, "none", &mut b),
+        rolled: match (images.rolled_back, images.rolled_back_version) {
+            (false, _) => "no",
+            (true, v) => version_or(v, "yes", &mut c),
+        },
+        key: match (images.running, images.test_key) {
+            (None, _) => "unknown",
+            (Some(_), true) => "test",
+            (Some(_), false) => "integrator",
+        },
+    };
     const HEAD: usize = 8; // unit, 0x2B, 0x0E, code, conformity, more, next, count
     let &[_, mei, code, object] = pdu else {
         return match pdu.get(1) {
