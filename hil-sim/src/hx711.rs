@@ -35,6 +35,19 @@ pub const POWER_DOWN_NS: u64 = 60_000;
 pub trait ForceSource {
     /// Force on the load cell at `t_ns`, newtons.
     fn force_n(&mut self, t_ns: u64) -> f64;
+
+    /// Told once, when the part is built, the front end the part reads this source
+    /// through (a source may tabulate [`ForceSource::counts`] for it).
+    fn front_end(&mut self, _front: &Hx711Config) {}
+
+    /// The bridge's output at `t_ns` through `front` (the one [`ForceSource::front_end`]
+    /// was told), counts at gain 128 before noise: `offset_counts + counts_per_n · F`.
+    /// A source may tabulate it: it must give the same value, bit for bit, and count as
+    /// one [`ForceSource::force_n`] call.
+    #[inline]
+    fn counts(&mut self, t_ns: u64, front: &Hx711Config) -> f64 {
+        front.offset_counts + front.counts_per_n * self.force_n(t_ns)
+    }
 }
 
 impl<F: FnMut(u64) -> f64> ForceSource for F {
@@ -197,27 +210,47 @@ impl<S: ForceSource> Hx711Model<S> {
         self.pulses = 0;
     }
 
+    /// The code of the conversion completing at `t_ns`: the analogue side at the gain
+    /// of the last readout, noise, rounding, the rails; or what a fault makes of it.
+    #[inline]
     fn convert(&mut self, t_ns: u64) -> i32 {
+        if self.fault != Hx711Fault::None || self.gain_pulses != 25 {
+            return self.convert_other(t_ns);
+        }
+        // Channel A/128 scales by 1.0: left out (`x * 1.0` is `x`).
+        let counts = self.source.counts(t_ns, &self.cfg);
+        let code = self.noisy_code(counts);
+        self.last_code = code;
+        code
+    }
+
+    /// [`Self::convert`] with a fault, or at another gain than A/128.
+    #[inline(never)]
+    fn convert_other(&mut self, t_ns: u64) -> i32 {
         let code = match self.fault {
             Hx711Fault::Saturated => CODE_MAX,
             Hx711Fault::Stuck if self.stats.conversions > 0 => self.last_code,
             _ => {
-                let f = self.source.force_n(t_ns);
-                let gain_scale = match self.gain_pulses {
-                    26 => 32.0 / 128.0,
-                    27 => 64.0 / 128.0,
-                    _ => 1.0,
+                let counts = self.source.counts(t_ns, &self.cfg);
+                let at_gain = match self.gain_pulses {
+                    26 => counts * (32.0 / 128.0),
+                    27 => counts * (64.0 / 128.0),
+                    _ => counts,
                 };
-                let v = (self.cfg.offset_counts + self.cfg.counts_per_n * f) * gain_scale
-                    + self.cfg.noise_counts * self.rng.normal();
-                // Round half away from zero with a cast (no libm call), then saturate at
-                // the rails like the part.
-                let r = (v + 0.5f64.copysign(v)) as i64;
-                r.clamp(CODE_MIN as i64, CODE_MAX as i64) as i32
+                self.noisy_code(at_gain)
             }
         };
         self.last_code = code;
         code
+    }
+
+    /// `counts` plus the part's noise, rounded half away from zero with a cast (no libm
+    /// call), saturated at the rails like the part.
+    #[inline]
+    fn noisy_code(&mut self, counts: f64) -> i32 {
+        let v = counts + self.cfg.noise_counts * self.rng.normal();
+        let r = (v + 0.5f64.copysign(v)) as i64;
+        r.clamp(CODE_MIN as i64, CODE_MAX as i64) as i32
     }
 
     #[inline]
@@ -370,6 +403,7 @@ impl<S: ForceSource> SimHx711<S> {
             recent_count: 0,
         };
         m.next_conv_ns = now + m.settle_ns();
+        m.source.front_end(&cfg);
         Self {
             model: Rc::new(RefCell::new(m)),
             clock,
