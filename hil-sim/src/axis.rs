@@ -434,12 +434,21 @@ impl AxisModel {
     /// The home switch's line (active low: closed at x <= 0 unless dead).
     #[inline]
     fn home_high(&self) -> bool {
-        !(self.fault.get() != AxisFault::HomeSwitchDead && self.pos_steps.get() <= 0)
+        self.pos_steps.get() > 0 || self.fault.get() == AxisFault::HomeSwitchDead
     }
 
     /// The end switch's line (active low); a read consumes one of the noise reads.
     #[inline]
     fn end_high(&self) -> bool {
+        if self.end_noise_reads.get() == 0 && self.fault.get() == AxisFault::None {
+            return self.pos_steps.get() < self.end_steps; // the usual read
+        }
+        self.end_high_other()
+    }
+
+    /// [`Self::end_high`] with noise on the line or a fault.
+    #[inline(never)]
+    fn end_high_other(&self) -> bool {
         let noise = self.end_noise_reads.get();
         if noise > 0 {
             self.end_noise_reads.set(noise - 1);

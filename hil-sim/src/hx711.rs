@@ -253,6 +253,61 @@ impl<S: ForceSource> Hx711Model<S> {
         r.clamp(CODE_MIN as i64, CODE_MAX as i64) as i32
     }
 
+    /// [`SimHx711::read_word`] at `now`, but for the readout's time.
+    #[inline]
+    fn read_word_at(&mut self, now: u64) -> Option<i32> {
+        let t = self.next_conv_ns;
+        let due_one = now >= t && now - t < self.period_ns;
+        let between_readouts = self.pulses == 0 || self.pulses >= 25;
+        if !(due_one
+            && between_readouts
+            && self.fault != Hx711Fault::Disconnected
+            && self.sck_high_since.is_none())
+        {
+            return self.read_word_other(now);
+        }
+        // The usual read: one conversion is due and nothing holds it (the part is
+        // connected, powered, not being read out): it completes and is read at once —
+        // what `catch_up`, `complete_next` and the read in `read_word_other` do, in one
+        // pass (it is the newest conversion, so it is marked read as it is recorded).
+        self.next_conv_ns = t + self.period_ns;
+        let code = self.convert(t);
+        if self.ready.is_some() && self.stats.samples_read > 0 {
+            self.stats.samples_missed += 1;
+        }
+        self.ready = None;
+        self.stats.conversions += 1;
+        if let Some(slot) = self.recent.get_mut(self.recent_count as usize % RECENT) {
+            *slot = (t, code, true);
+        }
+        self.recent_count += 1;
+        self.stats.samples_read += 1;
+        self.gain_pulses = 25;
+        self.pulses = 25;
+        self.last_read = Some((code, t));
+        Some(code)
+    }
+
+    /// [`Self::read_word_at`] in general: a disconnected part, one powered down or
+    /// being read out, none or several conversions due.
+    #[inline(never)]
+    fn read_word_other(&mut self, now: u64) -> Option<i32> {
+        if self.fault == Hx711Fault::Disconnected {
+            return None;
+        }
+        self.catch_up(now);
+        if self.pulses != 0 {
+            return None;
+        }
+        let (code, t) = self.ready.take()?;
+        self.stats.samples_read += 1;
+        self.gain_pulses = 25;
+        self.pulses = 25;
+        self.last_read = Some((code, t));
+        self.mark_read(t);
+        Some(code)
+    }
+
     #[inline]
     fn mark_read(&mut self, t: u64) {
         // The one read is the newest conversion (the part converts nothing while it is
@@ -486,19 +541,7 @@ impl<S: ForceSource> SimHx711<S> {
     pub fn read_word(&self) -> Option<i32> {
         let mut m = self.model.borrow_mut();
         let now = self.clock.now_ns();
-        if m.fault == Hx711Fault::Disconnected {
-            return None;
-        }
-        m.catch_up(now);
-        if m.pulses != 0 {
-            return None;
-        }
-        let (code, t) = m.ready.take()?;
-        m.stats.samples_read += 1;
-        m.gain_pulses = 25;
-        m.pulses = 25;
-        m.last_read = Some((code, t));
-        m.mark_read(t);
+        let code = m.read_word_at(now)?;
         drop(m);
         self.clock
             .advance_ns(docking_logic::hx711::readout_ns(25) as u64);
@@ -686,6 +729,39 @@ mod tests {
         hx.set_fault(Hx711Fault::Stuck);
         clk.advance_ns(12_500_000);
         assert_eq!(bitbang(&mut d, &mut s, &mut clk, 25), Some(CODE_MAX));
+    }
+
+    /// A word read at the instant a conversion completes takes the one-pass path; the
+    /// same read after something else completed the conversion takes the general one:
+    /// the same codes, statistics and conversion record either way (missed samples
+    /// included).
+    #[test]
+    fn a_word_read_at_the_conversion_is_the_general_read() {
+        let parts = || {
+            let clk = SimClock::new();
+            let cfg = Hx711Config::default_for_rate(80);
+            let hx = SimHx711::new(cfg, clk.clone(), |t: u64| (t % 7_000) as f64 * 0.01, 9);
+            (hx, clk)
+        };
+        let (one_pass, c1) = parts();
+        let (general, c2) = parts();
+        for i in 0..300u64 {
+            for (hx, clk, catch_up_first) in [(&one_pass, &c1, false), (&general, &c2, true)] {
+                let next = hx.next_conversion_ns();
+                clk.advance_to_ns(next + (i % 2) * 1_000);
+                if catch_up_first {
+                    let _ = hx.next_conversion_ns(); // completes the conversion
+                }
+            }
+            if i % 5 != 3 {
+                // (Every fifth sample is left unread: the next read counts it missed.)
+                assert_eq!(one_pass.read_word(), general.read_word(), "read {i}");
+            }
+        }
+        assert!(one_pass.stats().samples_missed > 0);
+        assert_eq!(one_pass.stats(), general.stats());
+        assert_eq!(one_pass.last_read(), general.last_read());
+        assert_eq!(one_pass.recent_conversions(), general.recent_conversions());
     }
 
     #[test]

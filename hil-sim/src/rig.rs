@@ -31,9 +31,16 @@ pub const WATCHDOG_WORST_NS: u64 = 500_000_000 * 32_000 / 47_000;
 pub struct SimWatchdog {
     clock: SimClock,
     timeout_ns: u64,
-    last_feed_ns: Rc<Cell<u64>>,
-    feeds: Rc<Cell<u64>>,
-    bitten: Rc<Cell<bool>>,
+    /// Shared between clones (one watchdog).
+    state: Rc<WatchdogState>,
+}
+
+/// What a [`SimWatchdog`]'s clones share.
+#[derive(Debug, Default)]
+struct WatchdogState {
+    last_feed_ns: Cell<u64>,
+    feeds: Cell<u64>,
+    bitten: Cell<bool>,
 }
 
 impl SimWatchdog {
@@ -43,23 +50,25 @@ impl SimWatchdog {
         Self {
             clock,
             timeout_ns: WATCHDOG_WORST_NS,
-            last_feed_ns: Rc::new(Cell::new(now)),
-            feeds: Rc::default(),
-            bitten: Rc::default(),
+            state: Rc::new(WatchdogState {
+                last_feed_ns: Cell::new(now),
+                ..WatchdogState::default()
+            }),
         }
     }
 
     /// Whether it would have reset the MCU by now (not fed within the timeout).
     pub fn check(&self) -> bool {
-        if self.clock.now_ns().saturating_sub(self.last_feed_ns.get()) > self.timeout_ns {
-            self.bitten.set(true);
+        let s = &self.state;
+        if self.clock.now_ns().saturating_sub(s.last_feed_ns.get()) > self.timeout_ns {
+            s.bitten.set(true);
         }
-        self.bitten.get()
+        s.bitten.get()
     }
 
     /// Feeds so far.
     pub fn feeds(&self) -> u64 {
-        self.feeds.get()
+        self.state.feeds.get()
     }
 }
 
@@ -67,11 +76,12 @@ impl Watchdog for SimWatchdog {
     fn feed(&mut self) {
         // `check` at the feed's instant, then the feed.
         let now = self.clock.now_ns();
-        if now.saturating_sub(self.last_feed_ns.get()) > self.timeout_ns {
-            self.bitten.set(true);
+        let s = &self.state;
+        if now.saturating_sub(s.last_feed_ns.get()) > self.timeout_ns {
+            s.bitten.set(true);
         }
-        self.last_feed_ns.set(now);
-        self.feeds.set(self.feeds.get() + 1);
+        s.last_feed_ns.set(now);
+        s.feeds.set(s.feeds.get() + 1);
     }
 }
 
@@ -803,9 +813,6 @@ impl Rig {
             .next_conversion_ns()
             .min(self.clock.now_ns() + self.period_ns);
         self.clock.advance_to_ns(next);
-        // The carriage moved up to now first (the model is moved lazily, at its first
-        // read in an instant; here before the load cell converts at its position).
-        let _ = self.axis.pos_steps();
         let now_us = self.clock.now_ns() / 1_000;
         // The board's E-STOP interrupt, at its edge (here at the tick: the rig is not
         // interrupt-accurate; the virtual board measures the real latency).
