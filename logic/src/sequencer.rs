@@ -175,6 +175,26 @@ pub struct Switches {
     pub released: bool,
 }
 
+impl Switches {
+    /// One bit per switch (home, end, locked, released from bit 0 up), `1` = closed.
+    pub const fn bits(self) -> u8 {
+        self.home as u8
+            | (self.end as u8) << 1
+            | (self.locked as u8) << 2
+            | (self.released as u8) << 3
+    }
+
+    /// The switches of [`Self::bits`].
+    pub const fn from_bits(bits: u8) -> Self {
+        Self {
+            home: bits & 1 != 0,
+            end: bits & 2 != 0,
+            locked: bits & 4 != 0,
+            released: bits & 8 != 0,
+        }
+    }
+}
+
 /// Requests from outside the control loop (console, scene, start button).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
