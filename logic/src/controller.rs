@@ -1290,8 +1290,8 @@ impl<B: Bsp> Controller<B> {
         if let Some(smp) = st.sample {
             self.guard.force_mn = smp.force_mn;
             self.guard.peak_force_mn = self.guard.peak_force_mn.max(self.guard.force_mn);
-            if let Some(f) = self.diag.faults.back_mut() {
-                if matches!(st.state, State::Faulted { .. } | State::BackingOff { .. }) {
+            if matches!(st.state, State::Faulted { .. } | State::BackingOff { .. }) {
+                if let Some(f) = self.diag.faults.back_mut() {
                     f.peak_force_mn = f.peak_force_mn.max(self.guard.force_mn);
                 }
             }
