@@ -294,8 +294,13 @@ pub enum AfterLock {
 }
 
 /// Sequencer state. Every moving state carries its deadline (ms since boot).
+///
+/// `repr(u8)`: a tag byte of its own, so the step's many matches on the state read it
+/// directly (without it the tag shares a word with `Holding`'s `Option` and every match
+/// first decodes it).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
 pub enum State {
     /// Just booted: position unknown; nothing moves until a home or dock request.
     PowerUp,
