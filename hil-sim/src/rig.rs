@@ -838,21 +838,27 @@ impl Rig {
         self.kernel.configure(self.ctrl.kernel_config(), now_us);
         self.ctrl.background();
         if self.console_enabled {
-            // The main loop polls the console after the controller, and its work takes
-            // CPU time: charge it to virtual time.
-            let c = self.console.poll(
-                &mut self.ctrl,
-                &mut self.term,
-                self.clock.now_ns() / 1_000_000,
-            );
-            self.clock.advance_ns(
-                c.bytes_in as u64 * CONSOLE_NS_PER_BYTE
-                    + c.commands as u64 * CONSOLE_NS_PER_COMMAND
-                    + c.pin_hashes as u64 * CONSOLE_NS_PER_PIN_HASH,
-            );
-            self.last_console = c;
+            self.poll_console();
         }
         r
+    }
+
+    /// The main loop polls the console after the controller, and its work takes CPU
+    /// time: charge it to virtual time. (Out of the tick's line: the console's code and
+    /// its buffers are large, and most ticks of a long run have no console.)
+    #[inline(never)]
+    fn poll_console(&mut self) {
+        let c = self.console.poll(
+            &mut self.ctrl,
+            &mut self.term,
+            self.clock.now_ns() / 1_000_000,
+        );
+        self.clock.advance_ns(
+            c.bytes_in as u64 * CONSOLE_NS_PER_BYTE
+                + c.commands as u64 * CONSOLE_NS_PER_COMMAND
+                + c.pin_hashes as u64 * CONSOLE_NS_PER_PIN_HASH,
+        );
+        self.last_console = c;
     }
 
     /// What the board's E-STOP interrupt does at an edge of the input (`open`: it
