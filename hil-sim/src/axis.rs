@@ -92,9 +92,13 @@ pub struct AxisModel {
     rate_hz: Cell<u32>,
     /// ns·Hz accumulator for fractional pulses, as of `last_ns`.
     frac: Cell<u64>,
-    /// When the accumulator reaches the next whole pulse, ns (`u64::MAX` while the rate
-    /// is 0): before it nothing moves, so a read before it changes nothing.
+    /// When the accumulator reaches the next whole pulse at the latest, ns (`u64::MAX`
+    /// while the rate is 0): before it nothing moves, so a read before it changes
+    /// nothing. (It may be a nanosecond early, never late: see `pulse_recip`.)
     next_pulse_ns: Cell<u64>,
+    /// ⌊(2⁶⁴ − 1) / rate⌋: the time to the next pulse is ⌈(1e9 − frac) / rate⌉ ns, taken
+    /// as the high word of a product instead of a division — equal or one less.
+    pulse_recip: Cell<u64>,
     pending_pulses: Cell<u32>,
     dir_positive: Cell<bool>,
     enabled: Cell<bool>,
@@ -129,7 +133,8 @@ impl AxisModel {
         }
     }
 
-    /// The pulses from `last_ns` to `now` (`now` past the next pulse).
+    /// The pulses from `last_ns` to `now` (`now` at or past `next_pulse_ns`: usually one
+    /// or more, none if that was the nanosecond before the pulse).
     fn advance(&self, now: u64) {
         let rate = self.rate_hz.get() as u64;
         let acc = self.frac.get() + (now - self.last_ns.get()) * rate;
@@ -137,8 +142,8 @@ impl AxisModel {
         let frac = acc % 1_000_000_000;
         self.frac.set(frac);
         self.last_ns.set(now);
-        self.next_pulse_ns
-            .set(now + (1_000_000_000 - frac).div_ceil(rate.max(1)));
+        let to_pulse = ((1_000_000_000 - frac) as u128 * self.pulse_recip.get() as u128) >> 64;
+        self.next_pulse_ns.set(now + to_pulse as u64);
         self.pending_pulses
             .set(self.pending_pulses.get().saturating_add(n as u32));
         self.move_steps(n);
@@ -165,6 +170,7 @@ impl AxisModel {
     fn set_rate_hz(&self, rate_hz: u32, now: u64) {
         self.settle(now);
         self.rate_hz.set(rate_hz);
+        self.pulse_recip.set(u64::MAX / rate_hz.max(1) as u64);
         self.next_pulse_ns.set(match rate_hz {
             0 => u64::MAX,
             r => now + (1_000_000_000 - self.frac.get()).div_ceil(r as u64),
@@ -253,6 +259,7 @@ impl SimAxis {
             rate_hz: Cell::new(0),
             frac: Cell::new(0),
             next_pulse_ns: Cell::new(u64::MAX),
+            pulse_recip: Cell::new(0),
             pending_pulses: Cell::new(0),
             dir_positive: Cell::new(false),
             enabled: Cell::new(false),
