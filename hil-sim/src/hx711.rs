@@ -133,6 +133,11 @@ pub struct Hx711Model<S = BoxedSource> {
     period_ns: u64,
     source: S,
     rng: Rng,
+    /// The noise of the next conversion that has any, counts (`noise_counts` times the
+    /// generator's next normal): drawn one conversion ahead, so that drawing it is not on
+    /// the way from the force to the code. Every noisy conversion takes the next one, in
+    /// order: the same noise as drawing it at the conversion.
+    next_noise: f64,
     fault: Hx711Fault,
     /// Time of the next conversion completion, ns.
     next_conv_ns: u64,
@@ -248,7 +253,8 @@ impl<S: ForceSource> Hx711Model<S> {
     /// call), saturated at the rails like the part.
     #[inline]
     fn noisy_code(&mut self, counts: f64) -> i32 {
-        let v = counts + self.cfg.noise_counts * self.rng.normal();
+        let v = counts + self.next_noise;
+        self.next_noise = self.cfg.noise_counts * self.rng.normal();
         let r = (v + 0.5f64.copysign(v)) as i64;
         r.clamp(CODE_MIN as i64, CODE_MAX as i64) as i32
     }
@@ -443,6 +449,7 @@ impl<S: ForceSource> SimHx711<S> {
             cfg,
             source,
             rng: Rng::new(seed),
+            next_noise: 0.0,
             fault: Hx711Fault::None,
             next_conv_ns: 0,
             ready: None,
@@ -458,6 +465,7 @@ impl<S: ForceSource> SimHx711<S> {
             recent_count: 0,
         };
         m.next_conv_ns = now + m.settle_ns();
+        m.next_noise = cfg.noise_counts * m.rng.normal();
         m.source.front_end(&cfg);
         Self {
             model: Rc::new(RefCell::new(m)),
