@@ -348,6 +348,17 @@ impl Xtask {
         );
         let host = host.unwrap_or_default();
         let m4 = m4.unwrap_or_default();
+        // The image's own memcpy and memclr (src/board/mem.rs), checked first on the M4.
+        let mem = m4
+            .lines()
+            .find(|l| l.starts_with("memcpy and memclr:"))
+            .unwrap_or("memcpy and memclr: no report (hung or failed to build)")
+            .trim();
+        println!("m4:   {mem}");
+        if !mem.ends_with("cases ok") {
+            println!("FAIL: the image's memcpy or memclr on the Cortex-M4");
+            return false;
+        }
         let host = host.lines().next().unwrap_or("").trim();
         let m4 = m4
             .lines()
