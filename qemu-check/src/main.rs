@@ -122,7 +122,13 @@ fn main() -> ! {
     match check_mem() {
         Ok(cases) => hprintln!("memcpy and memclr: {} cases ok", cases),
         Err((f, so, d, n)) => {
-            hprintln!("{} FAILED: source offset {}, destination offset {}, {} bytes", f, so, d, n);
+            hprintln!(
+                "{} FAILED: source offset {}, destination offset {}, {} bytes",
+                f,
+                so,
+                d,
+                n
+            );
             debug::exit(debug::EXIT_FAILURE);
         }
     }
