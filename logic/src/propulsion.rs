@@ -416,7 +416,7 @@ mod tests {
         for v in 0..1u64 << 22 {
             assert_eq!(isqrt(v), v.isqrt(), "{v}");
         }
-        let mut edge = |v: u64| assert_eq!(isqrt(v), v.isqrt(), "{v}");
+        let edge = |v: u64| assert_eq!(isqrt(v), v.isqrt(), "{v}");
         for r in (0..1u64 << 16).chain([(1 << 32) - 1, 1 << 31, 3_037_000_499]) {
             let sq = r * r;
             edge(sq);
