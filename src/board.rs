@@ -10,6 +10,7 @@ mod console;
 mod crash;
 mod delay;
 mod flash;
+mod mem;
 mod modbus;
 mod options;
 mod owner;

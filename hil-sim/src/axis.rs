@@ -90,8 +90,15 @@ pub struct AxisModel {
     /// Carriage position, steps (physical truth).
     pos_steps: Cell<i64>,
     rate_hz: Cell<u32>,
-    /// ns·Hz accumulator for fractional pulses.
+    /// ns·Hz accumulator for fractional pulses, as of `last_ns`.
     frac: Cell<u64>,
+    /// When the accumulator reaches the next whole pulse at the latest, ns (`u64::MAX`
+    /// while the rate is 0): before it nothing moves, so a read before it changes
+    /// nothing. (It may be a nanosecond early, never late: see `pulse_recip`.)
+    next_pulse_ns: Cell<u64>,
+    /// ⌊(2⁶⁴ − 1) / rate⌋: the time to the next pulse is ⌈(1e9 − frac) / rate⌉ ns, taken
+    /// as the high word of a product instead of a division — equal or one less.
+    pulse_recip: Cell<u64>,
     pending_pulses: Cell<u32>,
     dir_positive: Cell<bool>,
     enabled: Cell<bool>,
@@ -117,31 +124,57 @@ pub struct AxisModel {
 
 impl AxisModel {
     /// Move the carriage to where the pulses since the last update put it. Several
-    /// lines are read at one instant each control step: only the first moves the model.
+    /// lines are read at one instant each control step, and most reads come before the
+    /// next pulse: only a read at or after it moves the model.
     #[inline]
     fn update(&self, now: u64) {
-        if now > self.last_ns.get() {
+        if now >= self.next_pulse_ns.get() {
             self.advance(now);
         }
     }
 
+    /// The pulses from `last_ns` to `now` (`now` at or past `next_pulse_ns`: usually one
+    /// or more, none if that was the nanosecond before the pulse).
     fn advance(&self, now: u64) {
-        let last = self.last_ns.get();
-        self.last_ns.set(now);
-        let rate = self.rate_hz.get();
-        if rate == 0 {
-            return;
-        }
-        let acc = self.frac.get() + (now - last) * rate as u64;
-        if acc < 1_000_000_000 {
-            self.frac.set(acc); // no whole pulse yet (a readout's 50 µs, say)
-            return;
-        }
+        let rate = self.rate_hz.get() as u64;
+        let acc = self.frac.get() + (now - self.last_ns.get()) * rate;
         let n = acc / 1_000_000_000;
-        self.frac.set(acc % 1_000_000_000);
+        let frac = acc % 1_000_000_000;
+        self.frac.set(frac);
+        self.last_ns.set(now);
+        let to_pulse = ((1_000_000_000 - frac) as u128 * self.pulse_recip.get() as u128) >> 64;
+        self.next_pulse_ns.set(now + to_pulse as u64);
         self.pending_pulses
             .set(self.pending_pulses.get().saturating_add(n as u32));
         self.move_steps(n);
+    }
+
+    /// Account for the pulses up to `now` exactly (before the rate changes: the
+    /// accumulator is kept at the old rate up to here).
+    fn settle(&self, now: u64) {
+        let rate = self.rate_hz.get() as u64;
+        if rate != 0 {
+            let acc = self.frac.get() + (now - self.last_ns.get()) * rate;
+            let n = acc / 1_000_000_000;
+            self.frac.set(acc % 1_000_000_000);
+            if n != 0 {
+                self.pending_pulses
+                    .set(self.pending_pulses.get().saturating_add(n as u32));
+                self.move_steps(n);
+            }
+        }
+        self.last_ns.set(now);
+    }
+
+    /// The pulse generator's rate from `now` on.
+    fn set_rate_hz(&self, rate_hz: u32, now: u64) {
+        self.settle(now);
+        self.rate_hz.set(rate_hz);
+        self.pulse_recip.set(u64::MAX / rate_hz.max(1) as u64);
+        self.next_pulse_ns.set(match rate_hz {
+            0 => u64::MAX,
+            r => now + (1_000_000_000 - self.frac.get()).div_ceil(r as u64),
+        });
     }
 
     /// `n` pulses reach the driver: the carriage moves in the DIR direction if the driver
@@ -225,6 +258,8 @@ impl SimAxis {
             pos_steps: Cell::new(cfg.um_to_steps(start_um) as i64),
             rate_hz: Cell::new(0),
             frac: Cell::new(0),
+            next_pulse_ns: Cell::new(u64::MAX),
+            pulse_recip: Cell::new(0),
             pending_pulses: Cell::new(0),
             dir_positive: Cell::new(false),
             enabled: Cell::new(false),
@@ -337,7 +372,8 @@ pub struct AxisPulses(SimAxis);
 
 impl StepPulses for AxisPulses {
     fn set_rate_hz(&mut self, rate_hz: u32) {
-        self.0.now().rate_hz.set(rate_hz);
+        let now = self.0.clock.now_ns();
+        self.0.now().set_rate_hz(rate_hz, now);
     }
 
     fn take_pulses(&mut self) -> u32 {
@@ -405,12 +441,21 @@ impl AxisModel {
     /// The home switch's line (active low: closed at x <= 0 unless dead).
     #[inline]
     fn home_high(&self) -> bool {
-        !(self.fault.get() != AxisFault::HomeSwitchDead && self.pos_steps.get() <= 0)
+        self.pos_steps.get() > 0 || self.fault.get() == AxisFault::HomeSwitchDead
     }
 
     /// The end switch's line (active low); a read consumes one of the noise reads.
     #[inline]
     fn end_high(&self) -> bool {
+        if self.end_noise_reads.get() == 0 && self.fault.get() == AxisFault::None {
+            return self.pos_steps.get() < self.end_steps; // the usual read
+        }
+        self.end_high_other()
+    }
+
+    /// [`Self::end_high`] with noise on the line or a fault.
+    #[inline(never)]
+    fn end_high_other(&self) -> bool {
         let noise = self.end_noise_reads.get();
         if noise > 0 {
             self.end_noise_reads.set(noise - 1);
@@ -467,6 +512,47 @@ input_line!(EndSwitch, |a| a.now().end_high());
 mod tests {
     use super::*;
     use embedded_hal::digital::{InputPin, OutputPin};
+
+    /// The model moves only at reads at or after the next pulse; whenever it is read
+    /// (often, seldom, with rate changes between), the pulses and the position are those
+    /// of a generator that counts every nanosecond: `⌊Σ rate·dt / 1e9⌋`.
+    #[test]
+    fn reads_at_any_times_see_the_pulses_of_every_nanosecond() {
+        let clk = SimClock::new();
+        let ax = SimAxis::new(MachineConfig::DEFAULT, clk.clone(), 0);
+        let (mut p, mut en, mut dir) = (ax.pulses(), ax.enable_n(), ax.dir());
+        dir.set_high().unwrap();
+        en.set_low().unwrap();
+        let mut rng = crate::rng::Rng::new(3);
+        // ns·Hz since t = 0, summed exactly.
+        let (mut exact, mut rate, mut t, mut taken) = (0u128, 0u32, 0u64, 0u64);
+        for i in 0..20_000 {
+            // Half the reads land on the next pulse's nanosecond or the one before it.
+            let to_pulse =
+                (1_000_000_000 - (exact % 1_000_000_000) as u64).div_ceil(rate.max(1) as u64);
+            let dt = match (rate, i % 4) {
+                (0, _) | (_, 0 | 1) => rng.next_u64() % 3_000_000,
+                (_, 2) => to_pulse - 1,
+                _ => to_pulse,
+            };
+            exact += dt as u128 * rate as u128;
+            t += dt;
+            clk.advance_to_ns(t);
+            if i % 7 == 0 {
+                taken += p.take_pulses() as u64;
+            }
+            if i % 500 == 0 {
+                rate = [0, 240, 333, 1_000, 7][(i / 500) % 5];
+                p.set_rate_hz(rate);
+            }
+            let pulses = (exact / 1_000_000_000) as u64;
+            assert_eq!(ax.pos_steps() as u64, pulses, "read {i} at {t} ns");
+            if i % 3 == 0 {
+                assert_eq!(taken + p.take_pulses() as u64, pulses, "read {i}");
+                taken = pulses;
+            }
+        }
+    }
 
     #[test]
     fn moves_at_the_pulse_rate_only_when_enabled() {

@@ -35,6 +35,19 @@ pub const POWER_DOWN_NS: u64 = 60_000;
 pub trait ForceSource {
     /// Force on the load cell at `t_ns`, newtons.
     fn force_n(&mut self, t_ns: u64) -> f64;
+
+    /// Told once, when the part is built, the front end the part reads this source
+    /// through (a source may tabulate [`ForceSource::counts`] for it).
+    fn front_end(&mut self, _front: &Hx711Config) {}
+
+    /// The bridge's output at `t_ns` through `front` (the one [`ForceSource::front_end`]
+    /// was told), counts at gain 128 before noise: `offset_counts + counts_per_n · F`.
+    /// A source may tabulate it: it must give the same value, bit for bit, and count as
+    /// one [`ForceSource::force_n`] call.
+    #[inline]
+    fn counts(&mut self, t_ns: u64, front: &Hx711Config) -> f64 {
+        front.offset_counts + front.counts_per_n * self.force_n(t_ns)
+    }
 }
 
 impl<F: FnMut(u64) -> f64> ForceSource for F {
@@ -120,6 +133,11 @@ pub struct Hx711Model<S = BoxedSource> {
     period_ns: u64,
     source: S,
     rng: Rng,
+    /// The noise of the next conversion that has any, counts (`noise_counts` times the
+    /// generator's next normal): drawn one conversion ahead, so that drawing it is not on
+    /// the way from the force to the code. Every noisy conversion takes the next one, in
+    /// order: the same noise as drawing it at the conversion.
+    next_noise: f64,
     fault: Hx711Fault,
     /// Time of the next conversion completion, ns.
     next_conv_ns: u64,
@@ -197,27 +215,103 @@ impl<S: ForceSource> Hx711Model<S> {
         self.pulses = 0;
     }
 
+    /// The code of the conversion completing at `t_ns`: the analogue side at the gain
+    /// of the last readout, noise, rounding, the rails; or what a fault makes of it.
+    #[inline]
     fn convert(&mut self, t_ns: u64) -> i32 {
+        if self.fault != Hx711Fault::None || self.gain_pulses != 25 {
+            return self.convert_other(t_ns);
+        }
+        // Channel A/128 scales by 1.0: left out (`x * 1.0` is `x`).
+        let counts = self.source.counts(t_ns, &self.cfg);
+        let code = self.noisy_code(counts);
+        self.last_code = code;
+        code
+    }
+
+    /// [`Self::convert`] with a fault, or at another gain than A/128.
+    #[inline(never)]
+    fn convert_other(&mut self, t_ns: u64) -> i32 {
         let code = match self.fault {
             Hx711Fault::Saturated => CODE_MAX,
             Hx711Fault::Stuck if self.stats.conversions > 0 => self.last_code,
             _ => {
-                let f = self.source.force_n(t_ns);
-                let gain_scale = match self.gain_pulses {
-                    26 => 32.0 / 128.0,
-                    27 => 64.0 / 128.0,
-                    _ => 1.0,
+                let counts = self.source.counts(t_ns, &self.cfg);
+                let at_gain = match self.gain_pulses {
+                    26 => counts * (32.0 / 128.0),
+                    27 => counts * (64.0 / 128.0),
+                    _ => counts,
                 };
-                let v = (self.cfg.offset_counts + self.cfg.counts_per_n * f) * gain_scale
-                    + self.cfg.noise_counts * self.rng.normal();
-                // Round half away from zero with a cast (no libm call), then saturate at
-                // the rails like the part.
-                let r = (v + 0.5f64.copysign(v)) as i64;
-                r.clamp(CODE_MIN as i64, CODE_MAX as i64) as i32
+                self.noisy_code(at_gain)
             }
         };
         self.last_code = code;
         code
+    }
+
+    /// `counts` plus the part's noise, rounded half away from zero with a cast (no libm
+    /// call), saturated at the rails like the part.
+    #[inline]
+    fn noisy_code(&mut self, counts: f64) -> i32 {
+        let v = counts + self.next_noise;
+        self.next_noise = self.cfg.noise_counts * self.rng.normal();
+        let r = (v + 0.5f64.copysign(v)) as i64;
+        r.clamp(CODE_MIN as i64, CODE_MAX as i64) as i32
+    }
+
+    /// [`SimHx711::read_word`] at `now`, but for the readout's time.
+    #[inline]
+    fn read_word_at(&mut self, now: u64) -> Option<i32> {
+        let t = self.next_conv_ns;
+        let due_one = now >= t && now - t < self.period_ns;
+        let between_readouts = self.pulses == 0 || self.pulses >= 25;
+        if !(due_one
+            && between_readouts
+            && self.fault != Hx711Fault::Disconnected
+            && self.sck_high_since.is_none())
+        {
+            return self.read_word_other(now);
+        }
+        // The usual read: one conversion is due and nothing holds it (the part is
+        // connected, powered, not being read out): it completes and is read at once —
+        // what `catch_up`, `complete_next` and the read in `read_word_other` do, in one
+        // pass (it is the newest conversion, so it is marked read as it is recorded).
+        self.next_conv_ns = t + self.period_ns;
+        let code = self.convert(t);
+        if self.ready.is_some() && self.stats.samples_read > 0 {
+            self.stats.samples_missed += 1;
+        }
+        self.ready = None;
+        self.stats.conversions += 1;
+        if let Some(slot) = self.recent.get_mut(self.recent_count as usize % RECENT) {
+            *slot = (t, code, true);
+        }
+        self.recent_count += 1;
+        self.stats.samples_read += 1;
+        self.gain_pulses = 25;
+        self.pulses = 25;
+        self.last_read = Some((code, t));
+        Some(code)
+    }
+
+    /// [`Self::read_word_at`] in general: a disconnected part, one powered down or
+    /// being read out, none or several conversions due.
+    #[inline(never)]
+    fn read_word_other(&mut self, now: u64) -> Option<i32> {
+        if self.fault == Hx711Fault::Disconnected {
+            return None;
+        }
+        self.catch_up(now);
+        if self.pulses != 0 {
+            return None;
+        }
+        let (code, t) = self.ready.take()?;
+        self.stats.samples_read += 1;
+        self.gain_pulses = 25;
+        self.pulses = 25;
+        self.last_read = Some((code, t));
+        self.mark_read(t);
+        Some(code)
     }
 
     #[inline]
@@ -355,6 +449,7 @@ impl<S: ForceSource> SimHx711<S> {
             cfg,
             source,
             rng: Rng::new(seed),
+            next_noise: 0.0,
             fault: Hx711Fault::None,
             next_conv_ns: 0,
             ready: None,
@@ -370,6 +465,8 @@ impl<S: ForceSource> SimHx711<S> {
             recent_count: 0,
         };
         m.next_conv_ns = now + m.settle_ns();
+        m.next_noise = cfg.noise_counts * m.rng.normal();
+        m.source.front_end(&cfg);
         Self {
             model: Rc::new(RefCell::new(m)),
             clock,
@@ -452,19 +549,7 @@ impl<S: ForceSource> SimHx711<S> {
     pub fn read_word(&self) -> Option<i32> {
         let mut m = self.model.borrow_mut();
         let now = self.clock.now_ns();
-        if m.fault == Hx711Fault::Disconnected {
-            return None;
-        }
-        m.catch_up(now);
-        if m.pulses != 0 {
-            return None;
-        }
-        let (code, t) = m.ready.take()?;
-        m.stats.samples_read += 1;
-        m.gain_pulses = 25;
-        m.pulses = 25;
-        m.last_read = Some((code, t));
-        m.mark_read(t);
+        let code = m.read_word_at(now)?;
         drop(m);
         self.clock
             .advance_ns(docking_logic::hx711::readout_ns(25) as u64);
@@ -652,6 +737,39 @@ mod tests {
         hx.set_fault(Hx711Fault::Stuck);
         clk.advance_ns(12_500_000);
         assert_eq!(bitbang(&mut d, &mut s, &mut clk, 25), Some(CODE_MAX));
+    }
+
+    /// A word read at the instant a conversion completes takes the one-pass path; the
+    /// same read after something else completed the conversion takes the general one:
+    /// the same codes, statistics and conversion record either way (missed samples
+    /// included).
+    #[test]
+    fn a_word_read_at_the_conversion_is_the_general_read() {
+        let parts = || {
+            let clk = SimClock::new();
+            let cfg = Hx711Config::default_for_rate(80);
+            let hx = SimHx711::new(cfg, clk.clone(), |t: u64| (t % 7_000) as f64 * 0.01, 9);
+            (hx, clk)
+        };
+        let (one_pass, c1) = parts();
+        let (general, c2) = parts();
+        for i in 0..300u64 {
+            for (hx, clk, catch_up_first) in [(&one_pass, &c1, false), (&general, &c2, true)] {
+                let next = hx.next_conversion_ns();
+                clk.advance_to_ns(next + (i % 2) * 1_000);
+                if catch_up_first {
+                    let _ = hx.next_conversion_ns(); // completes the conversion
+                }
+            }
+            if i % 5 != 3 {
+                // (Every fifth sample is left unread: the next read counts it missed.)
+                assert_eq!(one_pass.read_word(), general.read_word(), "read {i}");
+            }
+        }
+        assert!(one_pass.stats().samples_missed > 0);
+        assert_eq!(one_pass.stats(), general.stats());
+        assert_eq!(one_pass.last_read(), general.last_read());
+        assert_eq!(one_pass.recent_conversions(), general.recent_conversions());
     }
 
     #[test]

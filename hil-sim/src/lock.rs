@@ -41,14 +41,23 @@ impl LockModel {
         self.in1.get() != self.in2.get()
     }
 
+    /// Move the screw up to `now`: only a driven screw moves (the pins read it several
+    /// times a step, and it is driven 0.8 s of a 58 s cycle); `last_ns` is where its
+    /// motion was integrated up to, set when the drive changes ([`LockPin::drive`]).
     #[inline]
     fn update(&self, now: u64) {
+        if self.driven() {
+            self.integrate(now);
+        }
+    }
+
+    fn integrate(&self, now: u64) {
         let last = self.last_ns.get();
         if now <= last {
-            return; // moved up to now already (the pins are read several times a step)
+            return; // moved up to now already
         }
         self.last_ns.set(now);
-        if self.fault.get() == LockFault::Stuck || !self.driven() {
+        if self.fault.get() == LockFault::Stuck {
             return;
         }
         // dt ns · v µm/s · 1e-9 s/ns · 1e3 nm/µm = dt·v/1e6 nm
@@ -143,12 +152,15 @@ impl embedded_hal::digital::ErrorType for LockPin {
 
 impl LockPin {
     fn drive(&mut self, high: bool) {
+        let now = self.0.clock.now_ns();
         let m = self.0.now();
         match self.1 {
             LockRole::In1 => m.in1.set(high),
             LockRole::In2 => m.in2.set(high),
             LockRole::LockedSw | LockRole::ReleasedSw => {}
         }
+        // A drive that starts now moves the screw from now.
+        m.last_ns.set(now);
     }
 }
 
@@ -204,6 +216,25 @@ input_line!(ReleasedSwitch, |l| l.now().pos_nm.get() > 0);
 mod tests {
     use super::*;
     use embedded_hal::digital::{InputPin, OutputPin};
+
+    /// The screw is moved only while driven; a drive that starts after a long time
+    /// without a read moves it from the drive's start, not from the last read.
+    #[test]
+    fn a_drive_moves_the_screw_from_its_start() {
+        let clk = SimClock::new();
+        let l = SimLock::new_locked(clk.clone());
+        let (mut in2, mut locked) = (l.in2(), l.locked_switch());
+        assert!(locked.is_low().unwrap());
+        clk.advance_ns(10_000_000_000);
+        in2.set_high().unwrap();
+        assert!(locked.is_low().unwrap(), "still locked as the drive starts");
+        clk.advance_ns(200_000_000);
+        assert!(
+            (l.fraction_locked() - 0.5).abs() < 1e-9,
+            "{}",
+            l.fraction_locked()
+        );
+    }
 
     #[test]
     fn travels_between_switches_in_400ms() {

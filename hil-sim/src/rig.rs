@@ -31,9 +31,16 @@ pub const WATCHDOG_WORST_NS: u64 = 500_000_000 * 32_000 / 47_000;
 pub struct SimWatchdog {
     clock: SimClock,
     timeout_ns: u64,
-    last_feed_ns: Rc<Cell<u64>>,
-    feeds: Rc<Cell<u64>>,
-    bitten: Rc<Cell<bool>>,
+    /// Shared between clones (one watchdog).
+    state: Rc<WatchdogState>,
+}
+
+/// What a [`SimWatchdog`]'s clones share.
+#[derive(Debug, Default)]
+struct WatchdogState {
+    last_feed_ns: Cell<u64>,
+    feeds: Cell<u64>,
+    bitten: Cell<bool>,
 }
 
 impl SimWatchdog {
@@ -43,23 +50,25 @@ impl SimWatchdog {
         Self {
             clock,
             timeout_ns: WATCHDOG_WORST_NS,
-            last_feed_ns: Rc::new(Cell::new(now)),
-            feeds: Rc::default(),
-            bitten: Rc::default(),
+            state: Rc::new(WatchdogState {
+                last_feed_ns: Cell::new(now),
+                ..WatchdogState::default()
+            }),
         }
     }
 
     /// Whether it would have reset the MCU by now (not fed within the timeout).
     pub fn check(&self) -> bool {
-        if self.clock.now_ns().saturating_sub(self.last_feed_ns.get()) > self.timeout_ns {
-            self.bitten.set(true);
+        let s = &self.state;
+        if self.clock.now_ns().saturating_sub(s.last_feed_ns.get()) > self.timeout_ns {
+            s.bitten.set(true);
         }
-        self.bitten.get()
+        s.bitten.get()
     }
 
     /// Feeds so far.
     pub fn feeds(&self) -> u64 {
-        self.feeds.get()
+        self.state.feeds.get()
     }
 }
 
@@ -67,11 +76,12 @@ impl Watchdog for SimWatchdog {
     fn feed(&mut self) {
         // `check` at the feed's instant, then the feed.
         let now = self.clock.now_ns();
-        if now.saturating_sub(self.last_feed_ns.get()) > self.timeout_ns {
-            self.bitten.set(true);
+        let s = &self.state;
+        if now.saturating_sub(s.last_feed_ns.get()) > self.timeout_ns {
+            s.bitten.set(true);
         }
-        self.last_feed_ns.set(now);
-        self.feeds.set(self.feeds.get() + 1);
+        s.last_feed_ns.set(now);
+        s.feeds.set(s.feeds.get() + 1);
     }
 }
 
@@ -293,12 +303,93 @@ pub struct ForceScript {
     pub pull_from_ns: Option<u64>,
 }
 
+impl ForceScript {
+    /// Whether it adds nothing: no jam, spike, offset, pull or reversal.
+    fn adds_nothing(&self) -> bool {
+        self.jam_from_um.is_none()
+            && self.spikes_at.is_empty()
+            && self.offset_n == 0.0
+            && !self.reversed
+            && self.pull_n_per_s == 0.0
+    }
+}
+
+/// The scene's [`ForceScript`], shared by the scene and the force source, with a flag
+/// set whenever it is changed: whether it adds nothing. The force source reads the
+/// flag at every conversion (a long run's scripts are empty) instead of the script.
+///
+/// Used like a `RefCell`: `script.borrow_mut().offset_n = 50.0`.
+#[derive(Debug, Default)]
+pub struct SharedScript {
+    script: RefCell<ForceScript>,
+    /// `script.adds_nothing()`, as of the last change.
+    adds_nothing: Cell<bool>,
+}
+
+impl SharedScript {
+    /// An empty script.
+    pub fn new() -> Self {
+        Self {
+            script: RefCell::default(),
+            adds_nothing: Cell::new(true),
+        }
+    }
+
+    /// The script, to read.
+    pub fn borrow(&self) -> std::cell::Ref<'_, ForceScript> {
+        self.script.borrow()
+    }
+
+    /// The script, to change (the flag follows when the borrow ends).
+    pub fn borrow_mut(&self) -> ScriptMut<'_> {
+        ScriptMut {
+            script: self.script.borrow_mut(),
+            adds_nothing: &self.adds_nothing,
+        }
+    }
+
+    /// Whether the script adds nothing to the force.
+    fn adds_nothing(&self) -> bool {
+        self.adds_nothing.get()
+    }
+}
+
+/// A change to a [`SharedScript`] under way.
+pub struct ScriptMut<'a> {
+    script: std::cell::RefMut<'a, ForceScript>,
+    adds_nothing: &'a Cell<bool>,
+}
+
+impl std::ops::Deref for ScriptMut<'_> {
+    type Target = ForceScript;
+    fn deref(&self) -> &ForceScript {
+        &self.script
+    }
+}
+
+impl std::ops::DerefMut for ScriptMut<'_> {
+    fn deref_mut(&mut self) -> &mut ForceScript {
+        &mut self.script
+    }
+}
+
+impl Drop for ScriptMut<'_> {
+    fn drop(&mut self) {
+        self.adds_nothing.set(self.script.adds_nothing());
+    }
+}
+
 /// What the rig's load cell measures: N3 of Eq. 7 at the carriage's position (the
 /// carriage moves in whole steps, so it is tabulated once per step position over the
 /// stroke: the same values without per-sample divisions), plus the scene's additions.
+///
+/// With nothing added, the bridge's output in counts (`offset + counts/N · F`, see
+/// [`ForceSource::counts`]) is tabulated too, for the front end the machine was built
+/// with: the same arithmetic on the same values, done once per step position instead
+/// of at every conversion.
 pub struct ProfileForce {
     axis: SimAxis,
-    script: Rc<RefCell<ForceScript>>,
+    script: Rc<SharedScript>,
     conversions: Rc<Cell<u64>>,
     /// N3 at each step of insertion depth, N.
     table: Vec<f64>,
@@ -306,6 +397,12 @@ pub struct ProfileForce {
     n3_end: f64,
     engage_steps: i64,
     um_per_step: f64,
+    /// The bridge's output, counts, at each step of insertion depth (`table`'s), through
+    /// the part's front end (empty until [`ForceSource::front_end`]).
+    counts: Vec<f64>,
+    /// The same before contact and past the end of the stroke.
+    counts_before: f64,
+    counts_end: f64,
 }
 
 impl ProfileForce {
@@ -313,7 +410,7 @@ impl ProfileForce {
         machine: MachineConfig,
         model: &crate::machine::ForceModel,
         axis: SimAxis,
-        script: Rc<RefCell<ForceScript>>,
+        script: Rc<SharedScript>,
         conversions: Rc<Cell<u64>>,
     ) -> Self {
         let um_per_step = 1000.0 / machine.steps_per_mm as f64;
@@ -328,7 +425,16 @@ impl ProfileForce {
             table,
             engage_steps: machine.um_to_steps(machine.engage_um) as i64,
             um_per_step,
+            counts: Vec::new(),
+            counts_before: 0.0,
+            counts_end: 0.0,
         }
+    }
+
+    /// [`ForceSource::counts`] with the script adding something (or untabulated).
+    #[inline(never)]
+    fn counts_scripted(&mut self, t_ns: u64, front: &Hx711Config) -> f64 {
+        front.offset_counts + front.counts_per_n * self.force_n(t_ns)
     }
 }
 
@@ -364,6 +470,31 @@ impl ForceSource for ProfileForce {
             f
         }
     }
+
+    fn front_end(&mut self, front: &Hx711Config) {
+        // As `force_n` sums them with nothing added (`+ 0.0 + 0.0`: the offset and the
+        // pull), then as `counts` scales them.
+        let counts_of = |n3: f64| front.offset_counts + front.counts_per_n * (n3 + 0.0 + 0.0);
+        self.counts = self.table.iter().map(|&n3| counts_of(n3)).collect();
+        self.counts_before = counts_of(0.0);
+        self.counts_end = counts_of(self.n3_end);
+    }
+
+    /// Tabulated while the script adds nothing (`front` is the one `front_end` was
+    /// told: the part's, which never changes).
+    #[inline]
+    fn counts(&mut self, t_ns: u64, front: &Hx711Config) -> f64 {
+        if !self.script.adds_nothing() || self.counts.is_empty() {
+            return self.counts_scripted(t_ns, front);
+        }
+        let n = self.conversions.get();
+        self.conversions.set(n + 1);
+        let depth_steps = self.axis.pos_steps() - self.engage_steps;
+        match usize::try_from(depth_steps) {
+            Err(_) => self.counts_before,
+            Ok(k) => self.counts.get(k).copied().unwrap_or(self.counts_end),
+        }
+    }
 }
 
 /// The simulated machine: every device on one virtual clock, without a controller.
@@ -379,7 +510,7 @@ pub struct Machine {
     /// Load cell, powered up at t = 0.
     pub hx: SimHx711<ProfileForce>,
     /// Scene force additions.
-    pub script: Rc<RefCell<ForceScript>>,
+    pub script: Rc<SharedScript>,
     /// Conversions so far (the force source's call count).
     pub conversions: Rc<Cell<u64>>,
     /// The PLC's DOCK line (active low: asserted = low = "be docked"; released = high).
@@ -408,8 +539,12 @@ impl Machine {
         let clock = SimClock::new();
         let axis = SimAxis::new(machine, clock.clone(), 0);
         let lock = SimLock::new_locked(clock.clone());
-        let script = Rc::new(RefCell::new(ForceScript::default()));
+        let script = Rc::new(SharedScript::new());
         let conversions = Rc::new(Cell::new(0u64));
+        let mut hx_config = Hx711Config::default_for_rate(opts.rate_sps);
+        if let Some(n) = opts.noise_counts {
+            hx_config.noise_counts = n;
+        }
         let source = ProfileForce::new(
             machine,
             &opts.force_model,
@@ -417,10 +552,6 @@ impl Machine {
             script.clone(),
             conversions.clone(),
         );
-        let mut hx_config = Hx711Config::default_for_rate(opts.rate_sps);
-        if let Some(n) = opts.noise_counts {
-            hx_config.noise_counts = n;
-        }
         let hx = SimHx711::with_source(hx_config, clock.clone(), source, opts.seed);
         Self {
             clock,
@@ -514,7 +645,7 @@ pub struct Rig {
     /// Watchdog.
     pub wdg: SimWatchdog,
     /// Scene force additions.
-    pub script: Rc<RefCell<ForceScript>>,
+    pub script: Rc<SharedScript>,
     /// The controller under test.
     pub ctrl: Controller<SimBsp>,
     /// The safety path (the board runs it in the HX711's data-ready interrupt).
@@ -682,9 +813,6 @@ impl Rig {
             .next_conversion_ns()
             .min(self.clock.now_ns() + self.period_ns);
         self.clock.advance_to_ns(next);
-        // The carriage moved up to now first (the model is moved lazily, at its first
-        // read in an instant; here before the load cell converts at its position).
-        let _ = self.axis.pos_steps();
         let now_us = self.clock.now_ns() / 1_000;
         // The board's E-STOP interrupt, at its edge (here at the tick: the rig is not
         // interrupt-accurate; the virtual board measures the real latency).
@@ -710,21 +838,27 @@ impl Rig {
         self.kernel.configure(self.ctrl.kernel_config(), now_us);
         self.ctrl.background();
         if self.console_enabled {
-            // The main loop polls the console after the controller, and its work takes
-            // CPU time: charge it to virtual time.
-            let c = self.console.poll(
-                &mut self.ctrl,
-                &mut self.term,
-                self.clock.now_ns() / 1_000_000,
-            );
-            self.clock.advance_ns(
-                c.bytes_in as u64 * CONSOLE_NS_PER_BYTE
-                    + c.commands as u64 * CONSOLE_NS_PER_COMMAND
-                    + c.pin_hashes as u64 * CONSOLE_NS_PER_PIN_HASH,
-            );
-            self.last_console = c;
+            self.poll_console();
         }
         r
+    }
+
+    /// The main loop polls the console after the controller, and its work takes CPU
+    /// time: charge it to virtual time. (Out of the tick's line: the console's code and
+    /// its buffers are large, and most ticks of a long run have no console.)
+    #[inline(never)]
+    fn poll_console(&mut self) {
+        let c = self.console.poll(
+            &mut self.ctrl,
+            &mut self.term,
+            self.clock.now_ns() / 1_000_000,
+        );
+        self.clock.advance_ns(
+            c.bytes_in as u64 * CONSOLE_NS_PER_BYTE
+                + c.commands as u64 * CONSOLE_NS_PER_COMMAND
+                + c.pin_hashes as u64 * CONSOLE_NS_PER_PIN_HASH,
+        );
+        self.last_console = c;
     }
 
     /// What the board's E-STOP interrupt does at an edge of the input (`open`: it
@@ -779,5 +913,62 @@ impl Rig {
             }
         }
         String::from_utf8_lossy(&out).into_owned()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The table of counts the HX711 reads while the script adds nothing is the
+    /// formula it stands for (`offset + counts/N · force_n`), bit for bit, at every step
+    /// position (before contact and past the stroke too); once the script adds
+    /// something, the formula itself.
+    #[test]
+    fn tabulated_counts_are_the_formula_bit_for_bit() {
+        let clock = SimClock::new();
+        let machine = MachineConfig::DEFAULT;
+        let front = Hx711Config::default_for_rate(80);
+        let axis = SimAxis::new(machine, clock.clone(), 0);
+        let script = Rc::new(SharedScript::new());
+        let conversions = Rc::new(Cell::new(0));
+        let mut tabulated = ProfileForce::new(
+            machine,
+            &crate::machine::ForceModel::Eq7,
+            axis.clone(),
+            script.clone(),
+            conversions.clone(),
+        );
+        tabulated.front_end(&front);
+        let mut formula = ProfileForce::new(
+            machine,
+            &crate::machine::ForceModel::Eq7,
+            axis.clone(),
+            script.clone(),
+            Rc::new(Cell::new(0)),
+        );
+        let mut pulses = axis.pulses();
+        let (mut en, mut dir) = (axis.enable_n(), axis.dir());
+        embedded_hal::digital::OutputPin::set_high(&mut dir).unwrap();
+        embedded_hal::digital::OutputPin::set_low(&mut en).unwrap();
+        // One step per microsecond, from home to 4 mm past the stroke's end.
+        pulses.set_rate_hz(1_000_000);
+        let last = machine.um_to_steps(machine.engage_um + STROKE_UM + 4_000) as u64;
+        for k in 0..=last {
+            clock.advance_to_ns(k * 1_000);
+            let t = clock.now_ns();
+            let want = front.offset_counts + front.counts_per_n * formula.force_n(t);
+            let got = tabulated.counts(t, &front);
+            assert_eq!(got.to_bits(), want.to_bits(), "step {k}: {got} != {want}");
+        }
+        assert_eq!(
+            conversions.get(),
+            last + 1,
+            "each one counts as a conversion"
+        );
+        script.borrow_mut().offset_n = 1.5;
+        let t = clock.now_ns();
+        let want = front.offset_counts + front.counts_per_n * formula.force_n(t);
+        assert_eq!(tabulated.counts(t, &front).to_bits(), want.to_bits());
     }
 }

@@ -29,13 +29,11 @@ use docking_logic::controller::{Event, Refusal, Status};
 use docking_logic::profile::ContactPhase;
 use docking_logic::sequencer::{Request, SeqEvent, State, BACK_OFF_UM};
 
-use std::cell::RefCell;
-
 use crate::axis::{AxisFault, SimAxis};
 use crate::hx711::{Hx711Fault, SimHx711};
 use crate::line::SimLine;
 use crate::lock::{LockFault, SimLock};
-use crate::rig::{AdcMode, ForceScript, ProfileForce, Rig, RigOptions};
+use crate::rig::{AdcMode, ProfileForce, Rig, RigOptions, SharedScript};
 use crate::rng::Rng;
 
 /// Scene names.
@@ -641,7 +639,7 @@ impl Progress {
 #[derive(Clone, Copy)]
 pub struct Devices<'a> {
     /// Force additions.
-    pub script: &'a RefCell<ForceScript>,
+    pub script: &'a SharedScript,
     /// Load cell.
     pub hx: &'a SimHx711<ProfileForce>,
     /// Axis.

@@ -406,8 +406,9 @@ pub struct Controller<B: Bsp> {
     /// Bumped when a fault is cleared: the kernel forgets its history.
     clear_epoch: u32,
     /// Switch debouncing: the raw reading of the last step and the accepted state.
-    switch_raw: Switches,
-    switches: Switches,
+    /// ([`Switches::bits`]: the filter works on all four at once.)
+    switch_raw: u8,
+    switches: u8,
     last_step_us: Option<u64>,
     pending: Option<Request>,
     odo: Odometer,
@@ -969,8 +970,8 @@ impl<B: Bsp> Controller<B> {
             seq: Sequencer::new(cfg.machine),
             period_us: 1_000_000 / cfg.sample_rate_sps.max(1) as u64,
             clear_epoch: 0,
-            switch_raw: Switches::default(),
-            switches: Switches::default(),
+            switch_raw: 0,
+            switches: 0,
             last_step_us: None,
             pending: None,
             odo,
@@ -1058,7 +1059,8 @@ impl<B: Bsp> Controller<B> {
                 end,
                 locked,
                 released,
-            };
+            }
+            .bits();
             me.switches = me.switch_raw;
         }
         if fresh {
@@ -1349,8 +1351,8 @@ impl<B: Bsp> Controller<B> {
         if let Some(smp) = st.sample {
             self.guard.force_mn = smp.force_mn;
             self.guard.peak_force_mn = self.guard.peak_force_mn.max(self.guard.force_mn);
-            if let Some(f) = self.diag.faults.back_mut() {
-                if matches!(st.state, State::Faulted { .. } | State::BackingOff { .. }) {
+            if matches!(st.state, State::Faulted { .. } | State::BackingOff { .. }) {
+                if let Some(f) = self.diag.faults.back_mut() {
                     f.peak_force_mn = f.peak_force_mn.max(self.guard.force_mn);
                 }
             }
@@ -1672,16 +1674,13 @@ impl<B: Bsp> Controller<B> {
     /// so one noisy reading never stops, zeroes or faults anything, and a real change
     /// (an overtravel) counts at most one step — one sample period — later.
     fn filter_switches(&mut self, raw: Switches) -> Switches {
-        let f = |accepted: bool, prev: bool, now: bool| if prev == now { now } else { accepted };
-        let (a, p) = (self.switches, self.switch_raw);
-        self.switches = Switches {
-            home: f(a.home, p.home, raw.home),
-            end: f(a.end, p.end, raw.end),
-            locked: f(a.locked, p.locked, raw.locked),
-            released: f(a.released, p.released, raw.released),
-        };
+        // Per switch (one bit each): the reading where it agrees with the last one, else
+        // the accepted state.
+        let raw = raw.bits();
+        let alike = !(raw ^ self.switch_raw);
+        self.switches = (raw & alike) | (self.switches & !alike);
         self.switch_raw = raw;
-        self.switches
+        Switches::from_bits(self.switches)
     }
 
     /// What the safety kernel must judge the next samples by: the calibration in force
@@ -1924,7 +1923,8 @@ impl<B: Bsp> Controller<B> {
                 if self.wear_level() == WearLevel::Limit {
                     return Err(Refusal::WornOut);
                 }
-                if !(self.switches.home && self.switches.locked) {
+                let sw = Switches::from_bits(self.switches);
+                if !(sw.home && sw.locked) {
                     return Err(Refusal::NotHomed);
                 }
             }
@@ -1953,7 +1953,7 @@ impl<B: Bsp> Controller<B> {
     /// The handshake outputs now.
     pub fn handshake(&self) -> Handshake {
         let state = self.seq.state();
-        let sw = self.switches;
+        let sw = Switches::from_bits(self.switches);
         let in_envelope =
             (self.guard.force_mn - self.cfg.hold_expected_mn).abs() <= HOLD_TOLERANCE_MN;
         // As of the last step (cached: see step 7).

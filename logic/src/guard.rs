@@ -278,18 +278,22 @@ impl OverloadGuard {
     pub fn check_against(&mut self, force_mn: i32, limit: i32) -> Verdict {
         let pull = force_mn < -self.cfg.tension_mn;
         let over = force_mn > limit || pull;
-        let plausible = self.prev_over
-            || self
-                .prev_mn
-                .is_none_or(|p| force_mn.abs_diff(p) <= self.cfg.slew_mn as u32);
-        let verdict = if pull && plausible {
-            Verdict::Tension {
-                limit_mn: -self.cfg.tension_mn,
+        let verdict = if over {
+            // Over a limit: a stop, unless the jump from the last sample is implausible
+            // (a spike is held one sample).
+            let plausible = self.prev_over
+                || self
+                    .prev_mn
+                    .is_none_or(|p| force_mn.abs_diff(p) <= self.cfg.slew_mn as u32);
+            if !plausible {
+                Verdict::Suspect
+            } else if pull {
+                Verdict::Tension {
+                    limit_mn: -self.cfg.tension_mn,
+                }
+            } else {
+                Verdict::Trip { limit_mn: limit }
             }
-        } else if over && plausible {
-            Verdict::Trip { limit_mn: limit }
-        } else if over {
-            Verdict::Suspect
         } else {
             if self.prev_over && !self.warning {
                 // The previous sample was over the limit and this one is not: a spike.

@@ -92,9 +92,45 @@ impl Cruise {
 /// Arrival tolerance, steps (5 µm at 200 steps/mm).
 pub const ARRIVAL_TOLERANCE_STEPS: i32 = 1;
 
-/// Integer square root (floor) of a u64.
+/// Integer square root (floor) of a u64, by Newton's iteration from above.
+///
+/// By hand (issue 20): core's `u64::isqrt` is 614 bytes of code inlined into the
+/// control step and a 512-byte table, this is about 70 bytes. Below 2³² (every value
+/// the ramp meets while `max_sps` < 65 536: it takes the root only of a `2·a·d` under
+/// `max_sps²`) the iteration runs in u32, each step one hardware `udiv`; above, the same
+/// in u64 (a library division). Exact: from a start x₀ ≥ √v the iterate
+/// x' = ⌊(x + ⌊v/x⌋)/2⌋ decreases strictly while x > ⌊√v⌋ and never goes below it, so
+/// the first x' ≥ x is ⌊√v⌋; tested against core's `isqrt`
+/// (`isqrt_is_cores_isqrt`). Five or six steps from the start 2^⌈bits/2⌉.
 const fn isqrt(v: u64) -> u64 {
-    v.isqrt()
+    if v >> 32 == 0 {
+        return isqrt_u32(v as u32) as u64;
+    }
+    // v ≥ 2³²: bits in 33..=64, x ≤ 2³², and x + v/x ≤ 2³³ (v/x ≤ √v ≤ 2³²).
+    let mut x = 1u64 << (64 - v.leading_zeros()).div_ceil(2);
+    loop {
+        let y = (x + v / x) / 2;
+        if y >= x {
+            return x;
+        }
+        x = y;
+    }
+}
+
+/// [`isqrt`] below 2³²: x ≤ 2¹⁶ and x + v/x ≤ 2¹⁷; x ≥ ⌊√v⌋ ≥ 1 for v ≥ 1 (no
+/// division by zero).
+const fn isqrt_u32(v: u32) -> u32 {
+    if v == 0 {
+        return 0;
+    }
+    let mut x = 1u32 << (32 - v.leading_zeros()).div_ceil(2);
+    loop {
+        let y = (x + v / x) / 2;
+        if y >= x {
+            return x;
+        }
+        x = y;
+    }
 }
 
 impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
@@ -372,6 +408,38 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn isqrt_is_cores_isqrt() {
+        // Every value below 2^22, the squares around every root below 2^16 and around
+        // powers of two and the ends of u64, and a spread of others.
+        for v in 0..1u64 << 22 {
+            assert_eq!(isqrt(v), v.isqrt(), "{v}");
+        }
+        let edge = |v: u64| assert_eq!(isqrt(v), v.isqrt(), "{v}");
+        for r in (0..1u64 << 16).chain([(1 << 32) - 1, 1 << 31, 3_037_000_499]) {
+            let sq = r * r;
+            edge(sq);
+            edge(sq.saturating_sub(1));
+            edge(sq + 1);
+            edge(sq + 2 * r);
+        }
+        for k in 0..64 {
+            edge(1 << k);
+            edge((1 << k) - 1);
+            edge((1 << k) + 1);
+        }
+        edge(u64::MAX);
+        edge(u64::MAX - 1);
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        for _ in 0..200_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            edge(x);
+            edge(x >> 20);
+        }
+    }
     use core::cell::Cell;
     use core::convert::Infallible;
 

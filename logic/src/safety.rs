@@ -97,6 +97,7 @@ pub struct Sample {
 /// What the kernel hands to the controller.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
 pub enum KernelEvent {
     /// A sample.
     Sample(Sample),

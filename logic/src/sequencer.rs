@@ -175,6 +175,26 @@ pub struct Switches {
     pub released: bool,
 }
 
+impl Switches {
+    /// One bit per switch (home, end, locked, released from bit 0 up), `1` = closed.
+    pub const fn bits(self) -> u8 {
+        self.home as u8
+            | (self.end as u8) << 1
+            | (self.locked as u8) << 2
+            | (self.released as u8) << 3
+    }
+
+    /// The switches of [`Self::bits`].
+    pub const fn from_bits(bits: u8) -> Self {
+        Self {
+            home: bits & 1 != 0,
+            end: bits & 2 != 0,
+            locked: bits & 4 != 0,
+            released: bits & 8 != 0,
+        }
+    }
+}
+
 /// Requests from outside the control loop (console, scene, start button).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -274,8 +294,13 @@ pub enum AfterLock {
 }
 
 /// Sequencer state. Every moving state carries its deadline (ms since boot).
+///
+/// `repr(u8)`: a tag byte of its own, so the step's many matches on the state read it
+/// directly (without it the tag shares a word with `Holding`'s `Option` and every match
+/// first decodes it).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
 pub enum State {
     /// Just booted: position unknown; nothing moves until a home or dock request.
     PowerUp,
@@ -549,7 +574,6 @@ impl Sequencer {
     /// One control step.
     pub fn step(&mut self, inp: &Inputs) -> Outputs {
         let sw = inp.switches;
-        let cfg = self.cfg;
 
         // Faults first: reported ones, then the switch checks that hold in every state.
         let switch_fault = if (sw.home && sw.end) || (sw.locked && sw.released) {
@@ -561,24 +585,24 @@ impl Sequencer {
         };
         let stop = (inp.request == Some(Request::Stop)).then_some(FaultKind::Stopped);
         let detected = inp.fault.or(switch_fault).or(stop);
-        let next = match (self.state, detected) {
-            // Pulled while mated holds the axis driven: any further fault (an E-STOP, an
-            // overload, a stop) takes its place and turns the axis off.
-            (
+        // (Without one, the usual step, the state's own transition below.)
+        let next = match detected {
+            None => None,
+            Some(f) => match self.state {
+                // Pulled while mated holds the axis driven: any further fault (an
+                // E-STOP, an overload, a stop) takes its place and turns the axis off.
                 State::Faulted {
                     fault: FaultKind::HoldForce,
-                },
-                Some(f),
-            ) if f != FaultKind::HoldForce => {
-                Some((State::Faulted { fault: f }, Some(SeqEvent::Fault(f))))
-            }
-            (State::Faulted { .. }, _) => None, // latched: only a clear gets out
-            // Any fault (a stop included) ends the controlled retreat of an overload.
-            (State::BackingOff { .. }, Some(f)) => {
-                Some((State::Faulted { fault: f }, Some(SeqEvent::Fault(f))))
-            }
-            (_, Some(f)) => Some(self.fault(f, inp)),
-            _ => None,
+                } if f != FaultKind::HoldForce => {
+                    Some((State::Faulted { fault: f }, Some(SeqEvent::Fault(f))))
+                }
+                State::Faulted { .. } => None, // latched: only a clear gets out
+                // Any fault (a stop included) ends the controlled retreat of an overload.
+                State::BackingOff { .. } => {
+                    Some((State::Faulted { fault: f }, Some(SeqEvent::Fault(f))))
+                }
+                _ => Some(self.fault(f, inp)),
+            },
         };
         // The state is written only when it changes (most steps it stays).
         let (mut event, zero_position) = match next {
@@ -621,7 +645,19 @@ impl Sequencer {
             }
         }
 
-        let (axis, lock) = match self.state {
+        let (axis, lock) = self.commands(inp.pos_um);
+        Outputs {
+            axis,
+            lock,
+            zero_position,
+            event,
+        }
+    }
+
+    /// What the propulsion and the lock do in the current state (at `pos_um`).
+    fn commands(&self, pos_um: i32) -> (AxisCmd, LockCmd) {
+        let cfg = &self.cfg;
+        match self.state {
             // Pulled while mated: stay put, driven (no free-wheeling with the connectors
             // under load), until a person decides (clear: a controlled extraction).
             State::Faulted {
@@ -632,9 +668,7 @@ impl Sequencer {
             }
             State::Homing { .. } => (
                 AxisCmd::Move {
-                    target_um: inp
-                        .pos_um
-                        .saturating_sub(cfg.end_switch_um + HOME_OVERSHOOT_UM),
+                    target_um: pos_um.saturating_sub(cfg.end_switch_um + HOME_OVERSHOOT_UM),
                     speed_um_per_s: cfg.dock_speed_um_per_s,
                 },
                 LockCmd::Off,
@@ -686,12 +720,6 @@ impl Sequencer {
                 },
                 LockCmd::Off,
             ),
-        };
-        Outputs {
-            axis,
-            lock,
-            zero_position,
-            event,
         }
     }
 
