@@ -23,7 +23,8 @@ use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m_rt::{exception, ExceptionFrame};
 use defmt_rtt as _;
 use docking_logic::console::service::Console;
-use docking_logic::console::update::{Outcome as UpdateOutcome, UpdateSession};
+#[cfg(feature = "updater")]
+use docking_logic::console::update::Outcome as UpdateOutcome;
 use docking_logic::controller::Handshake;
 use docking_logic::controller::{Bsp, Controller, ControllerConfig, Parts};
 use docking_logic::diag::{file_tail, Crash, CrashKind, ResetCause};
@@ -716,13 +717,15 @@ mod app {
         // In a static (it holds the 8 KiB output ring): returned from init it would be
         // moved through init's stack.
         console: Console = Console::new([0; 32]),
-        // The `update` command's YMODEM session (in a static: its 1 KiB block buffer).
-        session: UpdateSession = UpdateSession::new(),
+        // The `update` command's YMODEM session (in a static: its 1 KiB block buffer;
+        // nothing without the feature `updater`).
+        session: update::Session = update::Session::new(),
     ])]
     fn idle(cx: idle::Context) -> ! {
         let mailbox = &owner::MAILBOX;
         cx.local.console.seed(cx.local.entropy);
         // This image runs `update`'s YMODEM session (below).
+        #[cfg(feature = "updater")]
         cx.local.console.enable_updater();
         // The greeting: firmware, why it reset, the prompt (a terminal's first line).
         let (mut reset, mut state) = (None, "unknown");
@@ -800,6 +803,7 @@ mod app {
             // A firmware update (console `update`): YMODEM has the line until it ends;
             // the flash goes through the owner (update.rs).
             let session = &mut *cx.local.session;
+            #[cfg(feature = "updater")]
             if session.active() {
                 let flash = core::cell::RefCell::new(update::UpdateFlash);
                 let key = &update::PUBLIC_KEY;
@@ -829,9 +833,12 @@ mod app {
                 }
             }
             console.flush_output(term);
+            #[cfg(feature = "updater")]
             if console.take_update() {
                 session.start(now_ms);
             }
+            #[cfg(not(feature = "updater"))]
+            let _ = session;
             // What the service applies at its next run: the login, the line.
             owner::MAINTENANCE.store(console.maintenance_active(now_ms), Ordering::Relaxed);
             owner::BUS_BUSY.store(line.sending(), Ordering::Relaxed);

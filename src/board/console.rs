@@ -298,6 +298,7 @@ impl BoardConsole {
         Self { read: 0, tx_in }
     }
 
+    #[cfg(feature = "updater")]
     /// Whether everything queued has left the line (the ring empty, USART2's TC set).
     pub fn tx_idle(&self) -> bool {
         // SAFETY: a read of USART2 SR (no side effect on TC).

@@ -280,6 +280,7 @@ impl OdometerFlash {
         Self::program_word(BOOT_STATE, BOOT_MAGIC)
     }
 
+    #[cfg(feature = "updater")]
     /// Erase the sector at `base` for the updater (`update.rs`): a sector of DFU page 0
     /// or STATE only, from SRAM with the watchdog fed, as the odometer's. Any other
     /// sector (the bootloader, ACTIVE, DFU page 1, the odometer) is refused before a
@@ -293,6 +294,7 @@ impl OdometerFlash {
         Self::erase_sector(n)
     }
 
+    #[cfg(feature = "updater")]
     /// Program whole words at `addr` for the updater: inside DFU page 0 or STATE only
     /// (as [`Self::erase_update_sector`]). Call only from the owner, at rest.
     pub fn program_update(addr: u32, data: &[u8]) -> Result<(), OdoFlashError> {
@@ -340,6 +342,7 @@ impl OdometerFlash {
     }
 }
 
+#[cfg(feature = "updater")]
 /// Whether `[addr, addr + len)` lies in what the updater writes: the sectors of DFU
 /// page 0, or STATE.
 fn updater_may_write(addr: u32, len: u32) -> bool {

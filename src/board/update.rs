@@ -81,11 +81,33 @@ pub fn dfu_header(page: usize) -> Option<Header> {
 // --- DFU page 0 and STATE, behind the controller's owner --------------------------------
 
 use docking_logic::update::{BootFacts, ImageReport};
+#[cfg(feature = "updater")]
 use update_layout::part::{FlashError, Sectors};
 
+#[cfg(feature = "updater")]
 use super::flash::{OdoFlashError, OdometerFlash};
-use super::owner::{Ctrl, MAILBOX};
+use super::owner::Ctrl;
+#[cfg(feature = "updater")]
+use super::owner::MAILBOX;
 
+/// The `update` command's session (feature `updater`).
+#[cfg(feature = "updater")]
+pub type Session = docking_logic::console::update::UpdateSession;
+
+/// Without the feature `updater` (issue 20's lean image, measured by `cargo xtask
+/// size`): no session; the console refuses `update` (it was never enabled).
+#[cfg(not(feature = "updater"))]
+pub struct Session;
+
+#[cfg(not(feature = "updater"))]
+impl Session {
+    /// Nothing.
+    pub const fn new() -> Self {
+        Self
+    }
+}
+
+#[cfg(feature = "updater")]
 /// The flash as the updater's partitions see it (`update_layout::part::Paged::dfu`,
 /// `State`): reads straight from the memory map (idle, no owner needed: nothing else
 /// writes these sectors), erases and programs through the controller's owner — a job
@@ -95,10 +117,12 @@ use super::owner::{Ctrl, MAILBOX};
 /// Call from idle only (the mailbox's rule).
 pub struct UpdateFlash;
 
+#[cfg(feature = "updater")]
 /// Tries a flash job gets when the machine is not at rest just then (a Modbus reply on
 /// the line): one per service window, about 5 s at 80 SPS.
 const OWNER_TRIES: u32 = 400;
 
+#[cfg(feature = "updater")]
 /// Run `op` in the owner's window at rest; retried while a Modbus reply holds the flash.
 fn with_owner(op: &mut dyn FnMut() -> Result<(), OdoFlashError>) -> Result<(), FlashError> {
     for _ in 0..OWNER_TRIES {
@@ -121,6 +145,7 @@ fn with_owner(op: &mut dyn FnMut() -> Result<(), OdoFlashError>) -> Result<(), F
     Err(FlashError::Timeout)
 }
 
+#[cfg(feature = "updater")]
 impl Sectors for UpdateFlash {
     fn read(&mut self, addr: u32, buf: &mut [u8]) -> Result<(), FlashError> {
         let end = u64::from(addr) + buf.len() as u64;
@@ -158,6 +183,7 @@ pub fn boot_report(ctrl: &mut Ctrl, boot: update_layout::state::Boot) -> ImageRe
     docking_logic::update::at_boot(ctrl, facts)
 }
 
+#[cfg(feature = "updater")]
 /// A verified update: the reply out (at most 200 ms), the motors safe, then the reset
 /// into the bootloader's swap.
 pub fn restart(term: &super::console::BoardConsole) -> ! {
