@@ -7,6 +7,11 @@
 #   bash tools/figures.sh            # about 7 minutes on 2 cores, after the builds
 #   bash tools/figures.sh --sweep    # also the full timing sweep (80 runs, ~30 min)
 #
+# The virtual board's table is measured twice: on this tree's image and on the image of
+# $FIGURES_BEFORE (default b20ffb8, the tree before issue 20), built from source in a
+# git worktree (kept in target/figures-before/<commit>/) and run on this tree's virtual
+# board, so that the two columns differ only in the image.
+#
 # Run it from a clean tree: the page says which commit it measured, and "(dirty)" when
 # the tree had changes.
 set -euo pipefail
@@ -25,6 +30,18 @@ cargo build -q --release -p hil-sim
 # The virtual board boots every image through the bootloader (issue 21, docs/update.md).
 (cd boot && cargo build -q --release)
 (cd vboard && cargo build -q --release)
+# The image before issue 20, for the before/after table.
+before_rev=${FIGURES_BEFORE:-b20ffb8}
+before_sha=$(git rev-parse --verify "$before_rev^{commit}")
+before_elf=$PWD/target/figures-before/$before_sha/$TARGET/release/docking-controller
+if [ ! -f "$before_elf" ]; then
+    wt=$(mktemp -d)/before
+    git worktree add --detach "$wt" "$before_sha" >/dev/null 2>&1
+    (cd "$wt" && CARGO_TARGET_DIR=$PWD/../target cargo build -q --release --target "$TARGET" &&
+        mkdir -p "$(dirname "$before_elf")" && cp "$PWD/../target/$TARGET/release/docking-controller" "$before_elf")
+    git worktree remove --force "$wt"
+    rm -rf "$(dirname "$wt")"
+fi
 hil=./target/release/hil-sim
 vb=./vboard/target/release/vboard
 
@@ -71,7 +88,7 @@ scene_row() { # model args...: one table row from `vboard scene overload --flood
     echo
     echo "| flash (text + rodata + vectors + data) | static RAM (data + bss + uninit) | budget |"
     echo "|---|---|---|"
-    echo "| $((text + data)) B | $((data + bss)) B | 131 072 B flash, 32 768 B RAM |"
+    echo "| $((text + data)) B | $((data + bss)) B | 81 920 B flash (issue 20; 131 072 B the ceiling), 32 768 B RAM |"
     echo
     echo "The 10 biggest functions (\`python3 tools/size-report.py -n 10 --no-groups $elf\`):"
     echo
@@ -97,6 +114,15 @@ scene_row() { # model args...: one table row from `vboard scene overload --flood
     scene_row "CPI 1"
     scene_row "CPI 3" --cpi 3
     scene_row "ART cache, CPI 1" --timing art
+    echo
+    echo "The same on the image of ${before_sha:0:7} (before issue 20), built from source and run"
+    echo "on this virtual board (\`--firmware\`):"
+    echo
+    echo "| model | overload stop, DOUT → EN high | control period, max | control entry latency while moving | instructions per control step | longest all-masked window | E-STOP edge → EN high |"
+    echo "|---|---|---|---|---|---|---|"
+    scene_row "CPI 1" --firmware "$before_elf"
+    scene_row "CPI 3" --cpi 3 --firmware "$before_elf"
+    scene_row "ART cache, CPI 1" --timing art --firmware "$before_elf"
     if [ "$sweep" = 1 ]; then
         echo
         echo "The worst case over seeds 1–10 and every model (\`vboard sweep --flood\`):"
