@@ -15,6 +15,7 @@ mod modbus;
 mod options;
 mod owner;
 mod step;
+mod update;
 
 use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, Ordering};
@@ -22,6 +23,8 @@ use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m_rt::{exception, ExceptionFrame};
 use defmt_rtt as _;
 use docking_logic::console::service::Console;
+#[cfg(feature = "updater")]
+use docking_logic::console::update::Outcome as UpdateOutcome;
 use docking_logic::controller::Handshake;
 use docking_logic::controller::{Bsp, Controller, ControllerConfig, Parts};
 use docking_logic::diag::{file_tail, Crash, CrashKind, ResetCause};
@@ -462,19 +465,30 @@ mod app {
         // A trial boot after an update (issue 21, docs/update.md): the board came up,
         // the flash answered and the odometer was restored, the HX711 answered its
         // power cycle: confirm, or the next reset (the watchdog's included) rolls back.
-        match flash::OdometerFlash::boot_trial() {
+        let boot = match flash::OdometerFlash::boot_trial() {
             flash::BootTrial::Trial => match flash::OdometerFlash::confirm_boot() {
-                Ok(()) => defmt::info!("update: trial boot confirmed, this image is kept"),
-                Err(e) => defmt::warn!(
-                    "update: trial boot not confirmed ({}): the next reset rolls back",
-                    e
-                ),
+                Ok(()) => {
+                    defmt::info!("update: trial boot confirmed, this image is kept");
+                    flash::BootTrial::Trial
+                }
+                Err(e) => {
+                    defmt::warn!(
+                        "update: trial boot not confirmed ({}): the next reset rolls back",
+                        e
+                    );
+                    flash::BootTrial::Confirmed
+                }
             },
             flash::BootTrial::RolledBack => {
-                defmt::warn!("update: the last update never confirmed and was rolled back")
+                defmt::warn!("update: the last update never confirmed and was rolled back");
+                flash::BootTrial::RolledBack
             }
-            flash::BootTrial::Confirmed => {}
-        }
+            flash::BootTrial::Confirmed => flash::BootTrial::Confirmed,
+        };
+        // What `version` and Modbus identification say about the images; the image
+        // record this boot owes (a confirmation, a rollback).
+        let images = update::boot_report(ctrl, boot);
+        ctrl.set_images(images);
         crash::journal_write(&ctrl.journal());
         let (used, size) = crash::stack_usage();
         ctrl.set_stack_usage(used, size);
@@ -703,17 +717,25 @@ mod app {
         // In a static (it holds the 8 KiB output ring): returned from init it would be
         // moved through init's stack.
         console: Console = Console::new([0; 32]),
+        // The `update` command's YMODEM session (in a static: its 1 KiB block buffer;
+        // nothing without the feature `updater`).
+        session: update::Session = update::Session::new(),
     ])]
     fn idle(cx: idle::Context) -> ! {
         let mailbox = &owner::MAILBOX;
         cx.local.console.seed(cx.local.entropy);
+        // This image runs `update`'s YMODEM session (below).
+        #[cfg(feature = "updater")]
+        cx.local.console.enable_updater();
         // The greeting: firmware, why it reset, the prompt (a terminal's first line).
         let (mut reset, mut state) = (None, "unknown");
-        mailbox.call(&mut |c| (reset, state) = (c.last_reset(), c.state().name()));
+        let mut images = docking_logic::update::ImageReport::UNKNOWN;
+        mailbox
+            .call(&mut |c| (reset, state, images) = (c.last_reset(), c.state().name(), c.images()));
         cx.local.console.observe(state, clock::now_us() / 1_000);
         cx.local
             .console
-            .banner(reset.map_or("unknown", |r| r.name()));
+            .banner_of(&images, reset.map_or("unknown", |r| r.name()));
         // As `Server::new` would: invalid settings (never, `ModbusSettings::stored`
         // checks them) give the default ones.
         if !cx.local.server.set_settings(*cx.local.modbus_settings) {
@@ -777,9 +799,28 @@ mod app {
                     }
                 });
             }
+            let now_ms = now_us / 1_000;
+            // A firmware update (console `update`): YMODEM has the line until it ends;
+            // the flash goes through the owner (update.rs).
+            let session = &mut *cx.local.session;
+            #[cfg(feature = "updater")]
+            if session.active() {
+                let flash = core::cell::RefCell::new(update::UpdateFlash);
+                let key = &update::PUBLIC_KEY;
+                if let Some(out) = session.poll(term, &flash, key, now_ms) {
+                    mailbox.call(&mut |ctrl| {
+                        docking_logic::console::update::finish(console, ctrl, out, now_ms)
+                    });
+                    console.flush_output(term);
+                    if matches!(out, UpdateOutcome::Verified { .. }) {
+                        update::restart(term);
+                    }
+                }
+                owner::BUS_BUSY.store(line.sending(), Ordering::Relaxed);
+                continue;
+            }
             // The console: a line in without the controller; the command's job; a
             // login's PIN hash and the reply's formatting and sending without it.
-            let now_ms = now_us / 1_000;
             let (cmd_line, _) = console.read_line(term);
             if let Some(cmd_line) = cmd_line {
                 mailbox.call(&mut |ctrl| {
@@ -792,6 +833,12 @@ mod app {
                 }
             }
             console.flush_output(term);
+            #[cfg(feature = "updater")]
+            if console.take_update() {
+                session.start(now_ms);
+            }
+            #[cfg(not(feature = "updater"))]
+            let _ = session;
             // What the service applies at its next run: the login, the line.
             owner::MAINTENANCE.store(console.maintenance_active(now_ms), Ordering::Relaxed);
             owner::BUS_BUSY.store(line.sending(), Ordering::Relaxed);

@@ -51,7 +51,7 @@ field() { python3 -c 'import json,sys; v=json.load(sys.stdin).get(sys.argv[1]); 
 wall() { local t0 t1; t0=$(date +%s.%N); "$@" >/dev/null; t1=$(date +%s.%N); python3 -c "print(f'{$t1-$t0:.1f}')"; }
 
 read -r text data bss < <(size -A "$elf" | awk '
-    $1 == ".vector_table" || $1 == ".text.hot" || $1 == ".text" || $1 == ".rodata" { t += $2 }
+    $1 == ".vector_table" || $1 == ".image_header" || $1 == ".text.hot" || $1 == ".text" || $1 == ".rodata" { t += $2 }
     $1 == ".data" { d += $2 }
     $1 == ".bss" || $1 == ".uninit" { b += $2 }
     END { print t + 0, d + 0, b + 0 }')

@@ -2,7 +2,10 @@
 # Sign an application image for a field update (issue 21, docs/update.md): the update
 # file the console's `update` command receives by YMODEM-1K.
 #
-#   bash tools/sign-image.sh [ELF [KEY [OUT]]]
+#   bash tools/sign-image.sh [--version X.Y.Z[+B]] [ELF [KEY [OUT]]]
+#     --version  stamp this version into the image header before signing (as MCUboot's
+#                `imgtool sign --version` does): the signature covers it, and one build
+#                gives images of several versions (default: the build's own, Cargo.toml)
 #     ELF  the application (default: the release image, linked at 0x08008000)
 #     KEY  the integrator's ed25519 key, PEM (default: boot/keys/test-signing-key.pem,
 #          the TEST key: an image it signs proves nothing)
@@ -11,9 +14,17 @@
 # The file: the image's bytes (llvm-objcopy -O binary: from 0x08008000, padded with
 # 0xFF to whole words), then a 72-byte trailer: the ed25519 signature (64 B) of the
 # SHA-512 of those bytes (embassy-boot's verify_and_mark_updated checks exactly that),
-# the length (u32 LE), the magic "DCS1". Needs llvm-objcopy (Debian: llvm) and openssl.
+# the length (u32 LE), the magic "DCS1". The image header (32 bytes at 0x200, after the
+# vector table: update-layout/src/header.rs) holds the version: --version writes it
+# (major u8, minor u8, patch u16 LE, build u32 LE at 0x204) and sets the header's flag
+# "stamped" (bit 0 of the u32 at 0x20C). Needs llvm-objcopy (Debian: llvm) and openssl.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+version=""
+if [ "${1:-}" = "--version" ]; then
+    version=${2:?"--version needs X.Y.Z[+B]"}
+    shift 2
+fi
 elf=${1:-target/thumbv7em-none-eabihf/release/docking-controller}
 key=${2:-boot/keys/test-signing-key.pem}
 out=${3:-target/update.dcs}
@@ -37,6 +48,34 @@ case "$reset" in
     0800[89a-f]*|080[1-3]*) ;;
     *) echo "sign-image: $elf's reset vector is 0x$reset: not linked behind the bootloader (0x08008000)" >&2; exit 1 ;;
 esac
+# The image header: its magic at 0x200, then the version to stamp.
+header_magic=$(od -An -c -j512 -N4 "$tmp/app.bin" | tr -d ' ')
+if [ "$header_magic" != "DCIH" ]; then
+    echo "sign-image: $elf has no image header at 0x200 (update-layout/src/header.rs)" >&2
+    exit 1
+fi
+le() { # VALUE BYTES: VALUE as BYTES bytes, little-endian, as printf escapes
+    local v=$1 n=$2 i s=""
+    for ((i = 0; i < n; i++)); do s="$s$(printf '\\x%02x' $(((v >> (8 * i)) & 255)))"; done
+    printf '%s' "$s"
+}
+if [ -n "$version" ]; then
+    if ! [[ "$version" =~ ^([0-9]+)\.([0-9]+)\.([0-9]+)(\+([0-9]+))?$ ]]; then
+        echo "sign-image: version '$version' is not X.Y.Z or X.Y.Z+B" >&2
+        exit 1
+    fi
+    major=${BASH_REMATCH[1]} minor=${BASH_REMATCH[2]} patch=${BASH_REMATCH[3]} build=${BASH_REMATCH[5]:-0}
+    if [ "$major" -gt 255 ] || [ "$minor" -gt 255 ] || [ "$patch" -gt 65535 ] || [ "$build" -gt 4294967295 ]; then
+        echo "sign-image: version '$version' out of range (255.255.65535+4294967295)" >&2
+        exit 1
+    fi
+    flags=$(od -An -tu4 -j524 -N4 "$tmp/app.bin" | tr -d ' ')
+    printf "$(le "$major" 1)$(le "$minor" 1)$(le "$patch" 2)$(le "$build" 4)$(le $((flags | 1)) 4)" |
+        dd of="$tmp/app.bin" bs=1 seek=516 conv=notrunc status=none
+fi
+stamped=$(od -An -tu1 -j516 -N4 "$tmp/app.bin" | awk '{printf "%d.%d.%d", $1, $2, $3 + 256 * $4}')
+build_no=$(od -An -tu4 -j520 -N4 "$tmp/app.bin" | tr -d ' ')
+[ "$build_no" != 0 ] && stamped="$stamped+$build_no"
 openssl dgst -sha512 -binary "$tmp/app.bin" > "$tmp/app.sha512"
 openssl pkeyutl -sign -inkey "$key" -rawin -in "$tmp/app.sha512" -out "$tmp/app.sig"
 openssl pkey -in "$key" -pubout -out "$tmp/pub.pem"
@@ -48,4 +87,5 @@ mkdir -p "$(dirname "$out")"
     printf 'DCS1'
 } > "$out"
 pub=$(openssl pkey -in "$key" -pubout -outform DER | tail -c 32 | od -An -tx1 | tr -d ' \n')
-echo "$out: $len B image + 72 B trailer, signed by ed25519 key $pub"
+trusts=$(od -An -tx1 -j528 -N16 "$tmp/app.bin" | tr -d ' \n')
+echo "$out: version $stamped, $len B image + 72 B trailer, signed by ed25519 key $pub (the image verifies its own updates with key ${trusts}...)"

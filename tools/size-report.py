@@ -31,8 +31,9 @@ import sys
 
 DEFAULT_ELF = "target/thumbv7em-none-eabihf/release/docking-controller"
 FLASH_TYPES = set("tTrRdDvVwW")
-# .text.hot: the safety path's handlers, aligned to flash cache lines (hot.x).
-FLASH_SECTIONS = (".vector_table", ".text.hot", ".text", ".rodata", ".data")
+# .image_header: the image header (issue 21); .text.hot: the safety path's handlers,
+# aligned to flash cache lines (hot.x).
+FLASH_SECTIONS = (".vector_table", ".image_header", ".text.hot", ".text", ".rodata", ".data")
 
 
 def run(cmd):

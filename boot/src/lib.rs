@@ -1,5 +1,6 @@
 //! The docking controller's bootloader, hardware-free part: the partition map
-//! ([`layout`]), the partitions embassy-boot swaps ([`part`]) and the boot decision
+//! ([`layout`]) and the partitions embassy-boot swaps ([`part`]), both from the shared
+//! `update-layout` crate, and the boot decision
 //! ([`prepare`], [`bootable`]). The binary (`src/main.rs`) adds the board: the safe
 //! outputs, the register-level flash driver and the jump.
 //!
@@ -38,8 +39,7 @@
     clippy::indexing_slicing
 )]
 
-pub mod layout;
-pub mod part;
+pub use update_layout::{layout, part};
 
 use core::cell::RefCell;
 

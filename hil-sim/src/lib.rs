@@ -60,3 +60,4 @@ pub mod rng;
 pub mod rtu_line;
 pub mod scene;
 pub mod serve;
+pub mod update;

@@ -112,7 +112,7 @@ impl Pty {
                     return data.len();
                 }
                 [status, ..] => {
-                    if status & TIOCPKT_FLUSHREAD != 0 {
+                    if status & TIOCPKT_FLUSHREAD != 0 && screen.at_a_line() {
                         let _ = self.master.write_all(&screen.replay());
                     }
                 }
@@ -202,6 +202,17 @@ impl Screen {
     /// What a newly connected client is sent: the banner, then the unfinished line.
     pub fn replay(&self) -> Vec<u8> {
         [&self.banner[..], &self.line[..]].concat()
+    }
+
+    /// Whether the console stands at a line a terminal may be shown again: nothing, or
+    /// printable text (a prompt and what was typed after it). Not while a file transfer
+    /// holds the line (`update`'s YMODEM: 'C', ACK, NAK and no line end), where a
+    /// sender's own flush (lrzsz's `sb` flushes its input before each EOT) must not put
+    /// a banner in its way.
+    pub fn at_a_line(&self) -> bool {
+        let printable = self.line.iter().all(|&b| (0x20..0x7F).contains(&b));
+        let ymodem_c = !self.line.is_empty() && self.line.iter().all(|&b| b == b'C');
+        printable && !ymodem_c
     }
 }
 
@@ -400,6 +411,21 @@ mod tests {
     use super::Screen;
 
     const BANNER: &[u8] = b"# docking-controller 0.1.0 reset=power_on; type 'help'\r\n";
+
+    #[test]
+    fn a_screen_is_not_replayed_while_a_file_transfer_holds_the_line() {
+        let mut s = Screen::default();
+        s.observe(b"# docking-controller 0.1.0 reset=power_on; type 'help'\r\nidle# ");
+        assert!(s.at_a_line());
+        s.observe(b"update\r\nok: update: send the signed image\r\n");
+        assert!(s.at_a_line(), "an empty line");
+        s.observe(b"C");
+        assert!(!s.at_a_line(), "the receiver's 'C'");
+        s.observe(b"\x06C\x06\x06");
+        assert!(!s.at_a_line(), "ACKs");
+        s.observe(b"\x06\x15\x06Cerror: update refused: x\r\nidle# ");
+        assert!(s.at_a_line(), "the prompt again");
+    }
 
     #[test]
     fn a_screen_replays_the_banner_and_the_unfinished_line() {

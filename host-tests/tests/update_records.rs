@@ -9,11 +9,11 @@ use hil_sim::flash::{SharedFlash, SimFlash};
 use hil_sim::rig::{Rig, RigOptions, BOOT_TICKS};
 use host_tests::{run_cycles, run_until};
 
-/// A kind no record of this image uses (odometer::kind ends at 11; 14 is the tests'
-/// filler, 15 the log's own).
-const NEWER_KIND: u8 = 12;
+/// A kind no record of this image uses (odometer::kind ends at 12, the image records of
+/// issue 21; 14 is the tests' filler, 15 the log's own).
+const NEWER_KIND: u8 = 13;
 /// Filler records of another unknown kind, to bring the log to its sector move.
-const FILLER_KIND: u8 = 13;
+const FILLER_KIND: u8 = 14;
 
 fn boot(flash: &SharedFlash) -> Rig {
     let mut r = Rig::with_flash(RigOptions::new(80), flash.clone());

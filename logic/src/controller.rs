@@ -480,6 +480,9 @@ struct PlcState {
     estop_open: bool,
     /// A technician's maintenance mode at the console: remote motion locked out.
     maintenance_mode: bool,
+    /// A firmware update is under way (console `update`): READY low, every request but
+    /// a stop refused, from any source.
+    updating: bool,
     /// The E-STOP interrupt's record as last read, and how many of its edges the
     /// control step has consumed.
     estop_events: EstopEvents,
@@ -553,6 +556,8 @@ struct DiagState {
     fault_count: u32,
     events: Deque<Timed, EVENT_QUEUE>,
     events_dropped: u32,
+    /// The running image, the one before it, a rollback (issue 21).
+    images: crate::update::ImageReport,
 }
 
 /// What one control step's stages hand on to the next ([`Controller::step`]).
@@ -596,6 +601,9 @@ pub enum Refusal {
     /// A technician has the machine in maintenance mode at the console: motion
     /// requested from the PLC (Modbus, the DOCK pin) is refused until it ends.
     MaintenanceMode,
+    /// A firmware update is being received and verified (console `update`): nothing
+    /// but a stop is accepted, from anyone, until it ends (issue 21).
+    Updating,
 }
 
 /// Who asks for something ([`Controller::command_from`]).
@@ -609,7 +617,7 @@ pub enum Source {
 }
 
 impl Refusal {
-    /// Stable code (Modbus, logs): 1..=8.
+    /// Stable code (Modbus, logs): 1..=10.
     pub const fn code(self) -> u8 {
         self as u8 + 1
     }
@@ -632,6 +640,7 @@ impl Refusal {
             Self::MaintenanceMode => {
                 "refused: a technician has the machine in maintenance mode (console)"
             }
+            Self::Updating => "refused: a firmware update is in progress (console)",
         }
     }
 }
@@ -997,6 +1006,7 @@ impl<B: Bsp> Controller<B> {
                 dock: false,
                 estop_open: false,
                 maintenance_mode: false,
+                updating: false,
                 estop_events: EstopEvents::default(),
                 estop_edges_seen: 0,
                 hold_out: 0,
@@ -1031,6 +1041,7 @@ impl<B: Bsp> Controller<B> {
                 fault_count: 0,
                 events: Deque::new(),
                 events_dropped: 0,
+                images: crate::update::ImageReport::UNKNOWN,
             },
         });
         me.load_readings();
@@ -1885,6 +1896,9 @@ impl<B: Bsp> Controller<B> {
     /// maintenance mode, everything but `Stop` from the PLC is refused
     /// ([`Refusal::MaintenanceMode`]).
     pub fn command_from(&mut self, source: Source, r: Request) -> Result<(), Refusal> {
+        if self.plc.updating && r != Request::Stop {
+            return Err(Refusal::Updating);
+        }
         if source == Source::Plc && self.plc.maintenance_mode && r != Request::Stop {
             return Err(Refusal::MaintenanceMode);
         }
@@ -1953,7 +1967,8 @@ impl<B: Bsp> Controller<B> {
                 && self.cell.calibrated
                 && level != WearLevel::Limit
                 && !self.plc.estop_open
-                && !self.plc.maintenance_mode,
+                && !self.plc.maintenance_mode
+                && !self.plc.updating,
             mated: matches!(
                 state,
                 State::Holding {
@@ -2073,6 +2088,44 @@ impl<B: Bsp> Controller<B> {
     /// Whether a technician has the machine in maintenance mode.
     pub fn maintenance_mode(&self) -> bool {
         self.plc.maintenance_mode
+    }
+
+    /// A firmware update begins (console `update`, issue 21): only at rest
+    /// ([`Self::at_rest`]: nothing moving, held or driven); from now until
+    /// [`Self::end_update`] READY is low and every request but a stop is refused, from
+    /// the console, Modbus and the DOCK pin alike (a DOCK edge is refused and logged).
+    pub fn begin_update(&mut self) -> Result<(), MaintError> {
+        self.flash_turn()?;
+        if !self.plc.updating {
+            info!("firmware update: receiving; READY low, requests refused");
+        }
+        self.plc.updating = true;
+        Ok(())
+    }
+
+    /// The update ended without a restart (refused, cancelled): requests are taken
+    /// again.
+    pub fn end_update(&mut self) {
+        if self.plc.updating {
+            info!("firmware update ended; requests taken again");
+        }
+        self.plc.updating = false;
+    }
+
+    /// Whether a firmware update is under way.
+    pub fn updating(&self) -> bool {
+        self.plc.updating
+    }
+
+    /// What this image and the previous ones are ([`crate::update::ImageReport`]),
+    /// as the board found them at boot.
+    pub fn images(&self) -> crate::update::ImageReport {
+        self.diag.images
+    }
+
+    /// The board's word on the images (at boot: [`crate::update::at_boot`]).
+    pub fn set_images(&mut self, images: crate::update::ImageReport) {
+        self.diag.images = images;
     }
 
     /// The board's word that a Modbus reply is on the line (its RS-485 driver enabled).

@@ -22,6 +22,7 @@ use crate::hx711::Calibration;
 use crate::material::Material;
 use crate::odometer::{Journal, Measurement, Odometer, WearLevel};
 use crate::sequencer::{Request, State};
+use crate::update::ImageReport;
 
 /// The controller as its clients (console, Modbus) see it. See the module doc.
 pub trait Machine {
@@ -100,6 +101,12 @@ pub trait Machine {
     fn calibrate_tare(&mut self) -> Result<Calibration, CalibrateError>;
     /// [`Controller::calibrate_span`].
     fn calibrate_span(&mut self, force_mn: i32) -> Result<Calibration, CalibrateError>;
+    /// [`Controller::images`].
+    fn images(&self) -> ImageReport;
+    /// [`Controller::begin_update`].
+    fn begin_update(&mut self) -> Result<(), MaintError>;
+    /// [`Controller::end_update`].
+    fn end_update(&mut self);
 }
 
 impl<B: Bsp> Machine for Controller<B> {
@@ -212,5 +219,14 @@ impl<B: Bsp> Machine for Controller<B> {
     }
     fn calibrate_span(&mut self, force_mn: i32) -> Result<Calibration, CalibrateError> {
         Controller::calibrate_span(self, force_mn)
+    }
+    fn images(&self) -> ImageReport {
+        Controller::images(self)
+    }
+    fn begin_update(&mut self) -> Result<(), MaintError> {
+        Controller::begin_update(self)
+    }
+    fn end_update(&mut self) {
+        Controller::end_update(self)
     }
 }

@@ -549,6 +549,9 @@ pub mod kind {
     /// The Modbus line's settings ([`crate::modbus::ModbusSettings`]): unit address and
     /// baud rate (console `modbus`).
     pub const MODBUS: u8 = 11;
+    /// The images (issue 21, [`crate::update::ImageRecord`]): an update marked, a trial
+    /// confirmed, a rollback; what `version` reports as the previous image.
+    pub const IMAGE: u8 = 12;
 }
 
 /// What the odometer's log keeps through its sector moves: the last

@@ -110,6 +110,240 @@ pub fn vector_table_ok(head: &[u8; 8], base: u32, len: u32) -> bool {
     sp_ok && pc_ok
 }
 
+// --- The images: what runs, what ran before, what was rolled back -----------------------
+
+pub use update_layout::header::{Version, VERSION_TEXT_MAX};
+use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
+
+use crate::machine::Machine;
+use crate::odometer::kind;
+
+/// What `version` and Modbus device identification report about the images (issue
+/// 21). The board finds it at boot ([`at_boot`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ImageReport {
+    /// The running image's version, from its header in flash (`None`: no header).
+    pub running: Option<Version>,
+    /// The key built into this image is the test key (`boot/keys/`): an image it
+    /// accepts proves nothing.
+    pub test_key: bool,
+    /// The image this one replaced by an update (`None`: flashed with a probe, or not
+    /// known).
+    pub previous: Option<Version>,
+    /// The bootloader rolled the last update back: this image runs again after a
+    /// newer one never confirmed itself.
+    pub rolled_back: bool,
+    /// The version of the image rolled back, if known.
+    pub rolled_back_version: Option<Version>,
+}
+
+impl ImageReport {
+    /// Before the board has said anything.
+    pub const UNKNOWN: Self = Self {
+        running: None,
+        test_key: false,
+        previous: None,
+        rolled_back: false,
+        rolled_back_version: None,
+    };
+}
+
+/// What the board reads at boot, before [`at_boot`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BootFacts {
+    /// The state record's word on this boot (after a trial's confirmation:
+    /// [`update_layout::state::Boot::Trial`] only when this image runs on trial and
+    /// just confirmed itself).
+    pub boot: update_layout::state::Boot,
+    /// This image's version (its header).
+    pub running: Option<Version>,
+    /// The image in DFU page 1 (after a swap: the one it replaced).
+    pub page1: Option<Version>,
+    /// The built-in key is the test key.
+    pub test_key: bool,
+}
+
+/// Image record events (the first byte of a [`kind::IMAGE`] record).
+pub mod event {
+    /// An update was verified and marked for the swap (`other`: its version).
+    pub const MARKED: u8 = 1;
+    /// A trial image confirmed itself (`previous`: the image it replaced).
+    pub const CONFIRMED: u8 = 2;
+    /// The image rolled back to recorded the rollback (`other`: the image rolled back).
+    pub const ROLLED_BACK: u8 = 3;
+}
+
+/// An image record (kind [`kind::IMAGE`]), 27 bytes; each one carries the whole report
+/// (the log keeps the newest record of a kind through its sector moves):
+///
+/// ```text
+///  0       1          9       10         18      19         27
+///  +-------+----------+-------+----------+-------+----------+
+///  | event | running  | prev? | previous | oth.? | other    |
+///  | u8    | version  | u8    | version  | u8    | version  |
+///  +-------+----------+-------+----------+-------+----------+
+///  version: major u8, minor u8, patch u16 LE, build u32 LE (the image header's);
+///  prev? / oth.?: 1 when the version after it is known, else 0
+/// ```
+#[derive(FromBytes, IntoBytes, Immutable, KnownLayout, Unaligned, Clone, Copy)]
+#[repr(C)]
+pub struct ImageRecord {
+    event: u8,
+    running: [u8; 8],
+    previous_known: u8,
+    previous: [u8; 8],
+    other_known: u8,
+    other: [u8; 8],
+}
+
+impl ImageRecord {
+    /// A record of `event`.
+    pub fn new(
+        event: u8,
+        running: Option<Version>,
+        previous: Option<Version>,
+        other: Option<Version>,
+    ) -> Self {
+        let v = |x: Option<Version>| x.map_or([0; 8], Version::to_bytes);
+        Self {
+            event,
+            running: v(running),
+            previous_known: u8::from(previous.is_some()),
+            previous: v(previous),
+            other_known: u8::from(other.is_some()),
+            other: v(other),
+        }
+    }
+
+    /// Its bytes in the log.
+    pub fn bytes(&self) -> &[u8] {
+        self.as_bytes()
+    }
+
+    fn parse(b: &[u8]) -> Option<Self> {
+        Self::read_from_bytes(b).ok()
+    }
+
+    fn previous(&self) -> Option<Version> {
+        (self.previous_known == 1).then(|| Version::from_bytes(self.previous))
+    }
+
+    fn other(&self) -> Option<Version> {
+        (self.other_known == 1).then(|| Version::from_bytes(self.other))
+    }
+}
+
+/// The record an update writes once it is marked for the swap: the report as it
+/// stands, and the version marked.
+pub fn marked_record(report: &ImageReport, new: Option<Version>) -> ImageRecord {
+    ImageRecord::new(event::MARKED, report.running, report.previous, new)
+}
+
+/// `v`'s text in `buf` (`major.minor.patch`, and `+build` when the build is not 0, as
+/// `update_layout`'s `Version::write_text`), or `otherwise` without a version. Written by
+/// the console's decimal writer: one routine for every number the image prints, no
+/// core::fmt.
+pub fn version_or<'a>(
+    v: Option<Version>,
+    otherwise: &'a str,
+    buf: &'a mut [u8; VERSION_TEXT_MAX],
+) -> &'a str {
+    use crate::console::json::{write_u64, Sink};
+    let Some(v) = v else { return otherwise };
+    let n = {
+        let mut w = Buf { buf, n: 0 };
+        let w_: &mut dyn Sink = &mut w;
+        let parts: [(&str, u32); 4] = [
+            ("", v.major.into()),
+            (".", v.minor.into()),
+            (".", v.patch.into()),
+            ("+", v.build),
+        ];
+        for (i, (sep, x)) in parts.into_iter().enumerate() {
+            if i == 3 && x == 0 {
+                break;
+            }
+            // 24 bytes hold the longest version: never an error.
+            let _ = w_.put(sep).and_then(|()| write_u64(w_, x.into()));
+        }
+        w.n
+    };
+    core::str::from_utf8(buf.get(..n).unwrap_or(&[])).unwrap_or("?")
+}
+
+/// A byte buffer as the console's writers' sink.
+struct Buf<'a> {
+    buf: &'a mut [u8],
+    n: usize,
+}
+
+impl core::fmt::Write for Buf<'_> {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        let end = self.n + s.len();
+        let dst = self.buf.get_mut(self.n..end).ok_or(core::fmt::Error)?;
+        dst.copy_from_slice(s.as_bytes());
+        self.n = end;
+        Ok(())
+    }
+}
+
+/// At boot, after a trial's confirmation: the report, from the facts and the newest
+/// image record, and the record this boot owes (a confirmation; a rollback not yet
+/// recorded). Nothing else is written.
+pub fn at_boot(ctrl: &mut dyn Machine, facts: BootFacts) -> ImageReport {
+    use update_layout::state::Boot;
+    let mut r = ImageReport {
+        running: facts.running,
+        test_key: facts.test_key,
+        previous: None,
+        rolled_back: facts.boot == Boot::RolledBack,
+        rolled_back_version: None,
+    };
+    let mut buf = [0u8; core::mem::size_of::<ImageRecord>()];
+    let newest = ctrl
+        .load_record(kind::IMAGE, &mut buf)
+        .and_then(|n| ImageRecord::parse(buf.get(..n)?))
+        .filter(|rec| facts.running.map(Version::to_bytes) == Some(rec.running));
+    let write = match (facts.boot, newest) {
+        (Boot::Trial, _) => {
+            // Swapped in: DFU page 1 holds the image this one replaced.
+            r.previous = facts.page1;
+            Some(ImageRecord::new(
+                event::CONFIRMED,
+                r.running,
+                r.previous,
+                None,
+            ))
+        }
+        (_, None) => None,
+        (boot, Some(rec)) => {
+            r.previous = rec.previous();
+            match (boot, rec.event) {
+                (Boot::RolledBack, event::MARKED) => {
+                    r.rolled_back_version = rec.other();
+                    Some(ImageRecord::new(
+                        event::ROLLED_BACK,
+                        r.running,
+                        r.previous,
+                        rec.other(),
+                    ))
+                }
+                (Boot::RolledBack, event::ROLLED_BACK) => {
+                    r.rolled_back_version = rec.other();
+                    None
+                }
+                _ => None,
+            }
+        }
+    };
+    if let Some(rec) = write {
+        if ctrl.store_record(kind::IMAGE, rec.bytes()).is_err() {
+            error!("update: the image record was not written");
+        }
+    }
+    r
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used, clippy::indexing_slicing)]
 mod tests {

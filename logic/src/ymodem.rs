@@ -118,8 +118,9 @@ pub struct Receiver {
 }
 
 impl Receiver {
-    /// A receiver for one file of at most `max` bytes.
-    pub fn new(max: u32) -> Self {
+    /// A receiver for one file of at most `max` bytes (`const`: the board keeps its
+    /// session in a static).
+    pub const fn new(max: u32) -> Self {
         Self {
             phase: Phase::Header,
             max,

@@ -298,6 +298,14 @@ impl BoardConsole {
         Self { read: 0, tx_in }
     }
 
+    #[cfg(feature = "updater")]
+    /// Whether everything queued has left the line (the ring empty, USART2's TC set).
+    pub fn tx_idle(&self) -> bool {
+        // SAFETY: a read of USART2 SR (no side effect on TC).
+        let tc = unsafe { core::ptr::read_volatile(USART2_SR) } & (1 << 6) != 0;
+        self.tx_in.is_empty() && tc
+    }
+
     /// Whether received bytes (or a loss) wait for the console service.
     pub fn rx_pending(&self) -> bool {
         LOSS.load(Ordering::Acquire) || written() != self.read

@@ -239,38 +239,25 @@ impl OdometerFlash {
 }
 
 /// The bootloader's state sector (sector 1, `boot/`; docs/update.md, "The state
-/// record": embassy-boot 0.7's format). The application reads its magic at boot and
-/// confirms a trial boot; nothing else here writes it.
-const BOOT_STATE: u32 = 0x0800_4000;
+/// record": embassy-boot 0.7's format, its map and magics in `update-layout`). The
+/// application reads its magic at boot and confirms a trial boot here; the updater
+/// (`update.rs`) marks an update through embassy-boot.
+const BOOT_STATE: u32 = update_layout::layout::STATE_BASE;
 /// Its sector number.
 const BOOT_STATE_SECTOR: u32 = 1;
-/// An update was swapped in and runs on trial (SWAP, the swap done).
-const SWAP_MAGIC: u32 = 0xF0F0_F0F0;
-/// Booted and confirmed.
-const BOOT_MAGIC: u32 = 0xD0D0_D0D0;
-/// The last trial image was rolled back.
-const REVERT_MAGIC: u32 = 0xC0C0_C0C0;
+const _: () = assert!(matches!(
+    update_layout::layout::sector_of(BOOT_STATE),
+    Some((BOOT_STATE_SECTOR, BOOT_STATE, _))
+));
 
-/// What the bootloader's state says about this boot.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
-pub enum BootTrial {
-    /// A confirmed image (or a board that never had an update).
-    Confirmed,
-    /// A new image on trial: it must confirm itself, or the next reset rolls it back.
-    Trial,
-    /// A trial image was rolled back: this is the image before it.
-    RolledBack,
-}
+pub use update_layout::state::Boot as BootTrial;
+use update_layout::state::{BOOT as BOOT_MAGIC, VALID_OFFSET};
 
 impl OdometerFlash {
     /// The bootloader's state at this boot.
     pub fn boot_trial() -> BootTrial {
         // SAFETY: a word of the state sector, mapped readable flash.
-        match unsafe { core::ptr::read_volatile(BOOT_STATE as *const u32) } {
-            SWAP_MAGIC => BootTrial::Trial,
-            REVERT_MAGIC => BootTrial::RolledBack,
-            _ => BootTrial::Confirmed,
-        }
+        BootTrial::from_magic(unsafe { core::ptr::read_volatile(BOOT_STATE as *const u32) })
     }
 
     /// Confirm a trial boot (embassy-boot's `mark_booted`): invalidate the progress
@@ -285,12 +272,56 @@ impl OdometerFlash {
             return Ok(());
         }
         // SAFETY: the progress-valid word of the state sector, readable flash.
-        let valid = unsafe { core::ptr::read_volatile((BOOT_STATE + 4) as *const u32) };
+        let valid = unsafe { core::ptr::read_volatile((BOOT_STATE + VALID_OFFSET) as *const u32) };
         if valid == 0xFFFF_FFFF {
-            Self::program_word(BOOT_STATE + 4, 0)?;
+            Self::program_word(BOOT_STATE + VALID_OFFSET, 0)?;
         }
         Self::erase_sector(BOOT_STATE_SECTOR)?;
         Self::program_word(BOOT_STATE, BOOT_MAGIC)
+    }
+
+    #[cfg(feature = "updater")]
+    /// Erase the sector at `base` for the updater (`update.rs`): a sector of DFU page 0
+    /// or STATE only, from SRAM with the watchdog fed, as the odometer's. Any other
+    /// sector (the bootloader, ACTIVE, DFU page 1, the odometer) is refused before a
+    /// register is touched. Call only from the controller's owner, at rest.
+    pub fn erase_update_sector(base: u32) -> Result<(), OdoFlashError> {
+        let (n, start, len) =
+            update_layout::layout::sector_of(base).ok_or(OdoFlashError::OutOfBounds)?;
+        if start != base || !updater_may_write(base, len) {
+            return Err(OdoFlashError::OutOfBounds);
+        }
+        Self::erase_sector(n)
+    }
+
+    #[cfg(feature = "updater")]
+    /// Program whole words at `addr` for the updater: inside DFU page 0 or STATE only
+    /// (as [`Self::erase_update_sector`]). Call only from the owner, at rest.
+    pub fn program_update(addr: u32, data: &[u8]) -> Result<(), OdoFlashError> {
+        let len = u32::try_from(data.len()).map_err(|_| OdoFlashError::OutOfBounds)?;
+        if addr % 4 != 0 || len % 4 != 0 {
+            return Err(OdoFlashError::NotAligned);
+        }
+        if !updater_may_write(addr, len) {
+            return Err(OdoFlashError::OutOfBounds);
+        }
+        Self::begin()?;
+        // SAFETY: FLASH_CR (fixed MMIO): PG with ×32 parallelism.
+        unsafe { core::ptr::write_volatile(FLASH_CR, CR_PSIZE_X32 | CR_PG) };
+        let mut result = Ok(());
+        for (a, w) in (addr..).step_by(4).zip(data.chunks_exact(4)) {
+            let mut le = [0u8; 4];
+            le.copy_from_slice(w);
+            // SAFETY: a word-aligned address inside DFU page 0 or STATE (checked above),
+            // PG set: the store programs it.
+            unsafe { core::ptr::write_volatile(a as *mut u32, u32::from_le_bytes(le)) };
+            result = Self::status(Self::wait_idle());
+            if result.is_err() {
+                break;
+            }
+        }
+        Self::end();
+        result
     }
 
     /// Program one word of the state sector.
@@ -309,6 +340,23 @@ impl OdometerFlash {
         Self::end();
         r
     }
+}
+
+#[cfg(feature = "updater")]
+/// Whether `[addr, addr + len)` lies in what the updater writes: the sectors of DFU
+/// page 0, or STATE.
+fn updater_may_write(addr: u32, len: u32) -> bool {
+    use update_layout::layout::{DFU_PAGES, PAGE_LEN, STATE_BASE, STATE_LEN};
+    let Some(end) = addr.checked_add(len) else {
+        return false;
+    };
+    let dfu0 = DFU_PAGES[0];
+    // The page's sectors, whole (the tail of its last sector is never used).
+    let dfu0_end = match update_layout::layout::sector_of(dfu0 + PAGE_LEN - 1) {
+        Some((_, s, l)) => s + l,
+        None => return false,
+    };
+    (addr >= dfu0 && end <= dfu0_end) || (addr >= STATE_BASE && end <= STATE_BASE + STATE_LEN)
 }
 
 impl ErrorType for OdometerFlash {

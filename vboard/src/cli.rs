@@ -10,7 +10,7 @@ use crate::periph::flash::FlashTiming;
 use crate::scene::{Options, SceneOptions, SCENES};
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] | estimate-cost [--readings N] [--firmware ELF]";
+pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--cut transfer|swap|boot] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] | estimate-cost [--readings N] [--firmware ELF]";
 
 /// The sweep's usage (`vboard sweep`).
 pub const SWEEP_USAGE: &str = "       vboard sweep [--scene NAME[,NAME...]] [--seeds 1..10|1,2,3] [--cpi X[,X...]] [--timing cpi|art[,...]] [--flood] [--cycles N] [--rate 10|80] [--lsi-hz HZ] [--flash-timing max|typical] [--firmware ELF] [--jobs N] [--json]";
@@ -68,7 +68,7 @@ fn command_help(cmd: &str) -> Option<String> {
 }
 
 /// What each option does, by its flag (shared by the commands that take it).
-const OPTION_HELP: [(&str, &str); 22] = [
+const OPTION_HELP: [(&str, &str); 23] = [
     ("--firmware", "the image to run (default: the release build at the root; refused if older than its sources)"),
     ("--cycles", "docking cycles to run"),
     ("--rate", "the HX711's output rate, samples a second (its RATE pin)"),
@@ -91,6 +91,7 @@ const OPTION_HELP: [(&str, &str); 22] = [
     ("--jobs", "runs at once (default: the cores)"),
     ("NAME", "the scene"),
     ("--tcp", "the console on TCP (first stdout line: its address)"),
+    ("--cut", "update-cut: the power cut during the transfer, the swap or the first boot"),
 ];
 
 /// A synopsis as the command's line, then its options one a line with what each does.
@@ -194,13 +195,23 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
             "lsi-hz",
             "flash-timing",
             "seed",
+            "cut",
         ],
         &["json", "flood", "log"],
     )?;
+    let cut = match o.get("cut") {
+        None => None,
+        Some(c) => match crate::update::Cut::parse(c) {
+            Some(c) if name == "update-cut" => Some(c),
+            Some(_) => return usage("--cut is update-cut's".to_string()),
+            None => return usage(format!("--cut must be transfer, swap or boot, got '{c}'")),
+        },
+    };
     let opts = SceneOptions {
         session: session(&o)?,
         cycles: o.num("cycles", 1u32, 1, 1_000)?,
         flood: o.flag("flood"),
+        cut,
     };
     let r = crate::scene::run(name, &opts).map_err(Failure::Run)?;
     if o.flag("log") {
@@ -348,6 +359,7 @@ fn sweep_cmd(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
             session,
             cycles: o.num("cycles", 1u32, 1, 1_000)?,
             flood: o.flag("flood"),
+            cut: None,
         },
         jobs: o.num("jobs", jobs_default, 1, 64)?,
     };

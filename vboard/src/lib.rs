@@ -27,4 +27,5 @@ pub mod serve;
 pub mod soc;
 pub mod sweep;
 pub mod time;
+pub mod update;
 pub mod world;

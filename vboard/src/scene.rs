@@ -178,6 +178,12 @@ impl Session {
     /// Power on a board whose odometer sectors hold `flash`.
     pub fn with_flash(opts: Options, flash: SharedFlash) -> Result<Self, String> {
         let img = image(&opts.firmware)?;
+        Self::with_image(opts, img, flash)
+    }
+
+    /// Power on a board with `img` in its code flash (a snapshot of another board's,
+    /// say) and `flash` in the odometer's sectors.
+    pub fn with_image(opts: Options, img: Image, flash: SharedFlash) -> Result<Self, String> {
         let machine = Machine::new(&RigOptions {
             seed: opts.seed,
             force_model: opts.force_model,
@@ -695,7 +701,7 @@ fn docking_controller_fault_name(s: &str) -> &'static str {
 }
 
 /// The scenes of `vboard scene`.
-pub const SCENES: [&str; 19] = [
+pub const SCENES: [&str; 23] = [
     "boot",
     "nominal",
     "overload",
@@ -715,6 +721,10 @@ pub const SCENES: [&str; 19] = [
     "estop-bounce",
     "heavy-default",
     "maintenance-lockout",
+    "update",
+    "update-bad",
+    "update-cut",
+    "update-rollback",
 ];
 
 /// What the PLC of an in-service scene saw on the pins.
@@ -882,6 +892,8 @@ pub struct SceneOptions {
     /// Flood the console at the line rate during the scene (`hil-sim`'s flood: long
     /// replies, a full `history`, garbage, overlong lines).
     pub flood: bool,
+    /// `update-cut`: where the power is cut (`--cut transfer|swap|boot`; default swap).
+    pub cut: Option<crate::update::Cut>,
 }
 
 impl Default for SceneOptions {
@@ -891,6 +903,7 @@ impl Default for SceneOptions {
             session: Options::new(),
             cycles: 1,
             flood: false,
+            cut: None,
         }
     }
 }
@@ -1284,6 +1297,10 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             | "power-cycle"
             | "estop-bounce"
             | "maintenance-lockout"
+            | "update"
+            | "update-bad"
+            | "update-cut"
+            | "update-rollback"
     );
     let mut scripted_plc: Option<PlcReport> = None;
     let mut motion_before_request = None;
@@ -1377,6 +1394,26 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         "maintenance-lockout" => {
             scripted_plc =
                 Some(maintenance_lockout(&mut s, &mut checks).map_err(|e| e.to_string())?);
+        }
+        "update" => crate::update::update(&mut s, &mut checks).map_err(|e| e.to_string())?,
+        "update-bad" => {
+            crate::update::update_bad(&mut s, &mut checks).map_err(|e| e.to_string())?
+        }
+        "update-rollback" => {
+            crate::update::update_rollback(&mut s, &mut checks).map_err(|e| e.to_string())?
+        }
+        "update-cut" => {
+            use crate::update::Cut;
+            let seed = opts.session.seed;
+            s = match opts.cut.unwrap_or(Cut::Swap) {
+                Cut::Transfer => {
+                    crate::update::update_cut_transfer(seed, &opts.session, &mut checks)?
+                }
+                cut => {
+                    let m = crate::update::marked(&opts.session, cut == Cut::Swap)?;
+                    crate::update::update_cut_marked(cut, seed, &opts.session, &m, &mut checks)?
+                }
+            };
         }
         _ => loop {
             if opts.flood {

@@ -19,11 +19,8 @@ use vboard::image::Image;
 use vboard::periph::gpio::Mode;
 use vboard::world::World;
 
-const ACTIVE: u32 = 0x0800_8000;
-/// The development layout's ACTIVE length and DFU pages (boot/src/layout.rs).
-const ACTIVE_LEN: u32 = 224 * 1024;
-const DFU_PAGES: [u32; 2] = [0x0804_0000, 0x0808_0000];
-const STATE: u32 = 0x0800_4000;
+use update_layout::layout::{ACTIVE_BASE as ACTIVE, ACTIVE_LEN, DFU_PAGES, STATE_BASE as STATE};
+use update_layout::state::{BOOT, REVERT, SWAP};
 /// Where the test applications write their tag, SP and VTOR.
 const MARK: u32 = 0x2001_F000;
 const APP_SP: u32 = 0x2002_0000;
@@ -74,7 +71,7 @@ fn board(update: bool) -> Board {
     img.put(ACTIVE, &app(A)).unwrap();
     if update {
         img.put(DFU_PAGES[0], &app(B)).unwrap();
-        img.put(STATE, &[0xF0; 4]).unwrap();
+        img.put(STATE, &SWAP.to_le_bytes()).unwrap();
     }
     let world = World::new(
         Machine::new(&RigOptions::new(80)),
@@ -185,7 +182,7 @@ fn an_update_is_swapped_in_then_rolled_back_at_the_next_reset_unless_confirmed()
     b.reset_pin();
     assert!(run_until_tag(&mut b, A, 60_000), "never rolled back");
     assert!(active(&b) == padded(&app(A)));
-    assert_eq!(b.peek(STATE), Some(0xC0C0_C0C0), "REVERT recorded");
+    assert_eq!(b.peek(STATE), Some(REVERT), "REVERT recorded");
     // And it stays: the next reset boots A without copying.
     let writes = b.soc().code_programs;
     b.reset_pin();
@@ -211,7 +208,7 @@ fn a_trial_image_that_hangs_is_reset_by_the_watchdog_and_rolled_back() {
         waited_s >= 8,
         "rolled back after {waited_s} s: not by the watchdog"
     );
-    assert_eq!(b.peek(STATE), Some(0xC0C0_C0C0), "REVERT recorded");
+    assert_eq!(b.peek(STATE), Some(REVERT), "REVERT recorded");
     assert!(active(&b) == padded(&app(A)));
 }
 
@@ -223,21 +220,17 @@ fn the_release_image_swapped_in_confirms_itself_and_is_kept() {
     let start = (ACTIVE - 0x0800_0000) as usize;
     let app: Vec<u8> = img.flash[start..img.flash_used as usize].to_vec();
     img.put(DFU_PAGES[0], &app).unwrap();
-    img.put(STATE, &[0xF0; 4]).unwrap();
+    img.put(STATE, &SWAP.to_le_bytes()).unwrap();
     let odometer = SharedFlash::new(SimFlash::stm32f407_odometer());
     let world = World::new(Machine::new(&RigOptions::new(80)), odometer.clone());
     let mut b = Board::new(img, world, BoardConfig::default()).unwrap();
     b.power_on();
     let end = 60_000 * PS_PER_MS;
-    while b.now() < end && b.peek(STATE) != Some(0xD0D0_D0D0) {
+    while b.now() < end && b.peek(STATE) != Some(BOOT) {
         let t = b.now() + 50 * PS_PER_MS;
         b.run_until(t).unwrap();
     }
-    assert_eq!(
-        b.peek(STATE),
-        Some(0xD0D0_D0D0),
-        "the trial boot never confirmed"
-    );
+    assert_eq!(b.peek(STATE), Some(BOOT), "the trial boot never confirmed");
     let active_now: Vec<u8> = (0..app.len() as u32 / 4)
         .flat_map(|i| b.peek(ACTIVE + 4 * i).unwrap_or(0).to_le_bytes())
         .collect();
@@ -261,7 +254,7 @@ fn the_release_image_swapped_in_confirms_itself_and_is_kept() {
         programs,
         "nothing written by the reset"
     );
-    assert_eq!(b.peek(STATE), Some(0xD0D0_D0D0));
+    assert_eq!(b.peek(STATE), Some(BOOT));
     assert_eq!(confirmed(&b), 1);
     assert!(
         b.log.iter().filter(|l| l.msg.contains("booted")).count() >= 2,

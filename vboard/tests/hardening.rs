@@ -13,6 +13,7 @@ fn flooded(rate_sps: u32) -> SceneOptions {
         },
         cycles: 1,
         flood: true,
+        cut: None,
     }
 }
 
@@ -88,6 +89,7 @@ fn a_pin_reset_mid_insertion_homed_without_a_request() {
             session: Options::new(),
             cycles: 1,
             flood: false,
+            cut: None,
         },
     )
     .expect("board runs");
@@ -104,6 +106,7 @@ fn step_edges_came_too_close_to_dir_and_en_for_an_opto_isolated_driver() {
             session: Options::new(),
             cycles: 1,
             flood: false,
+            cut: None,
         },
     )
     .expect("board runs");

@@ -56,7 +56,10 @@ fn a_terminal_reads_the_version_over_tcp() {
     s.set_read_timeout(Some(Duration::from_millis(200)))
         .unwrap();
     let reply = ask(&mut s, "version", "docking-controller ");
-    assert_eq!(reply.trim(), format!("docking-controller {}", "0.1.0"));
+    assert_eq!(
+        reply.trim(),
+        "docking-controller 0.1.0 (test key) previous=none rolled_back=no"
+    );
     let _ = child.kill();
     let _ = child.wait();
 }
@@ -485,5 +488,127 @@ fn a_terminal_that_connects_after_the_boot_sees_the_banner_and_the_prompt() {
             && got.contains(" reset=power_on; type 'help'\r\n")
             && got.ends_with("> "),
         "nothing typed, got {got:?}"
+    );
+}
+
+/// Read the pty in a thread until `stop` appears in what it read (then it lets go of
+/// the pty, so that another program can read it).
+fn pty_reader(pty: &std::fs::File, stop: &'static str) -> std::sync::mpsc::Receiver<Vec<u8>> {
+    let (tx, rx) = std::sync::mpsc::channel::<Vec<u8>>();
+    let mut reader = pty.try_clone().unwrap();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 512];
+        let mut seen = String::new();
+        while let Ok(n) = reader.read(&mut buf) {
+            if n == 0 || tx.send(buf[..n].to_vec()).is_err() {
+                break;
+            }
+            seen.push_str(&String::from_utf8_lossy(&buf[..n]));
+            if seen.contains(stop) {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+/// Collect from `rx` until a line starting with `want` is complete.
+fn until_line(rx: &std::sync::mpsc::Receiver<Vec<u8>>, want: &str, secs: u64) -> String {
+    let deadline = Instant::now() + Duration::from_secs(secs);
+    let mut got = String::new();
+    while Instant::now() < deadline {
+        if let Ok(b) = rx.recv_timeout(Duration::from_millis(200)) {
+            got.push_str(&String::from_utf8_lossy(&b));
+        }
+        // Whole lines only (the last piece has no CR LF yet).
+        let lines: Vec<&str> = got.split("\r\n").collect();
+        let whole = &lines[..lines.len() - 1];
+        if let Some(l) = whole.iter().find(|l| l.starts_with(want)) {
+            return l.to_string();
+        }
+    }
+    panic!("no line starting {want:?}; got {got:?}");
+}
+
+/// Issue 21: Debian's lrzsz (`sb -k`, YMODEM-1K) sends a signed image into the board
+/// over `vboard serve --pty`, as a technician would from a laptop: the board verifies it
+/// and restarts into it. Needs `sb` (`apt-get install lrzsz`; .ci/run installs it).
+#[test]
+fn lrzsz_sb_sends_a_signed_image_into_the_board_over_a_pty() {
+    let img = vboard::image::Image::load(&vboard::image::default_path()).unwrap();
+    let file = vboard::update::update_file(
+        &vboard::update::app_bytes(&img),
+        vboard::update::NEW_VERSION,
+    );
+    let path = std::env::temp_dir().join(format!("vboard-sb-{}.dcs", std::process::id()));
+    std::fs::write(&path, &file).unwrap();
+    // No demo cycles (--plc): the machine rests, the PLC never asks.
+    struct Kill(Child);
+    impl Drop for Kill {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let mut child = Kill(
+        Command::new(env!("CARGO_BIN_EXE_vboard"))
+            .args(["serve", "--for", "300", "--pty", "--plc"])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("vboard runs"),
+    );
+    let mut line = String::new();
+    BufReader::new(child.0.stdout.as_mut().unwrap())
+        .read_line(&mut line)
+        .expect("first line: the pty");
+    let pty_path = line.trim().to_string();
+    let mut pty = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(&pty_path)
+        .expect("open the pty");
+    // The reader lets go of the pty at the end of `update`'s reply: sb reads from there.
+    let rx = pty_reader(&pty, "of silence cancels\r\n");
+    // Commissioning: a PIN, maintenance mode, then `update`.
+    for (cmd, want) in [
+        ("pin set 2468", "ok: PIN set"),
+        ("maint 2468", "ok: maintenance mode"),
+    ] {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        loop {
+            pty.write_all(format!("{cmd}\r\n").as_bytes()).unwrap();
+            match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                until_line(&rx, want, 5)
+            })) {
+                Ok(_) => break,
+                Err(_) if Instant::now() < deadline => continue,
+                Err(e) => std::panic::resume_unwind(e),
+            }
+        }
+    }
+    pty.write_all(b"update\r\n").unwrap();
+    until_line(&rx, "ok: update: send", 30);
+    let st = Command::new("sb")
+        .arg("-k")
+        .arg(&path)
+        .stdin(std::fs::File::open(&pty_path).unwrap())
+        .stdout(
+            std::fs::OpenOptions::new()
+                .write(true)
+                .open(&pty_path)
+                .unwrap(),
+        )
+        .stderr(Stdio::null())
+        .status()
+        .expect("sb runs (apt-get install lrzsz)");
+    let _ = std::fs::remove_file(&path);
+    let rx = pty_reader(&pty, "does not confirm)\r\n");
+    let reply = until_line(&rx, "ok: update verified", 120);
+    assert!(st.success(), "sb failed: {st}");
+    assert!(
+        reply.starts_with("ok: update verified: version 0.1.1"),
+        "{reply}"
     );
 }

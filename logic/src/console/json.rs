@@ -107,6 +107,12 @@ fn dec_digits(mut m: u64, buf: &mut [u8; 20]) -> &str {
     core::str::from_utf8(digits).unwrap_or("")
 }
 
+/// `v` in decimal, in `buf` (the same digits as [`write_u64`], for a reply written as
+/// byte parts).
+pub fn dec_text(v: u64, buf: &mut [u8; 20]) -> &str {
+    dec_digits(v, buf)
+}
+
 /// Write `v` in decimal (as `{v}` does).
 pub fn write_u64(w: &mut dyn Sink, v: u64) -> fmt::Result {
     let mut buf = [0u8; 20];

@@ -27,3 +27,4 @@ pub mod line;
 pub mod parse;
 mod reports;
 pub mod service;
+pub mod update;

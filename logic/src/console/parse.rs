@@ -22,6 +22,8 @@
 //! modbus [<unit> <baud>]                the Modbus line: show, or store (unit 1..=247;
 //!                                       baud 9600|19200|38400|57600|115200; 8E1), from
 //!                                       the next boot
+//! update                                receive a signed image by YMODEM-1K, verify
+//!                                       it, restart into it (docs/update.md)
 //! cone replace <material> <serial> [--bore <d0_mm>]
 //!                                       material: zqsn5-2 | qsn6-6-3 | cf-peek
 //!                                       serial: 1..=20 chars of [A-Za-z0-9_-]
@@ -133,7 +135,7 @@ const fn c(
 }
 
 /// Every console command, in `help`'s order.
-pub const COMMANDS: [CommandHelp; 24] = [
+pub const COMMANDS: [CommandHelp; 25] = [
     c(
         "help",
         "help [<command>] [--json]",
@@ -229,6 +231,12 @@ pub const COMMANDS: [CommandHelp; 24] = [
         "bor [set]",
         "show, or program at rest, the brown-out reset level (maint to set)",
         bor_args,
+    ),
+    c(
+        "update",
+        "update",
+        "receive a signed firmware image by YMODEM-1K, verify it, restart into it (maint)",
+        update_args,
     ),
     c(
         "cone",
@@ -343,6 +351,9 @@ pub enum Command<'a> {
     BorShow,
     /// `bor set`: program brown-out reset level 3 (2.70 V), at rest.
     BorSet,
+    /// `update`: receive a signed image by YMODEM-1K into DFU page 0, verify it, mark
+    /// it for the bootloader's swap and restart (issue 21; `console/update.rs`).
+    Update,
     /// `modbus <unit> <baud>`: store them (from the next boot).
     ModbusSet {
         /// Unit address, 1..=247.
@@ -408,6 +419,7 @@ impl Command<'_> {
             Self::ModbusShow | Self::ModbusSet { .. } => "modbus",
             Self::BorShow => "bor",
             Self::BorSet => "bor set",
+            Self::Update => "update",
             Self::ConeReplace { .. } => "cone replace",
             Self::Measure { .. } => "measure",
             Self::CalibrateTare => "calibrate tare",
@@ -430,6 +442,7 @@ impl Command<'_> {
                 | Self::Rate { .. }
                 | Self::ModbusSet { .. }
                 | Self::BorSet
+                | Self::Update
                 | Self::ConeReplace { .. }
                 | Self::CalibrateTare
                 | Self::CalibrateSpan { .. }
@@ -489,6 +502,7 @@ impl fmt::Debug for Command<'_> {
             Self::ModbusShow => f.write_str("ModbusShow"),
             Self::BorShow => f.write_str("BorShow"),
             Self::BorSet => f.write_str("BorSet"),
+            Self::Update => f.write_str("Update"),
             Self::ModbusSet { unit, baud } => f
                 .debug_struct("ModbusSet")
                 .field("unit", unit)
@@ -898,6 +912,10 @@ fn bor_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
         ["set"] => Ok(Command::BorSet),
         _ => Err(ParseError::BadArgument("bor subcommand")),
     }
+}
+
+fn update_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    a.action(0).map(|()| Command::Update)
 }
 
 fn pin_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {

@@ -36,7 +36,9 @@
 //!  detail: cone replace: material code u8 | serial (20 B, 0-pad)
 //!          measure: bore_um u32 | baseline u8;  rate: sps u32;  modbus: its record;
 //!          calibrate tare: offset_counts i32;  calibrate span: force_mn u32;
-//!          bor: the level it was at u8;  the others: none
+//!          bor: the level it was at u8;
+//!          update: result u8 (0 verified, 1 refused) | new version (8 B) |
+//!                  running version (8 B) | image length u32;  the others: none
 //! ```
 
 use core::fmt::{self, Write};
@@ -61,6 +63,7 @@ use crate::machine::Machine;
 use crate::odometer::{kind, SERIAL_MAX};
 use crate::sequencer::Request;
 use crate::storage::PAYLOAD_MAX;
+use crate::update::VERSION_TEXT_MAX;
 
 const _: () = assert!(size_of::<AuditLayout>() == PAYLOAD_MAX);
 
@@ -128,6 +131,10 @@ pub mod action {
     pub const MODBUS: u8 = 10;
     /// The brown-out reset level was programmed (detail: the level found, u8).
     pub const BOR: u8 = 11;
+    /// A firmware update was received (issue 21; detail: result u8 — 0 verified and
+    /// marked for the swap, 1 refused — the new image's version, the running image's
+    /// (8 B each, `update_layout::header::Version`, FF.. unknown), its length u32).
+    pub const UPDATE: u8 = 12;
 }
 
 /// What one poll did.
@@ -186,6 +193,18 @@ fn kv(o: &mut Out, key: &str) -> fmt::Result {
 /// Write each of `parts` in turn (a reply's literal text and the values between).
 fn write_all(o: &mut Out, parts: &[&str]) -> fmt::Result {
     parts.iter().try_for_each(|p| o.write_str(p))
+}
+
+/// The running image's version (its header's), or the build's where no header is known
+/// (the simulators).
+fn running_text<'a>(
+    images: &crate::update::ImageReport,
+    buf: &'a mut [u8; VERSION_TEXT_MAX],
+) -> &'a str {
+    match images.running {
+        Some(_) => super::update::version_text(images.running, buf),
+        None => env!("CARGO_PKG_VERSION"),
+    }
 }
 
 /// A reply's message: written piece by piece, never through core::fmt's `write!`
@@ -263,6 +282,9 @@ struct TermState {
     state: Option<&'static str>,
     /// Maintenance mode, as last seen (the prompt ends `#` instead of `>`).
     maint: bool,
+    /// The host runs `update`'s session ([`Console::enable_updater`]: the board); the
+    /// simulators have no DFU partition and refuse `update`.
+    updater: bool,
 }
 
 /// Ctrl-C: abandon the line.
@@ -292,6 +314,8 @@ struct Deferred {
     /// A report waits to be written (`report_json`: as JSON).
     report: Report,
     report_json: bool,
+    /// `update` was accepted: the board starts the session ([`Console::take_update`]).
+    update: bool,
 }
 
 /// A report's data, copied from the controller while the console holds it
@@ -333,6 +357,7 @@ impl Console {
                 pin_rec_ready: false,
                 report: Report::None,
                 report_json: false,
+                update: false,
             },
             term: TermState {
                 quiet: false,
@@ -341,6 +366,7 @@ impl Console {
                 recall: String::new(),
                 state: None,
                 maint: false,
+                updater: false,
             },
         }
     }
@@ -349,7 +375,14 @@ impl Console {
     /// naming the firmware and why it reset, then the prompt.
     #[inline(never)]
     pub fn banner(&mut self, reset: &str) {
-        let v = env!("CARGO_PKG_VERSION");
+        self.banner_of(&crate::update::ImageReport::UNKNOWN, reset);
+    }
+
+    /// [`Self::banner`] naming the running image's version (its header's; issue 21).
+    #[inline(never)]
+    pub fn banner_of(&mut self, images: &crate::update::ImageReport, reset: &str) {
+        let mut t = [0u8; VERSION_TEXT_MAX];
+        let v = running_text(images, &mut t);
         self.reply(|o| {
             write_all(
                 o,
@@ -617,7 +650,8 @@ impl Console {
         }
         let hashed = self.finish_login(now_ms) + self.finish_pin_set(now_ms);
         self.term.maint = self.auth.is_active(now_ms);
-        if !self.store_due() {
+        // No prompt before an update's YMODEM session (its reply comes after it).
+        if !self.store_due() && !self.deferred.update {
             self.prompt();
         }
         hashed
@@ -729,6 +763,52 @@ impl Console {
             msg.write_to(o)?;
             o.write_str("\r\n")
         });
+    }
+
+    /// One reply of these parts, whole or not at all (no formatting).
+    pub(super) fn reply_parts(&mut self, parts: &[&[u8]]) {
+        self.reply(|o| parts.iter().try_for_each(|p| o.push(p)));
+    }
+
+    /// `error: ` and a refusal's message (the update's, from its own module).
+    pub(super) fn err_maint(&mut self, e: crate::controller::MaintError) {
+        self.err(&e);
+    }
+
+    /// `update` was accepted: the board starts its session after this reply.
+    pub(super) fn request_update(&mut self) {
+        self.deferred.update = true;
+    }
+
+    /// The host runs `update`'s session when [`Self::take_update`] says so (the board).
+    pub fn enable_updater(&mut self) {
+        self.term.updater = true;
+    }
+
+    /// Whether `update` is taken here.
+    pub(super) fn has_updater(&self) -> bool {
+        self.term.updater
+    }
+
+    /// Whether an `update` waits for its session (asked once: it is cleared).
+    pub fn take_update(&mut self) -> bool {
+        core::mem::take(&mut self.deferred.update)
+    }
+
+    /// The prompt after an update's refusal.
+    pub(super) fn prompt_after_update(&mut self) {
+        self.prompt();
+    }
+
+    /// An audit record of `act` (the update's, from its own module).
+    pub(super) fn audit_action(
+        &mut self,
+        ctrl: &mut dyn Machine,
+        act: u8,
+        now_ms: u64,
+        detail: &[u8],
+    ) {
+        self.audit(ctrl, act, now_ms, detail);
     }
 
     fn pin_record(ctrl: &mut dyn Machine) -> Option<PinRecord> {
@@ -853,17 +933,8 @@ impl Console {
                     self.ok(&"echo and prompt off until reset (`echo on` turns them back on)");
                 }
             }
-            Command::Version { json } => {
-                let v = env!("CARGO_PKG_VERSION");
-                if json {
-                    self.report(true, &mut |f| {
-                        f.str("name", "docking-controller")?;
-                        f.str("version", v)
-                    });
-                } else {
-                    self.reply(|o| write_all(o, &["docking-controller ", v, "\r\n"]));
-                }
-            }
+            Command::Version { json } => self.version(&ctrl.images(), json),
+            Command::Update => super::update::begin(self, ctrl),
             Command::Status { json } => self.defer(Report::Status(status_view(ctrl, maint)), json),
             Command::Wear { json } => self.defer(Report::Wear(wear_view(ctrl)), json),
             Command::History { n, json } => {
@@ -1095,6 +1166,60 @@ impl Console {
                 }
                 o.write_str(
                     "(maint: needs `maint <pin>`, and all but undock a machine at rest)\r\n",
+                )
+            });
+        }
+    }
+
+    /// `version`: the running image (its header's version; the build's without one),
+    /// `(test key)` when the built-in key is the test key, the image it replaced, and a
+    /// rollback (issue 21). Fields added to 927460b's reply, none renamed: the text's
+    /// first two words and the JSON's `name` and `version` are as they were.
+    #[inline(never)]
+    fn version(&mut self, r: &crate::update::ImageReport, json: bool) {
+        use super::update::version_text;
+        let (mut a, mut b, mut c) = (
+            [0u8; VERSION_TEXT_MAX],
+            [0u8; VERSION_TEXT_MAX],
+            [0u8; VERSION_TEXT_MAX],
+        );
+        let v = running_text(r, &mut a);
+        let previous = version_text(r.previous, &mut b);
+        let rolled = match (r.rolled_back, r.rolled_back_version) {
+            (false, _) => "no",
+            (true, None) => "yes",
+            (true, Some(x)) => version_text(Some(x), &mut c),
+        };
+        if json {
+            self.report(true, &mut |f| {
+                f.str("name", "docking-controller")?;
+                f.str("version", v)?;
+                f.bool("test_key", r.test_key)?;
+                match r.previous {
+                    Some(_) => f.str("previous", previous)?,
+                    None => f.none("previous")?,
+                };
+                f.bool("rolled_back", r.rolled_back)?;
+                match (r.rolled_back, r.rolled_back_version) {
+                    (true, Some(_)) => f.str("rolled_back_version", rolled),
+                    _ => f.none("rolled_back_version"),
+                }
+            });
+        } else {
+            let key = if r.test_key { " (test key)" } else { "" };
+            self.reply(|o| {
+                write_all(
+                    o,
+                    &[
+                        "docking-controller ",
+                        v,
+                        key,
+                        " previous=",
+                        previous,
+                        " rolled_back=",
+                        rolled,
+                        "\r\n",
+                    ],
                 )
             });
         }

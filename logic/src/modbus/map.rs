@@ -356,7 +356,10 @@ pub fn input_registers(ctrl: &dyn Machine) -> [u16; ir::COUNT as usize] {
         let lo = pair.get(1).copied().unwrap_or(0);
         set(addr, u16::from_be_bytes([hi, lo]));
     }
-    let [major, minor, patch] = FIRMWARE_VERSION;
+    // The running image's version (its header), else the build's.
+    let [major, minor, patch] = ctrl.images().running.map_or(FIRMWARE_VERSION, |v| {
+        [u16::from(v.major), u16::from(v.minor), v.patch]
+    });
     set(ir::FW_MAJOR, major);
     set(ir::FW_MINOR, minor);
     set(ir::FW_PATCH, patch);

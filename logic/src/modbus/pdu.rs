@@ -424,7 +424,13 @@ pub(super) fn process(
         *o = unit;
     }
     let reply = match function {
-        0x2B => device_identification(pdu, unit_serial, ctrl.config().identity, out),
+        0x2B => device_identification(
+            pdu,
+            unit_serial,
+            ctrl.config().identity,
+            &ctrl.images(),
+            out,
+        ),
         _ => match validate(function, pdu) {
             Err(code) => Reply::Exception(code),
             Ok(()) => standard(pdu, function, broadcast, ctrl, out, session),

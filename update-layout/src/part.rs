@@ -9,6 +9,10 @@
 //! pages, each laid in a run of whole 128 KiB sectors of its own (its unused tail is
 //! never read nor written). Reads and writes map a partition offset to its page's
 //! address; nothing here panics on any offset (out of range is an error).
+//!
+//! The flash may be a trait object (`RefCell<dyn Sectors>`): the application's updater
+//! takes it so, so that its session and embassy-boot's updater are compiled once, in the
+//! logic crate at its opt-level, and not for the board's flash type (issue 21's size).
 
 use core::cell::RefCell;
 
@@ -58,7 +62,7 @@ pub trait Sectors {
 }
 
 /// Erase every sector of `[base, base + len)` (a run of whole sectors in 1-9).
-fn erase_run<F: Sectors>(f: &mut F, base: u32, len: u32) -> Result<(), FlashError> {
+fn erase_run<F: Sectors + ?Sized>(f: &mut F, base: u32, len: u32) -> Result<(), FlashError> {
     if !whole_sectors(base, len) {
         return Err(FlashError::OutOfBounds);
     }
@@ -74,7 +78,7 @@ fn erase_run<F: Sectors>(f: &mut F, base: u32, len: u32) -> Result<(), FlashErro
 }
 
 /// A partition of pages of [`PAGE_LEN`] bytes, page `i` at `pages[i]`.
-pub struct Paged<'a, F> {
+pub struct Paged<'a, F: ?Sized> {
     flash: &'a RefCell<F>,
     pages: &'static [u32],
 }
@@ -82,7 +86,7 @@ pub struct Paged<'a, F> {
 /// Page bases of ACTIVE: one page.
 static ACTIVE_PAGES: [u32; 1] = [ACTIVE_BASE];
 
-impl<'a, F: Sectors> Paged<'a, F> {
+impl<'a, F: Sectors + ?Sized> Paged<'a, F> {
     /// ACTIVE: one page, sectors 2 on.
     pub fn active(flash: &'a RefCell<F>) -> Self {
         Self {
@@ -135,11 +139,11 @@ impl<'a, F: Sectors> Paged<'a, F> {
     }
 }
 
-impl<F> ErrorType for Paged<'_, F> {
+impl<F: ?Sized> ErrorType for Paged<'_, F> {
     type Error = FlashError;
 }
 
-impl<F: Sectors> ReadNorFlash for Paged<'_, F> {
+impl<F: Sectors + ?Sized> ReadNorFlash for Paged<'_, F> {
     const READ_SIZE: usize = 1;
 
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), FlashError> {
@@ -157,7 +161,7 @@ impl<F: Sectors> ReadNorFlash for Paged<'_, F> {
     }
 }
 
-impl<F: Sectors> NorFlash for Paged<'_, F> {
+impl<F: Sectors + ?Sized> NorFlash for Paged<'_, F> {
     const WRITE_SIZE: usize = 4;
     const ERASE_SIZE: usize = PAGE_LEN as usize;
 
@@ -190,22 +194,22 @@ impl<F: Sectors> NorFlash for Paged<'_, F> {
 }
 
 /// STATE: sector 1, erased whole.
-pub struct State<'a, F> {
+pub struct State<'a, F: ?Sized> {
     flash: &'a RefCell<F>,
 }
 
-impl<'a, F: Sectors> State<'a, F> {
+impl<'a, F: Sectors + ?Sized> State<'a, F> {
     /// Sector 1.
     pub fn new(flash: &'a RefCell<F>) -> Self {
         Self { flash }
     }
 }
 
-impl<F> ErrorType for State<'_, F> {
+impl<F: ?Sized> ErrorType for State<'_, F> {
     type Error = FlashError;
 }
 
-impl<F: Sectors> ReadNorFlash for State<'_, F> {
+impl<F: Sectors + ?Sized> ReadNorFlash for State<'_, F> {
     const READ_SIZE: usize = 1;
 
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), FlashError> {
@@ -221,7 +225,7 @@ impl<F: Sectors> ReadNorFlash for State<'_, F> {
     }
 }
 
-impl<F: Sectors> NorFlash for State<'_, F> {
+impl<F: Sectors + ?Sized> NorFlash for State<'_, F> {
     const WRITE_SIZE: usize = 4;
     const ERASE_SIZE: usize = STATE_LEN as usize;
 

@@ -1,5 +1,6 @@
-//! The partition map (docs/update.md, "Partition map"), shared by the bootloader and, in
-//! time, the application's updater: one place to change it.
+//! The partition map (docs/update.md, "Partition map"), shared by the bootloader, the
+//! application's updater (and its `memory.x`, written by the root's build.rs) and the
+//! virtual board: one place to change it, [`BUDGET_LAYOUT`].
 //!
 //! STM32F407 flash sectors: 0-3 16 KiB, 4 64 KiB, 5-11 128 KiB (RM0090 table 5).
 //!
@@ -23,20 +24,24 @@ pub const STATE_LEN: u32 = 16 * 1024;
 /// ACTIVE: the application, its vector table first (sector 2 on).
 pub const ACTIVE_BASE: u32 = 0x0800_8000;
 
-/// ACTIVE's length: sectors 2-5, 224 KiB (the development layout: the application is
-/// over 96 KiB until issue 20 lands).
-#[cfg(not(feature = "budget-layout"))]
-pub const ACTIVE_LEN: u32 = 224 * 1024;
-/// The two DFU pages' first addresses: sectors 6-7 and 8-9.
-#[cfg(not(feature = "budget-layout"))]
-pub const DFU_PAGES: [u32; 2] = [0x0804_0000, 0x0808_0000];
+/// **The switch between the two layouts, and the only one**: `false` is the
+/// development layout (ACTIVE sectors 2-5, 224 KiB; DFU pages in sectors 6-7 and 8-9),
+/// `true` the issue's budget layout (ACTIVE sectors 2-4, 96 KiB; DFU pages in sectors 5
+/// and 6). The bootloader, the application's link (build.rs writes its FLASH region from
+/// [`ACTIVE_BASE`] and [`ACTIVE_LEN`]) and the virtual board's tests all follow it. A board
+/// must be flashed anew with a probe (bootloader and application) when it changes.
+pub const BUDGET_LAYOUT: bool = false;
 
-/// ACTIVE's length: sectors 2-4, 96 KiB (the issue's budget).
-#[cfg(feature = "budget-layout")]
-pub const ACTIVE_LEN: u32 = 96 * 1024;
-/// The two DFU pages' first addresses: sectors 5 and 6.
-#[cfg(feature = "budget-layout")]
-pub const DFU_PAGES: [u32; 2] = [0x0802_0000, 0x0804_0000];
+/// ACTIVE's length: 224 KiB (sectors 2-5) in the development layout, 96 KiB (sectors
+/// 2-4) in the budget layout.
+pub const ACTIVE_LEN: u32 = if BUDGET_LAYOUT { 96 * 1024 } else { 224 * 1024 };
+/// The two DFU pages' first addresses: sectors 6-7 and 8-9 (development), or sectors 5
+/// and 6 (budget).
+pub const DFU_PAGES: [u32; 2] = if BUDGET_LAYOUT {
+    [0x0802_0000, 0x0804_0000]
+} else {
+    [0x0804_0000, 0x0808_0000]
+};
 
 /// The swap's unit: all of ACTIVE.
 pub const PAGE_LEN: u32 = ACTIVE_LEN;

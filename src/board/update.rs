@@ -1,0 +1,194 @@
+//! The board's side of the field update (issue 21, docs/update.md): the image header,
+//! the public key updates are verified with, and the flash of DFU page 0 and STATE
+//! behind the controller's owner.
+//!
+//! # The image header
+//!
+//! [`IMAGE_HEADER`] sits at ACTIVE + 0x200, right after the vector table
+//! (`image-header.x`, written by build.rs): the version from Cargo.toml (build 0, not
+//! stamped) and the first bytes of [`PUBLIC_KEY`]. The signing tool stamps another
+//! version into it before it signs. The running image reads its version from flash
+//! ([`running_header`]), never from the constant: what runs is what was stamped.
+
+use update_layout::header::{Header, Version, HEADER_LEN, HEADER_OFFSET, KEY_ID_LEN};
+use update_layout::layout::{ACTIVE_BASE, DFU_PAGES};
+
+include!(concat!(env!("OUT_DIR"), "/update_key.rs"));
+
+/// A decimal of Cargo's version parts, at compile time (only in [`IMAGE_HEADER`]'s
+/// initializer: an index out of bounds there fails the build, it cannot panic at run
+/// time).
+#[allow(clippy::indexing_slicing)]
+const fn parse(s: &str) -> u32 {
+    let b = s.as_bytes();
+    let mut v: u32 = 0;
+    let mut i = 0;
+    while i < b.len() {
+        v = v * 10 + (b[i] - b'0') as u32;
+        i += 1;
+    }
+    v
+}
+
+/// The first bytes of the key, the header's key id (at compile time, as [`parse`]).
+#[allow(clippy::indexing_slicing)]
+const fn key_id() -> [u8; KEY_ID_LEN] {
+    let mut id = [0u8; KEY_ID_LEN];
+    let mut i = 0;
+    while i < KEY_ID_LEN {
+        id[i] = PUBLIC_KEY[i];
+        i += 1;
+    }
+    id
+}
+
+/// The header as built (the signing tool may stamp another version over it).
+#[used]
+#[link_section = ".image_header"]
+static IMAGE_HEADER: [u8; HEADER_LEN] = Header {
+    version: Version {
+        major: parse(env!("CARGO_PKG_VERSION_MAJOR")) as u8,
+        minor: parse(env!("CARGO_PKG_VERSION_MINOR")) as u8,
+        patch: parse(env!("CARGO_PKG_VERSION_PATCH")) as u16,
+        build: 0,
+    },
+    flags: 0,
+    key_id: key_id(),
+}
+.to_bytes();
+
+/// The header at `base + HEADER_OFFSET` (an image's first address), read from flash.
+fn header_at(base: u32) -> Option<Header> {
+    let mut b = [0u8; HEADER_LEN];
+    for (i, x) in (base + HEADER_OFFSET..).zip(b.iter_mut()) {
+        // SAFETY: inside ACTIVE or a DFU page, mapped readable flash (fixed addresses of
+        // the partition map).
+        *x = unsafe { core::ptr::read_volatile(i as *const u8) };
+    }
+    Header::parse(&b)
+}
+
+/// The running image's header (ACTIVE's).
+pub fn running_header() -> Option<Header> {
+    header_at(ACTIVE_BASE)
+}
+
+/// The header of the image in DFU page `page` (1: the one the last swap replaced).
+pub fn dfu_header(page: usize) -> Option<Header> {
+    header_at(*DFU_PAGES.get(page)?)
+}
+
+// --- DFU page 0 and STATE, behind the controller's owner --------------------------------
+
+use docking_logic::update::{BootFacts, ImageReport};
+#[cfg(feature = "updater")]
+use update_layout::part::{FlashError, Sectors};
+
+#[cfg(feature = "updater")]
+use super::flash::{OdoFlashError, OdometerFlash};
+use super::owner::Ctrl;
+#[cfg(feature = "updater")]
+use super::owner::MAILBOX;
+
+/// The `update` command's session (feature `updater`).
+#[cfg(feature = "updater")]
+pub type Session = docking_logic::console::update::UpdateSession;
+
+/// Without the feature `updater` (issue 20's lean image, measured by `cargo xtask
+/// size`): no session; the console refuses `update` (it was never enabled).
+#[cfg(not(feature = "updater"))]
+pub struct Session;
+
+#[cfg(not(feature = "updater"))]
+impl Session {
+    /// Nothing.
+    pub const fn new() -> Self {
+        Self
+    }
+}
+
+#[cfg(feature = "updater")]
+/// The flash as the updater's partitions see it (`update_layout::part::Paged::dfu`,
+/// `State`): reads straight from the memory map (idle, no owner needed: nothing else
+/// writes these sectors), erases and programs through the controller's owner — a job
+/// in the service's window, run only while an update is under way and the machine is
+/// at rest (`Controller::at_rest`) — by [`OdometerFlash::erase_update_sector`] and
+/// [`OdometerFlash::program_update`], which refuse anything but DFU page 0 and STATE.
+/// Call from idle only (the mailbox's rule).
+pub struct UpdateFlash;
+
+#[cfg(feature = "updater")]
+/// Tries a flash job gets when the machine is not at rest just then (a Modbus reply on
+/// the line): one per service window, about 5 s at 80 SPS.
+const OWNER_TRIES: u32 = 400;
+
+#[cfg(feature = "updater")]
+/// Run `op` in the owner's window at rest; retried while a Modbus reply holds the flash.
+fn with_owner(op: &mut dyn FnMut() -> Result<(), OdoFlashError>) -> Result<(), FlashError> {
+    for _ in 0..OWNER_TRIES {
+        let mut r = None;
+        MAILBOX.call(&mut |ctrl: &mut Ctrl| {
+            if ctrl.updating() && ctrl.at_rest() {
+                r = Some(op());
+            }
+        });
+        match r {
+            Some(Ok(())) => return Ok(()),
+            Some(Err(OdoFlashError::Status(sr))) => return Err(FlashError::Status(sr)),
+            Some(Err(OdoFlashError::OutOfBounds)) => return Err(FlashError::OutOfBounds),
+            Some(Err(OdoFlashError::NotAligned)) => return Err(FlashError::NotAligned),
+            Some(Err(OdoFlashError::Locked)) => return Err(FlashError::Locked),
+            Some(Err(OdoFlashError::Timeout)) => return Err(FlashError::Timeout),
+            None => {}
+        }
+    }
+    Err(FlashError::Timeout)
+}
+
+#[cfg(feature = "updater")]
+impl Sectors for UpdateFlash {
+    fn read(&mut self, addr: u32, buf: &mut [u8]) -> Result<(), FlashError> {
+        let end = u64::from(addr) + buf.len() as u64;
+        if addr < update_layout::layout::FLASH_BASE
+            || end > u64::from(update_layout::layout::ODOMETER_BASE)
+        {
+            return Err(FlashError::OutOfBounds);
+        }
+        for (a, b) in (addr..).zip(buf.iter_mut()) {
+            // SAFETY: inside the flash below the odometer (checked above), mapped
+            // readable memory.
+            *b = unsafe { core::ptr::read_volatile(a as *const u8) };
+        }
+        Ok(())
+    }
+
+    fn erase_sector(&mut self, base: u32) -> Result<(), FlashError> {
+        with_owner(&mut || OdometerFlash::erase_update_sector(base))
+    }
+
+    fn program(&mut self, addr: u32, data: &[u8]) -> Result<(), FlashError> {
+        with_owner(&mut || OdometerFlash::program_update(addr, data))
+    }
+}
+
+/// At init, after a trial's confirmation: what `version` and Modbus identification
+/// report, and the image record this boot owes (docs/update.md, "Versions").
+pub fn boot_report(ctrl: &mut Ctrl, boot: update_layout::state::Boot) -> ImageReport {
+    let facts = BootFacts {
+        boot,
+        running: running_header().map(|h| h.version),
+        page1: dfu_header(1).map(|h| h.version),
+        test_key: TEST_KEY,
+    };
+    docking_logic::update::at_boot(ctrl, facts)
+}
+
+#[cfg(feature = "updater")]
+/// A verified update: the reply out (at most 200 ms), the motors safe, then the reset
+/// into the bootloader's swap.
+pub fn restart(term: &super::console::BoardConsole) -> ! {
+    let start = super::clock::now_us();
+    while !term.tx_idle() && super::clock::now_us().saturating_sub(start) < 200_000 {}
+    super::force_safe_outputs();
+    cortex_m::peripheral::SCB::sys_reset()
+}

@@ -1,0 +1,19 @@
+//! The field update's shared map (issue 21, docs/update.md): the flash partitions
+//! ([`layout`], with its one switch between the development and the budget layout), the
+//! partitions as embassy-boot sees them ([`part`]: sector-mapped pages), the state
+//! record's magics ([`state`]) and the image header ([`header`]: version and key id,
+//! stamped by the signing tool). `no_std`, no dependency but `embedded-storage`: the
+//! bootloader (`boot/`), the application (its updater, and `memory.x` through build.rs)
+//! and the virtual board (`vboard/`) use this one copy.
+#![cfg_attr(not(test), no_std)]
+#![deny(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
+
+pub mod header;
+pub mod layout;
+pub mod part;
+pub mod state;

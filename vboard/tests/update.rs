@@ -1,0 +1,179 @@
+//! Issue 21 on the virtual board: the release image updated over its own console
+//! (YMODEM-1K, the in-process sender), the bootloader's swap, the trial boot, the
+//! refusals, the rollback and power cuts — the bootloader and the application are the
+//! unmodified release builds (docs/update.md, docs/vboard.md).
+//!
+//! CI runs each scene once at the datasheet's *typical* flash times (an erase polled
+//! from SRAM is executed instruction by instruction: at the maximum times the four DFU
+//! erases of `update-bad` alone are 2.7 G instructions) and one seed of each power cut;
+//! the 200 seeds of each cut at the maximum flash times are the ignored tests:
+//! `cd vboard && cargo test --release --test update -- --ignored` (hours on two cores).
+
+use vboard::periph::flash::FlashTiming;
+use vboard::scene::{run, Options, SceneOptions};
+use vboard::update::{
+    bad_files, marked, transfer, update_cut_marked, update_cut_transfer, update_from_marked,
+    Checks, Cut,
+};
+
+fn typical() -> Options {
+    let mut o = Options::new();
+    o.board.flash_timing = FlashTiming::Typical;
+    o
+}
+
+fn scene(name: &str) {
+    let r = run(
+        name,
+        &SceneOptions {
+            session: typical(),
+            ..SceneOptions::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("{name}: {e}"));
+    assert!(r.passed(), "{}", r.to_text());
+    assert!(r.core_faults.is_empty(), "{:?}", r.core_faults);
+}
+
+/// The scene `update`, in full (the transfer with a DOCK edge during it, the restart,
+/// the swap, the trial boot, the new version, the counters).
+#[test]
+fn the_release_image_updates_itself_over_the_console_with_every_counter_intact() {
+    scene("update");
+}
+
+/// Two of `update-bad`'s files in CI (the scene has all four; the corrupted full-size
+/// image is also the host's `update_session` test): a truncated file and an image
+/// signed with another key, each refused in one line, STATE untouched.
+#[test]
+fn a_truncated_and_a_wrongly_signed_image_are_refused_with_state_untouched() {
+    let mut s = vboard::scene::Session::new(typical()).unwrap();
+    let deadline = s.now() + 60 * vboard::time::PS_PER_S;
+    s.run_until(deadline, |x| x.seen.boots >= 1 && x.at_rest())
+        .unwrap();
+    assert!(s.maint_enter().unwrap());
+    let state = s.board.peek(update_layout::layout::STATE_BASE);
+    let app = vboard::update::app_bytes(&s.board.image);
+    for (what, file, words) in bad_files(&app).into_iter().skip(1).step_by(2) {
+        let t = transfer(&mut s, &file, None, None).unwrap();
+        assert!(
+            t.reply.starts_with("error: update refused:") && t.reply.contains(words),
+            "{what}: {}",
+            t.reply
+        );
+        assert!(!t.ready_seen && !t.moved, "{what}");
+        assert_eq!(
+            s.board.peek(update_layout::layout::STATE_BASE),
+            state,
+            "{what}: STATE"
+        );
+    }
+}
+
+#[test]
+fn an_image_that_never_confirms_is_rolled_back_after_the_watchdog_reset() {
+    scene("update-rollback");
+}
+
+fn passed(checks: &Checks) -> bool {
+    checks.iter().all(|(_, ok, _)| *ok)
+}
+
+fn show(checks: &Checks) -> String {
+    checks
+        .iter()
+        .map(|(n, ok, d)| format!("{} {n}: {d}", if *ok { "ok" } else { "FAILED" }))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// One seed of the transfer's cut.
+#[test]
+fn a_power_cut_in_the_transfer_boots_the_old_image_with_state_untouched() {
+    let mut checks = Checks::new();
+    update_cut_transfer(7, &typical(), &mut checks).unwrap();
+    assert!(passed(&checks), "transfer: {}", show(&checks));
+}
+
+/// One seed of the swap's and of the first boot's cut, from one marked flash (which
+/// also runs once without a cut, timing the swap).
+#[test]
+fn a_power_cut_in_the_swap_or_the_first_boot_boots_a_whole_image() {
+    let o = typical();
+    let mut m = marked(&o, false).unwrap();
+    let mut checks = Checks::new();
+    update_from_marked(&o, &mut m, &mut checks).unwrap();
+    assert!(passed(&checks), "no cut: {}", show(&checks));
+    for cut in [Cut::Swap, Cut::Boot] {
+        let mut checks = Checks::new();
+        update_cut_marked(cut, 7, &o, &m, &mut checks).unwrap();
+        assert!(passed(&checks), "{cut:?}: {}", show(&checks));
+    }
+}
+
+fn many(cut: Cut) {
+    let o = Options::new();
+    let m = (cut != Cut::Transfer).then(|| marked(&o, true).unwrap());
+    for seed in 1..=200 {
+        let mut checks = Checks::new();
+        match &m {
+            None => update_cut_transfer(seed, &o, &mut checks).map(|_| ()),
+            Some(m) => update_cut_marked(cut, seed, &o, m, &mut checks).map(|_| ()),
+        }
+        .unwrap_or_else(|e| panic!("{cut:?} seed {seed}: {e}"));
+        assert!(passed(&checks), "{cut:?} seed {seed}: {}", show(&checks));
+    }
+}
+
+/// 200 seeds (`cargo test --release --test update -- --ignored`).
+#[test]
+#[ignore]
+fn a_power_cut_at_200_instants_of_the_transfer_boots_the_old_image_whole() {
+    many(Cut::Transfer);
+}
+
+/// 200 seeds.
+#[test]
+#[ignore]
+fn a_power_cut_at_200_instants_of_the_swap_boots_a_whole_image() {
+    many(Cut::Swap);
+}
+
+/// 200 seeds.
+#[test]
+#[ignore]
+fn a_power_cut_at_200_instants_of_the_first_boot_boots_a_whole_image() {
+    many(Cut::Boot);
+}
+
+/// `tools/sign-image.sh --version` and the scenes' signer write the same file, byte
+/// for byte (ed25519 is deterministic): what the scenes prove holds for the script.
+#[test]
+fn sign_image_sh_and_the_scenes_signer_agree() {
+    let elf = vboard::image::default_path();
+    let out = std::env::temp_dir().join(format!("vboard-sign-{}.dcs", std::process::id()));
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+    let st = std::process::Command::new("bash")
+        .args([
+            "tools/sign-image.sh",
+            "--version",
+            "0.1.1",
+            &elf,
+            "boot/keys/test-signing-key.pem",
+        ])
+        .arg(&out)
+        .current_dir(root)
+        .status()
+        .expect("bash");
+    assert!(st.success(), "sign-image.sh failed");
+    let script = std::fs::read(&out).unwrap();
+    let _ = std::fs::remove_file(&out);
+    let img = vboard::image::Image::load(&elf).unwrap();
+    let ours = vboard::update::update_file(
+        &vboard::update::app_bytes(&img),
+        vboard::update::NEW_VERSION,
+    );
+    assert_eq!(script.len(), ours.len());
+    let first = script.iter().zip(&ours).position(|(a, b)| a != b);
+    assert!(first.is_none(), "the files differ first at byte {first:?}");
+}
