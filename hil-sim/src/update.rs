@@ -189,6 +189,23 @@ impl YmodemSender {
         }
     }
 
+    /// The sender's own timeout ran out (lrzsz's `sb`: 10 s without an answer): the
+    /// packet it waits on, again; nothing while it waits for the receiver's 'C'.
+    pub fn on_timeout(&mut self) -> Vec<u8> {
+        match self.state {
+            SendState::Header => {
+                self.retries += 1;
+                self.header()
+            }
+            SendState::Block(n) => {
+                self.retries += 1;
+                self.block(n)
+            }
+            SendState::Eot(_) => vec![EOT],
+            _ => Vec::new(),
+        }
+    }
+
     /// One byte from the receiver; what to send back.
     pub fn on_byte(&mut self, b: u8) -> Vec<u8> {
         if b == CAN {

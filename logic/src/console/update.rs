@@ -7,8 +7,9 @@
 //!  technician        console (maintenance mode, at rest)            flash
 //!  update  ───────▶  ok: update: send the signed image by YMODEM-1K …
 //!                    (READY low, every request but stop refused: Controller::begin_update)
+//!                                                                   erase DFU page 0
 //!          ◀───────  'C' every 3 s
-//!  block 0 ───────▶  size ≤ ACTIVE                                   erase DFU page 0
+//!  block 0 ───────▶  size ≤ ACTIVE
 //!          ◀───────  ACK 'C'
 //!  block n ───────▶                                                  program the block
 //!          ◀───────  ACK                     (progress in the log, every 10 %)
@@ -115,6 +116,8 @@ mod session {
     #[derive(Clone, Copy, Debug, PartialEq, Eq)]
     enum Phase {
         Off,
+        /// Started: DFU page 0 is erased at the next poll, before the first 'C'.
+        Erasing,
         Receiving,
         /// Refused: waiting for the line to go quiet (`until`), at the latest `deadline`.
         Quiet {
@@ -163,10 +166,11 @@ mod session {
             self.phase != Phase::Off
         }
 
-        /// Begin: the first 'C' goes out at the next poll.
+        /// Begin: the next poll erases DFU page 0 (seconds; the sender waits for the first
+        /// 'C', which goes out at the poll after).
         pub fn start(&mut self, now_ms: u64) {
             self.rx = Receiver::new(PAGE_LEN);
-            self.phase = Phase::Receiving;
+            self.phase = Phase::Erasing;
             self.last_rx_ms = now_ms;
             // Never: the first 'C' goes out at once.
             self.last_idle_ms = u64::MAX;
@@ -216,6 +220,21 @@ mod session {
                     self.phase = Phase::Quiet { until, deadline };
                     None
                 }
+                Phase::Erasing => {
+                    // Before the first 'C', while the sender waits for it (a minute and
+                    // more: YMODEM senders wait long for the receiver to start): an erase
+                    // of seconds after block 0, while the sender waited for its ACK (lrzsz
+                    // `sb`: 10 s), had the sender send block 0 again when the erase ran
+                    // long, and its extra ACK put the sender one ACK ahead: a block out
+                    // of sequence at the end of the file.
+                    info!("update: erasing DFU page 0");
+                    self.worked = true;
+                    if dfu.erase(0, PAGE_LEN).is_err() {
+                        return self.cancel(io, why::FLASH, now_ms);
+                    }
+                    self.phase = Phase::Receiving;
+                    None
+                }
                 Phase::Receiving => self.receive(io, &mut dfu, &mut state, key, now_ms),
             }
         }
@@ -246,12 +265,8 @@ mod session {
                     Action::None => {}
                     Action::Send(bytes) => send(io, bytes),
                     Action::Start { size } => {
-                        info!("update: receiving {} bytes; erasing DFU page 0", size);
-                        // The sender waits for the ACK: the erase (seconds) delays nobody.
-                        self.worked = true;
-                        if dfu.erase(0, PAGE_LEN).is_err() {
-                            return self.cancel(io, why::FLASH, now_ms);
-                        }
+                        // DFU page 0 was erased before the first 'C' (Phase::Erasing).
+                        info!("update: receiving {} bytes", size);
                         send(io, self.rx.ack());
                     }
                     Action::Data { offset, len } => {
