@@ -145,7 +145,7 @@ impl AxisModel {
     #[inline]
     fn pos_at(&self, now: u64) -> i64 {
         if now >= self.next_pulse_ns.get() {
-            return self.advance(now);
+            return self.advance_inline(now);
         }
         self.pos_steps.get()
     }
@@ -154,6 +154,12 @@ impl AxisModel {
     /// or more, none if that was the nanosecond before the pulse); the position after
     /// them.
     fn advance(&self, now: u64) -> i64 {
+        self.advance_inline(now)
+    }
+
+    /// [`Self::advance`], inlined where the load cell reads the position.
+    #[inline(always)]
+    fn advance_inline(&self, now: u64) -> i64 {
         let dt = now - self.last_ns.get();
         let (last_dt, q, r) = self.interval.get();
         // `frac + dt·rate` split as `(frac + r) + q·1e9`: `frac + r` < 2e9, so it carries
