@@ -99,6 +99,12 @@ pub struct AxisModel {
     /// ⌊(2⁶⁴ − 1) / rate⌋: the time to the next pulse is ⌈(1e9 − frac) / rate⌉ ns, taken
     /// as the high word of a product instead of a division — equal or one less.
     pulse_recip: Cell<u64>,
+    /// The last interval `advance` divided (`0`: none at this rate) and its quotient and
+    /// remainder: `⌊dt·rate / 1e9⌋`, `dt·rate mod 1e9`. The control loop reads the axis
+    /// once a sample period, so the next interval is usually the same, and its pulses
+    /// are the quotient plus a carry from the remainder (exact: both remainders are
+    /// below 1e9) instead of another division.
+    interval: Cell<(u64, u64, u64)>,
     pending_pulses: Cell<u32>,
     dir_positive: Cell<bool>,
     enabled: Cell<bool>,
@@ -133,20 +139,53 @@ impl AxisModel {
         }
     }
 
+    /// The position at `now`, steps: the model moved there first if a pulse is due.
+    /// (Returned rather than read back by the caller: the load of a value just stored
+    /// would wait for the store, on the way from the clock to the load cell's code.)
+    #[inline]
+    fn pos_at(&self, now: u64) -> i64 {
+        if now >= self.next_pulse_ns.get() {
+            return self.advance_inline(now);
+        }
+        self.pos_steps.get()
+    }
+
     /// The pulses from `last_ns` to `now` (`now` at or past `next_pulse_ns`: usually one
-    /// or more, none if that was the nanosecond before the pulse).
-    fn advance(&self, now: u64) {
-        let rate = self.rate_hz.get() as u64;
-        let acc = self.frac.get() + (now - self.last_ns.get()) * rate;
-        let n = acc / 1_000_000_000;
-        let frac = acc % 1_000_000_000;
+    /// or more, none if that was the nanosecond before the pulse); the position after
+    /// them.
+    fn advance(&self, now: u64) -> i64 {
+        self.advance_inline(now)
+    }
+
+    /// [`Self::advance`], inlined where the load cell reads the position.
+    #[inline(always)]
+    fn advance_inline(&self, now: u64) -> i64 {
+        let dt = now - self.last_ns.get();
+        let (last_dt, q, r) = self.interval.get();
+        // `frac + dt·rate` split as `(frac + r) + q·1e9`: `frac + r` < 2e9, so it carries
+        // at most one pulse.
+        let (n, frac) = if dt == last_dt {
+            let f = self.frac.get() + r;
+            if f >= 1_000_000_000 {
+                (q + 1, f - 1_000_000_000)
+            } else {
+                (q, f)
+            }
+        } else {
+            let rate = self.rate_hz.get() as u64;
+            let p = dt * rate;
+            self.interval
+                .set((dt, p / 1_000_000_000, p % 1_000_000_000));
+            let acc = self.frac.get() + p;
+            (acc / 1_000_000_000, acc % 1_000_000_000)
+        };
         self.frac.set(frac);
         self.last_ns.set(now);
         let to_pulse = ((1_000_000_000 - frac) as u128 * self.pulse_recip.get() as u128) >> 64;
         self.next_pulse_ns.set(now + to_pulse as u64);
         self.pending_pulses
             .set(self.pending_pulses.get().saturating_add(n as u32));
-        self.move_steps(n);
+        self.move_steps(n)
     }
 
     /// Account for the pulses up to `now` exactly (before the rate changes: the
@@ -160,7 +199,7 @@ impl AxisModel {
             if n != 0 {
                 self.pending_pulses
                     .set(self.pending_pulses.get().saturating_add(n as u32));
-                self.move_steps(n);
+                let _ = self.move_steps(n);
             }
         }
         self.last_ns.set(now);
@@ -170,6 +209,7 @@ impl AxisModel {
     fn set_rate_hz(&self, rate_hz: u32, now: u64) {
         self.settle(now);
         self.rate_hz.set(rate_hz);
+        self.interval.set((0, 0, 0));
         self.pulse_recip.set(u64::MAX / rate_hz.max(1) as u64);
         self.next_pulse_ns.set(match rate_hz {
             0 => u64::MAX,
@@ -178,10 +218,11 @@ impl AxisModel {
     }
 
     /// `n` pulses reach the driver: the carriage moves in the DIR direction if the driver
-    /// is on and nothing stalls it, up to the hard stops. Both drive paths end here.
-    fn move_steps(&self, n: u64) {
+    /// is on and nothing stalls it, up to the hard stops. Both drive paths end here. The
+    /// position after them.
+    fn move_steps(&self, n: u64) -> i64 {
+        let before = self.pos_steps.get();
         if self.enabled.get() && self.fault.get() != AxisFault::Stalled {
-            let before = self.pos_steps.get();
             let step = if self.dir_positive.get() {
                 n as i64
             } else {
@@ -191,7 +232,9 @@ impl AxisModel {
             self.pos_steps.set(after);
             let moved = (after - before).unsigned_abs();
             self.travel_steps.set(self.travel_steps.get() + moved);
+            return after;
         }
+        before
     }
 
     /// The STEP pin goes to `high` at `now` (pin path).
@@ -235,7 +278,7 @@ impl AxisModel {
             }
         }
         self.timing.set(t);
-        self.move_steps(1);
+        let _ = self.move_steps(1);
     }
 
     fn pos_um(&self) -> f64 {
@@ -260,6 +303,7 @@ impl SimAxis {
             frac: Cell::new(0),
             next_pulse_ns: Cell::new(u64::MAX),
             pulse_recip: Cell::new(0),
+            interval: Cell::new((0, 0, 0)),
             pending_pulses: Cell::new(0),
             dir_positive: Cell::new(false),
             enabled: Cell::new(false),
@@ -300,8 +344,9 @@ impl SimAxis {
     }
 
     /// Carriage position now, steps.
+    #[inline]
     pub fn pos_steps(&self) -> i64 {
-        self.now().pos_steps.get()
+        self.model.pos_at(self.clock.now_ns())
     }
 
     /// Whether DIR points toward the male panel (+) now.
@@ -551,6 +596,39 @@ mod tests {
                 assert_eq!(taken + p.take_pulses() as u64, pulses, "read {i}");
                 taken = pulses;
             }
+        }
+    }
+
+    /// Reads a sample period apart (the control loop's: each interval's pulses from the
+    /// previous interval's quotient and remainder), with rate changes and odd intervals
+    /// between: the pulses of a generator that counts every nanosecond.
+    #[test]
+    fn reads_a_period_apart_see_the_pulses_of_every_nanosecond() {
+        let clk = SimClock::new();
+        let ax = SimAxis::new(MachineConfig::DEFAULT, clk.clone(), 0);
+        let (mut p, mut en, mut dir) = (ax.pulses(), ax.enable_n(), ax.dir());
+        dir.set_high().unwrap();
+        en.set_low().unwrap();
+        let (mut exact, mut rate, mut t, mut taken) = (0u128, 0u32, 0u64, 0u128);
+        for i in 0..30_000u64 {
+            // Mostly 12.5 ms (80 SPS) or 100 ms (10 SPS), sometimes 25.5 µs more (a
+            // readout) or an odd interval.
+            let dt = match i % 97 {
+                0 => 12_525_500,
+                1 => 7_777_777,
+                _ if (i / 3_000) % 2 == 0 => 12_500_000,
+                _ => 100_000_000,
+            };
+            exact += dt as u128 * rate as u128;
+            t += dt;
+            clk.advance_to_ns(t);
+            if i % 1_000 == 0 {
+                rate = [240, 333, 1_000, 7, 80_001, 12_345][(i / 1_000) as usize % 6];
+                p.set_rate_hz(rate);
+            }
+            // The pulses (the carriage stops at the hard stop; the generator does not).
+            taken += p.take_pulses() as u128;
+            assert_eq!(taken, exact / 1_000_000_000, "read {i} at {t} ns");
         }
     }
 
