@@ -25,6 +25,8 @@ mod header;
 #[allow(dead_code)]
 #[path = "update-layout/src/layout.rs"]
 mod layout;
+#[path = "update-layout/src/pem.rs"]
+mod pem;
 
 fn main() {
     // The machine's tuning (guard envelope, hard limit, hold force, nominal
@@ -56,6 +58,7 @@ fn main() {
     }
     println!("cargo:rerun-if-changed=update-layout/src/layout.rs");
     println!("cargo:rerun-if-changed=update-layout/src/header.rs");
+    println!("cargo:rerun-if-changed=update-layout/src/pem.rs");
     println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rerun-if-changed=odometer-guard.x");
     println!("cargo:rerun-if-changed=persist.x");
@@ -162,11 +165,9 @@ fn public_key(raw: &[u8]) -> Option<[u8; 32]> {
         return Some(k);
     }
     let text = std::str::from_utf8(raw).ok()?;
-    let b64: String = text
-        .lines()
-        .filter(|l| !l.starts_with("-----"))
-        .collect::<String>();
-    let der = base64(&b64)?;
+    let mut buf = [0u8; 64];
+    let n = pem::der(text, &mut buf)?;
+    let der = buf.get(..n)?;
     const SPKI: [u8; 12] = [
         0x30, 0x2a, 0x30, 0x05, 0x06, 0x03, 0x2b, 0x65, 0x70, 0x03, 0x21, 0x00,
     ];
@@ -175,28 +176,4 @@ fn public_key(raw: &[u8]) -> Option<[u8; 32]> {
         return None;
     }
     key.try_into().ok()
-}
-
-/// Standard base64 (the PEM body), by hand: a build script needs no crate for 60 bytes.
-fn base64(s: &str) -> Option<Vec<u8>> {
-    let mut out = Vec::new();
-    let (mut acc, mut bits) = (0u32, 0);
-    for c in s.bytes().filter(|c| !c.is_ascii_whitespace()) {
-        let v = match c {
-            b'A'..=b'Z' => c - b'A',
-            b'a'..=b'z' => c - b'a' + 26,
-            b'0'..=b'9' => c - b'0' + 52,
-            b'+' => 62,
-            b'/' => 63,
-            b'=' => break,
-            _ => return None,
-        };
-        acc = (acc << 6) | u32::from(v);
-        bits += 6;
-        if bits >= 8 {
-            bits -= 8;
-            out.push((acc >> bits) as u8);
-        }
-    }
-    Some(out)
 }

@@ -31,32 +31,10 @@ pub fn public_key(seed: &[u8; 32]) -> [u8; 32] {
 }
 
 fn pem_seed(pem: &str) -> Option<[u8; 32]> {
-    let b64: String = pem.lines().filter(|l| !l.starts_with("-----")).collect();
-    let der = base64(&b64)?;
+    let mut buf = [0u8; 64];
+    let n = update_layout::pem::der(pem, &mut buf)?;
+    let der = buf.get(..n)?;
     der.get(der.len().checked_sub(32)?..)?.try_into().ok()
-}
-
-fn base64(s: &str) -> Option<Vec<u8>> {
-    let mut out = Vec::new();
-    let (mut acc, mut bits) = (0u32, 0);
-    for c in s.bytes() {
-        let v = match c {
-            b'A'..=b'Z' => c - b'A',
-            b'a'..=b'z' => c - b'a' + 26,
-            b'0'..=b'9' => c - b'0' + 52,
-            b'+' => 62,
-            b'/' => 63,
-            b'=' => break,
-            _ => return None,
-        };
-        acc = (acc << 6) | u32::from(v);
-        bits += 6;
-        if bits >= 8 {
-            bits -= 8;
-            out.push((acc >> bits) as u8);
-        }
-    }
-    Some(out)
 }
 
 /// Stamp `v` into `image`'s header (its version, the flag "stamped"), as

@@ -16,4 +16,5 @@
 pub mod header;
 pub mod layout;
 pub mod part;
+pub mod pem;
 pub mod state;
