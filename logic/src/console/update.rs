@@ -48,6 +48,11 @@ use crate::update::{marked_record, ImageReport};
 pub const IDLE_MS: u64 = 3_000;
 /// Silence after which the transfer is cancelled, ms.
 pub const SILENCE_MS: u64 = 60_000;
+/// From `update`'s reply to the erase of DFU page 0, ms: the reply (~130 bytes, 11 ms at
+/// 115 200 Bd) leaves the transmit ring first. The erase stalls the CPU for seconds and
+/// the console's transmit interrupt with it: a reply still queued would stop halfway
+/// (the virtual board's lrzsz test saw "ok" and, seconds later, the rest).
+pub const ERASE_AFTER_MS: u64 = 100;
 /// After a refusal: the line must be quiet this long before the reply, ms.
 pub const QUIET_MS: u64 = 1_000;
 /// ...but the reply comes at the latest this long after the refusal, ms.
@@ -103,7 +108,7 @@ mod session {
     use update_layout::layout::{ACTIVE_BASE, PAGE_LEN};
     use update_layout::part::{FlashError, Paged, Sectors, State};
 
-    use super::{why, Outcome, IDLE_MS, QUIET_MAX_MS, QUIET_MS, SILENCE_MS};
+    use super::{why, Outcome, ERASE_AFTER_MS, IDLE_MS, QUIET_MAX_MS, QUIET_MS, SILENCE_MS};
     use crate::hal::ConsoleIo;
     use crate::update::{check, TRAILER_LEN};
     use crate::ymodem::{Abort, Action, Receiver};
@@ -116,8 +121,11 @@ mod session {
     #[derive(Clone, Copy, Debug, PartialEq, Eq)]
     enum Phase {
         Off,
-        /// Started: DFU page 0 is erased at the next poll, before the first 'C'.
-        Erasing,
+        /// Started: DFU page 0 is erased at the first poll at or after `at` (ms), before
+        /// the first 'C'.
+        Erasing {
+            at: u64,
+        },
         Receiving,
         /// Refused: waiting for the line to go quiet (`until`), at the latest `deadline`.
         Quiet {
@@ -166,11 +174,13 @@ mod session {
             self.phase != Phase::Off
         }
 
-        /// Begin: the next poll erases DFU page 0 (seconds; the sender waits for the first
-        /// 'C', which goes out at the poll after).
+        /// Begin: a poll [`ERASE_AFTER_MS`] later erases DFU page 0 (seconds; the sender
+        /// waits for the first 'C', which goes out at the poll after).
         pub fn start(&mut self, now_ms: u64) {
             self.rx = Receiver::new(PAGE_LEN);
-            self.phase = Phase::Erasing;
+            self.phase = Phase::Erasing {
+                at: now_ms.saturating_add(ERASE_AFTER_MS),
+            };
             self.last_rx_ms = now_ms;
             // Never: the first 'C' goes out at once.
             self.last_idle_ms = u64::MAX;
@@ -220,7 +230,8 @@ mod session {
                     self.phase = Phase::Quiet { until, deadline };
                     None
                 }
-                Phase::Erasing => {
+                Phase::Erasing { at } if now_ms < at => None,
+                Phase::Erasing { .. } => {
                     // Before the first 'C', while the sender waits for it (a minute and
                     // more: YMODEM senders wait long for the receiver to start): an erase
                     // of seconds after block 0, while the sender waited for its ACK (lrzsz
