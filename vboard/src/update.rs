@@ -85,6 +85,10 @@ pub struct Transfer {
     pub moved: bool,
     /// The sender was cut off (power cut) after this many acknowledged bytes.
     pub cut_at: Option<usize>,
+    /// The longest pause between two bytes on the line from `update` to the receiver's
+    /// first 'C' (the command's echo and its reply), ms: a reply cut in two by the DFU
+    /// erase (the CPU and the transmit interrupt stalled) pauses for seconds.
+    pub reply_gap_ms: f64,
 }
 
 /// Type `update` and send `file` by YMODEM-1K; `cut_at_bytes`: pull the power once the
@@ -106,6 +110,7 @@ pub fn transfer(
     let mut docked_at: Option<u64> = None;
     let deadline = s.now() + 300 * PS_PER_S;
     let mut text_from: Option<usize> = None;
+    let mut gap_done = false;
     while s.now() < deadline {
         s.run_for(PS_PER_MS)?;
         let m = s.machine();
@@ -115,6 +120,22 @@ pub fn transfer(
             .iter()
             .map(|&(_, b)| b)
             .collect();
+        if !gap_done {
+            // The bytes up to the first 'C' (the reply has no 'C' after "ok: ": its text
+            // is lowercase but for "YMODEM-1K"; the echo's "update" none).
+            let out_bytes = &s.board.soc().console_out[start..];
+            if let Some(c) = out_bytes.iter().position(|&(_, b)| b == b'C').filter(|&c| {
+                out_bytes[..c]
+                    .windows(2)
+                    .any(|w| w[0].1 == b'\r' && w[1].1 == b'\n')
+            }) {
+                gap_done = true;
+                out.reply_gap_ms = out_bytes[..c]
+                    .windows(2)
+                    .map(|w| (w[1].0 - w[0].0) as f64 / PS_PER_MS as f64)
+                    .fold(0.0, f64::max);
+            }
+        }
         seen += bytes.len();
         if !sender.finished() {
             for b in bytes {
@@ -264,6 +285,11 @@ pub fn update(s: &mut Session, checks: &mut Checks) -> Result<(), Halt> {
         "the update verified".into(),
         t.reply.starts_with("ok: update verified: version 0.1.1"),
         format!("{} ({:.1} s)", t.reply, t.seconds),
+    ));
+    checks.push((
+        "update's reply whole on the line before the DFU erase (no pause over 20 ms in it)".into(),
+        t.reply_gap_ms < 20.0,
+        format!("longest pause {:.3} ms", t.reply_gap_ms),
     ));
     checks.push((
         "READY low and nothing moving for the whole update, the DOCK edge refused".into(),
