@@ -51,12 +51,12 @@ impl Refusal {
     /// For the technician: one line.
     pub fn text(self) -> &'static str {
         match self {
-            Self::TooShort => "too short to be an image",
-            Self::NoMagic => "no update trailer (not a signed image, or truncated)",
-            Self::Length => "truncated or padded: the trailer's length is not the file's",
-            Self::NotWords => "the image is not whole words",
-            Self::TooLarge => "the image does not fit the application's partition",
-            Self::NotBootable => "not an application linked behind the bootloader",
+            Self::TooShort => "too short",
+            Self::NoMagic => "no update trailer (unsigned or truncated)",
+            Self::Length => "trailer's length is not the file's",
+            Self::NotWords => "not whole words",
+            Self::TooLarge => "image larger than ACTIVE",
+            Self::NotBootable => "not linked behind the bootloader",
         }
     }
 }

@@ -75,26 +75,25 @@ pub enum Outcome {
 /// The refusal texts (one line each, after `error: update refused: `).
 pub mod why {
     /// The sender cancelled.
-    pub const CANCELLED: &str = "the sender cancelled the transfer";
+    pub const CANCELLED: &str = "cancelled by the sender";
     /// 60 s without a byte.
-    pub const SILENCE: &str = "nothing received for 60 s";
+    pub const SILENCE: &str = "60 s of silence";
     /// Block 0 without a size, or an empty batch.
-    pub const NO_SIZE: &str = "the sender gave no file size (YMODEM block 0)";
+    pub const NO_SIZE: &str = "no file size in YMODEM block 0";
     /// Larger than ACTIVE.
-    pub const TOO_LARGE: &str = "the file is larger than the application's partition";
+    pub const TOO_LARGE: &str = "file larger than ACTIVE";
     /// A block out of sequence.
-    pub const SEQUENCE: &str = "a block out of sequence (transfer broken)";
+    pub const SEQUENCE: &str = "block out of sequence";
     /// EOT before the size.
-    pub const SHORT: &str = "the sender ended the file before its size (truncated)";
+    pub const SHORT: &str = "truncated: EOT before the size";
     /// Flash.
-    pub const FLASH: &str = "flash error writing DFU page 0 (nothing marked)";
+    pub const FLASH: &str = "DFU flash error; nothing marked";
     /// The signature.
-    pub const SIGNATURE: &str =
-        "the signature does not verify with this image's key (unsigned, signed with another key, or changed)";
+    pub const SIGNATURE: &str = "signature does not verify (unsigned, another key's, or changed)";
     /// A trial image (not confirmed) cannot mark another.
-    pub const TRIAL: &str = "this image runs on trial and has not confirmed itself";
+    pub const TRIAL: &str = "this image is on trial, not confirmed";
     /// The state sector could not be read or written.
-    pub const STATE: &str = "flash error in the bootloader's state sector";
+    pub const STATE: &str = "STATE flash error";
 }
 
 /// The session (the board's, and the host tests'; feature `updater`).
