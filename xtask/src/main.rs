@@ -293,7 +293,7 @@ impl Xtask {
         ok
     }
 
-    /// The image without its updater (`--no-default-features`, in `target/lean` so that
+    /// The image without its updater (`--no-default-features`, copied to `target/lean`;
     /// the image every other step runs stays the README's), against issue 20's budget
     /// and issue 21's parts that every image has ([`FIELD_UPDATE_BASE`]).
     fn lean_size(&mut self) -> bool {
