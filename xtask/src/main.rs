@@ -512,51 +512,65 @@ impl Xtask {
                 .position(|l| l == t)
                 .unwrap_or(LONG_FIRST.len())
         });
+        // The tests that talk to a program in wall time, after the lanes, one at a time.
+        let (alone, jobs): (Vec<_>, Vec<_>) = jobs
+            .into_iter()
+            .partition(|(_, t)| ALONE.contains(&t.as_str()));
         let lanes = std::thread::available_parallelism().map_or(1, |n| n.get());
-        println!("{} tests in {lanes} lanes", jobs.len());
+        println!(
+            "{} tests in {lanes} lanes, then {} alone",
+            jobs.len(),
+            alone.len()
+        );
         let queue = std::sync::Mutex::new(jobs.into_iter());
         let results = std::sync::Mutex::new((0u64, 0u64));
         let cwd = self.root.join(dir);
+        let run_one = |exe: &str, test: &str| {
+            let t = Instant::now();
+            let out = Command::new(exe)
+                .args(["--exact", test, "--test-threads", "1"])
+                .current_dir(&cwd)
+                .stdin(Stdio::null())
+                .output();
+            let secs = t.elapsed().as_secs_f64();
+            let name = Path::new(exe)
+                .file_name()
+                .map_or(String::new(), |n| n.to_string_lossy().into_owned());
+            let bin = name.rsplit_once('-').map_or(name.as_str(), |(b, _)| b);
+            let ok = out.as_ref().is_ok_and(|o| o.status.success());
+            println!(
+                "test {bin}::{test} ... {} ({secs:.1} s)",
+                if ok { "ok" } else { "FAILED" }
+            );
+            if !ok {
+                match &out {
+                    Ok(o) => {
+                        print!("{}", String::from_utf8_lossy(&o.stdout));
+                        print!("{}", String::from_utf8_lossy(&o.stderr));
+                    }
+                    Err(e) => println!("xtask: {exe}: {e}"),
+                }
+            }
+            if let Ok(mut r) = results.lock() {
+                if ok {
+                    r.0 += 1;
+                } else {
+                    r.1 += 1;
+                }
+            }
+        };
         std::thread::scope(|s| {
             for _ in 0..lanes {
                 s.spawn(|| loop {
                     let next = queue.lock().map(|mut q| q.next()).ok().flatten();
                     let Some((exe, test)) = next else { break };
-                    let t = Instant::now();
-                    let out = Command::new(&exe)
-                        .args(["--exact", &test, "--test-threads", "1"])
-                        .current_dir(&cwd)
-                        .stdin(Stdio::null())
-                        .output();
-                    let secs = t.elapsed().as_secs_f64();
-                    let name = Path::new(&exe)
-                        .file_name()
-                        .map_or(String::new(), |n| n.to_string_lossy().into_owned());
-                    let bin = name.rsplit_once('-').map_or(name.as_str(), |(b, _)| b);
-                    let ok = out.as_ref().is_ok_and(|o| o.status.success());
-                    println!(
-                        "test {bin}::{test} ... {} ({secs:.1} s)",
-                        if ok { "ok" } else { "FAILED" }
-                    );
-                    if !ok {
-                        match &out {
-                            Ok(o) => {
-                                print!("{}", String::from_utf8_lossy(&o.stdout));
-                                print!("{}", String::from_utf8_lossy(&o.stderr));
-                            }
-                            Err(e) => println!("xtask: {exe}: {e}"),
-                        }
-                    }
-                    if let Ok(mut r) = results.lock() {
-                        if ok {
-                            r.0 += 1;
-                        } else {
-                            r.1 += 1;
-                        }
-                    }
+                    run_one(&exe, &test);
                 });
             }
         });
+        for (exe, test) in &alone {
+            run_one(exe, test);
+        }
         let (passed, failed) = results.into_inner().unwrap_or_default();
         println!("test result (lanes): {passed} passed; {failed} failed");
         self.passed += passed;
@@ -643,6 +657,12 @@ impl Xtask {
 /// prints every test's time), started first so that the lanes end together. Only a
 /// schedule: a name that no longer exists is skipped, a new long test costs only
 /// the balance.
+/// Virtual-board tests that run after the lanes, alone on the machine: they drive the
+/// board from a real program in wall time (lrzsz's `sb` over `serve --pty`, with its own
+/// timeouts), while the board runs in emulated time, slower than real time on a loaded
+/// machine; beside another lane's emulation `sb` timed out on block 0's ACK.
+const ALONE: &[&str] = &["lrzsz_sb_sends_a_signed_image_into_the_board_over_a_pty"];
+
 const LONG_FIRST: &[&str] = &[
     "one_seed_at_cpi_1_and_3_and_the_cache_model_under_flood_meets_the_targets",
     "dock_hold_an_hour_on_the_board_counts_one_cycle_without_wear_while_mated",
