@@ -9,6 +9,7 @@ mod clock;
 mod console;
 mod crash;
 mod delay;
+mod div;
 mod flash;
 mod mem;
 mod modbus;

@@ -2,7 +2,9 @@
 //! result through semihosting; `.ci/run` compares it with the host's. First it checks
 //! the image's own `memcpy` and `__aeabi_memclr` (`src/board/mem.rs`, linked here as in
 //! the image: the odometer's run copies through them too) against a byte-by-byte
-//! reference, every alignment of source and destination and every length to 70.
+//! reference, every alignment of source and destination and every length to 70; then
+//! the image's 64-bit division (`src/board/div.rs`: `__aeabi_uldivmod` and
+//! `__aeabi_ldivmod`, called by every `/` and `%` below) against a bit-by-bit reference.
 #![no_std]
 #![no_main]
 
@@ -11,6 +13,10 @@ use cortex_m_semihosting::{debug, hprintln};
 
 #[path = "../../src/board/mem.rs"]
 mod mem;
+
+#[path = "../../src/board/div.rs"]
+#[allow(dead_code)]
+mod div;
 
 extern "C" {
     fn memcpy(dest: *mut u8, src: *const u8, n: usize) -> *mut u8;
@@ -117,6 +123,76 @@ fn check_mem() -> Result<u32, (&'static str, usize, usize, usize)> {
     Ok(cases)
 }
 
+/// `n / d` and `n % d` one bit at a time (restoring division, shifts and compares only:
+/// nothing here calls the functions under test). `d` > 0.
+fn reference_divmod(n: u64, d: u64) -> (u64, u64) {
+    let (mut q, mut r) = (0u64, 0u64);
+    for i in (0..64).rev() {
+        let carry = r >> 63;
+        r = (r << 1) | ((n >> i) & 1);
+        q <<= 1;
+        if carry != 0 || r >= d {
+            r = r.wrapping_sub(d);
+            q |= 1;
+        }
+    }
+    (q, r)
+}
+
+/// The compiler's `/` and `%` on u64 and i64 (through the image's `__aeabi_uldivmod` and
+/// `__aeabi_ldivmod`) against [`reference_divmod`]: operands of every bit length from a
+/// fixed xorshift sequence, and the edges. The number of cases, or the first wrong one.
+fn check_div() -> Result<u32, (u64, u64)> {
+    use core::hint::black_box;
+    let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+    let mut next = move || {
+        x ^= x >> 12;
+        x ^= x << 25;
+        x ^= x >> 27;
+        x.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    };
+    let mut cases = 0;
+    for i in 0..20_000u32 {
+        let (a, b) = (next(), next());
+        let n = a >> (a % 64);
+        let d = (b >> (b % 64)).max(1);
+        let (n, d) = match i {
+            0 => (u64::MAX, 1),
+            1 => (u64::MAX, u64::MAX),
+            2 => (1 << 63, (1 << 32) + 1),
+            3 => (0xFFFF_FFFF_0000_0000, 0x8000_FFFF),
+            _ => (n, d),
+        };
+        let (q, r) = (black_box(n) / black_box(d), black_box(n) % black_box(d));
+        if (q, r) != reference_divmod(n, d) {
+            return Err((n, d));
+        }
+        // Signed, every sign combination (i64::MIN / -1 aside: Rust panics on it).
+        let (sn, sd) = (n as i64, d as i64);
+        for (a, b) in [(sn, sd), (sn.wrapping_neg(), sd), (sn, sd.wrapping_neg())] {
+            if b == 0 || (a == i64::MIN && b == -1) {
+                continue;
+            }
+            let (uq, ur) = reference_divmod(a.unsigned_abs(), b.unsigned_abs());
+            let want_q = if (a < 0) != (b < 0) {
+                (uq as i64).wrapping_neg()
+            } else {
+                uq as i64
+            };
+            let want_r = if a < 0 {
+                (ur as i64).wrapping_neg()
+            } else {
+                ur as i64
+            };
+            if (black_box(a) / black_box(b), black_box(a) % black_box(b)) != (want_q, want_r) {
+                return Err((a as u64, b as u64));
+            }
+        }
+        cases += 1;
+    }
+    Ok(cases)
+}
+
 #[entry]
 fn main() -> ! {
     match check_mem() {
@@ -129,6 +205,13 @@ fn main() -> ! {
                 d,
                 n
             );
+            debug::exit(debug::EXIT_FAILURE);
+        }
+    }
+    match check_div() {
+        Ok(cases) => hprintln!("64-bit division: {} cases ok", cases),
+        Err((n, d)) => {
+            hprintln!("64-bit division FAILED: {:#x} / {:#x}", n, d);
             debug::exit(debug::EXIT_FAILURE);
         }
     }

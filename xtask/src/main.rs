@@ -407,6 +407,17 @@ impl Xtask {
             println!("FAIL: the image's memcpy or memclr on the Cortex-M4");
             return false;
         }
+        // The image's own 64-bit division (src/board/div.rs), checked next.
+        let div = m4
+            .lines()
+            .find(|l| l.starts_with("64-bit division"))
+            .unwrap_or("64-bit division: no report (hung or failed to build)")
+            .trim();
+        println!("m4:   {div}");
+        if !div.ends_with("cases ok") {
+            println!("FAIL: the image's 64-bit division on the Cortex-M4");
+            return false;
+        }
         let host = host.lines().next().unwrap_or("").trim();
         let m4 = m4
             .lines()
