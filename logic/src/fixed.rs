@@ -18,8 +18,11 @@ pub const ONE_Q32: u64 = 1 << 32;
 /// `n / d` in `u128` (0 for `d` = 0). Out of line, and the only 128-bit division in
 /// the image: Thumb has no 128-bit divide and no library routine for one, so each `/`
 /// on `u128`/`i128` was expanded in place into a ~600-byte shift-and-subtract loop
-/// (issue 20). Operands that fit in 64 bits take the core's 64-bit division; the result
-/// is the same either way.
+/// (issue 20). Operands that fit in 64 bits take the 64-bit division; wider ones the
+/// restoring division below, one quotient bit an iteration from the divisor aligned
+/// under the dividend's top bit: what the compiler's expansion of `/` did, in 392 bytes
+/// less, and fewer instructions (a fit of 30 readings 353 098 -> 250 845 on the M4,
+/// `vboard estimate-cost`). Exact: the result is the operator's.
 #[inline(never)]
 pub const fn div_u128(n: u128, d: u128) -> u128 {
     if d == 0 {
@@ -28,7 +31,24 @@ pub const fn div_u128(n: u128, d: u128) -> u128 {
     if n >> 64 == 0 && d >> 64 == 0 {
         return (n as u64 / d as u64) as u128;
     }
-    n / d
+    if n < d {
+        return 0;
+    }
+    let shift = d.leading_zeros() - n.leading_zeros();
+    let mut d = d << shift;
+    let mut r = n;
+    let mut q = 0;
+    let mut i = 0;
+    while i <= shift {
+        q <<= 1;
+        if r >= d {
+            r -= d;
+            q |= 1;
+        }
+        d >>= 1;
+        i += 1;
+    }
+    q
 }
 
 /// `a / b` in `i128`, truncated toward zero like `/` (0 for `b` = 0; `i128::MIN / -1`
@@ -221,6 +241,27 @@ mod tests {
             assert_eq!(div_i128(a, 0), 0);
         }
         assert_eq!(div_u128(u128::MAX, 3), u128::MAX / 3);
+    }
+
+    #[test]
+    fn wide_division_matches_the_operator_on_random_operands() {
+        // Operands of every bit length (so the loop runs from 1 to 128 times), from a
+        // fixed xorshift sequence.
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut next = move || {
+            x ^= x >> 12;
+            x ^= x << 25;
+            x ^= x >> 27;
+            x.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        };
+        let mut wide = || {
+            let v = (u128::from(next()) << 64) | u128::from(next());
+            v >> (next() % 128)
+        };
+        for _ in 0..300_000 {
+            let (n, d) = (wide(), wide().max(1));
+            assert_eq!(div_u128(n, d), n / d, "{n} / {d}");
+        }
     }
 
     #[test]
