@@ -2028,6 +2028,9 @@ impl<B: Bsp> Controller<B> {
     /// driver off, the lock bridge off, and no Modbus reply on the line. An erase stalls
     /// the CPU with every interrupt masked for up to 2 s: nothing may be moving, held
     /// or talking then.
+    // Out of line (issue 20): every flash writer and the service ask; inlined it was
+    // nine copies (-256 B).
+    #[inline(never)]
     pub fn at_rest(&self) -> bool {
         self.is_quiet()
             && !self.axis_held()
@@ -2038,6 +2041,8 @@ impl<B: Bsp> Controller<B> {
 
     /// Whether a maintenance action may write the flash now ([`Self::at_rest`]), and
     /// why not.
+    // Out of line (issue 20): five maintenance actions ask (-60 B).
+    #[inline(never)]
     fn flash_turn(&self) -> Result<(), MaintError> {
         if !self.is_quiet() {
             Err(MaintError::Moving)
