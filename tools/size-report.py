@@ -9,6 +9,7 @@
     python3 tools/size-report.py --inlined idle       # what was inlined into `...::idle`
     python3 tools/size-report.py --inlined idle --inlined-depth 2   # two inline levels
     python3 tools/size-report.py --baseline old.elf   # per-function differences to another image
+    python3 tools/size-report.py --inline-sites       # functions inlined at several places
 
 Every symbol that occupies flash is counted: code and read-only data (`t T r R`), the
 initial image of `.data` (`d D`, RAM functions included: they are copied from flash),
@@ -21,6 +22,14 @@ crate `a`); `.Lanon.*` constants are grouped as `[anonymous constants]`.
 from the DWARF line tables (`addr2line -i` on every halfword): `self` is the bytes whose
 innermost frame is that function, `incl.` the bytes with it anywhere in the inline stack.
 Needs the release profile's `debug = 2` (it does not change the image).
+
+`--inline-sites` lists the functions the compiler inlined at two or more places, from
+the DWARF inline records (`llvm-dwarfdump`, Debian's `llvm`): the number of copies,
+their bytes, and what one copy fewer of each would save at most. A function with many
+big copies in code built at `s` (what is generic over the board, and what is inlined
+into it) is worth trying `#[inline(never)]` on: issue 20's size pass took 2 372 B that
+way (e.g. `Sequencer::move_deadline`, nine copies, -592 B), and measured each (a small
+function inlined folds into its callers: out of line it can cost bytes instead).
 """
 import argparse
 import collections
@@ -210,6 +219,46 @@ def inlined(elf, pattern, top, level):
         print(f"{fmt_bytes(v)} {100 * v / total:5.1f}  {k}")
 
 
+def inline_sites(elf, top):
+    out = run(["llvm-dwarfdump", "--debug-info", elf]).split("\n")
+    sites = collections.defaultdict(list)
+    i, n = 0, len(out)
+    while i < n:
+        if "DW_TAG_inlined_subroutine" not in out[i]:
+            i += 1
+            continue
+        name, size, lo = None, 0, 0
+        j = i + 1
+        while j < n and "DW_TAG" not in out[j]:
+            t = out[j]
+            m = re.search(r'DW_AT_abstract_origin\s+\(0x[0-9a-f]+ "([^"]+)"', t)
+            if m:
+                name = m.group(1)
+            m = re.search(r"DW_AT_low_pc\s+\((0x[0-9a-f]+)\)", t)
+            if m:
+                lo = int(m.group(1), 16)
+            m = re.search(r"DW_AT_high_pc\s+\((0x[0-9a-f]+)\)", t)
+            if m:
+                size += int(m.group(1), 16) - lo
+            for a, b in re.findall(r"\[(0x[0-9a-f]+), (0x[0-9a-f]+)\)", t):
+                size += int(b, 16) - int(a, 16)
+            j += 1
+        if name:
+            sites[name].append(size)
+        i = j
+    names = [k for k, v in sites.items() if len(v) >= 2]
+    dem = subprocess.run(["c++filt"], input="\n".join(names), capture_output=True, text=True).stdout.split("\n")
+    rows = []
+    for k, d in zip(names, dem):
+        v = sites[k]
+        rows.append((sum(v) - max(v), len(v), sum(v), re.sub(r"::h[0-9a-f]{16}$", "", d or k)))
+    rows.sort(reverse=True)
+    print("functions inlined at two or more places (DWARF inline records)")
+    print(f"{'at most':>8} {'copies':>6} {'bytes':>7}  name  (at most: all bytes but the biggest copy's)")
+    for saved, count, total, name in rows[:top]:
+        print(f"{fmt_bytes(saved)} {count:>6} {fmt_bytes(total)}  {name}")
+
+
 def diff(elf, base, top):
     new = collections.Counter()
     old = collections.Counter()
@@ -235,10 +284,13 @@ def main():
     ap.add_argument("--inlined", metavar="SYMBOL", help="break down the functions whose name contains SYMBOL")
     ap.add_argument("--inlined-depth", type=int, default=1, help="inline level for --inlined (default 1)")
     ap.add_argument("--baseline", metavar="ELF", help="print per-symbol differences to this image")
+    ap.add_argument("--inline-sites", action="store_true", help="functions inlined at two or more places")
     a = ap.parse_args()
     if not os.path.exists(a.elf):
         sys.exit(f"{a.elf}: no such file (cargo build --release --target thumbv7em-none-eabihf)")
-    if a.inlined is not None:
+    if a.inline_sites:
+        inline_sites(a.elf, a.top)
+    elif a.inlined is not None:
         inlined(a.elf, a.inlined, a.top, a.inlined_depth)
     elif a.baseline:
         diff(a.elf, a.baseline, a.top)
