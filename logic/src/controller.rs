@@ -2032,7 +2032,7 @@ impl<B: Bsp> Controller<B> {
     /// or talking then.
     // Out of line (issue 20): every flash writer and the service ask; inlined it was
     // nine copies (-256 B).
-    #[inline(never)]
+    #[cfg_attr(target_os = "none", inline(never))]
     pub fn at_rest(&self) -> bool {
         self.is_quiet()
             && !self.axis_held()
@@ -2044,7 +2044,7 @@ impl<B: Bsp> Controller<B> {
     /// Whether a maintenance action may write the flash now ([`Self::at_rest`]), and
     /// why not.
     // Out of line (issue 20): five maintenance actions ask (-60 B).
-    #[inline(never)]
+    #[cfg_attr(target_os = "none", inline(never))]
     fn flash_turn(&self) -> Result<(), MaintError> {
         if !self.is_quiet() {
             Err(MaintError::Moving)

@@ -402,7 +402,7 @@ impl Odometer {
     /// included (see [`Journal`]).
     // Out of line (issue 20): the boot, the control task after every step and the
     // console read it; inlined it was five copies (-352 B, a call more a step).
-    #[inline(never)]
+    #[cfg_attr(target_os = "none", inline(never))]
     pub fn journal(&self) -> Journal {
         Journal {
             cone_id: self.cone.id,

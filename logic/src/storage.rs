@@ -1073,7 +1073,7 @@ impl<F: NorFlash> RecordLog<F> {
     }
 
     // Out of line (issue 20): three copies (-60 B).
-    #[inline(never)]
+    #[cfg_attr(target_os = "none", inline(never))]
     fn next_sector(&self) -> u32 {
         (self.cur + 1) % self.sectors
     }

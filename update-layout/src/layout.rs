@@ -59,7 +59,7 @@ pub const SRAM: (u32, u32) = (0x2000_0000, 0x2002_0000);
 /// Sector number of `addr`, and the sector's first address and length; `None` outside
 /// the 1 MiB of flash. Out of line (issue 20): the image's flash checks inlined three
 /// copies (-64 B).
-#[inline(never)]
+#[cfg_attr(target_os = "none", inline(never))]
 pub const fn sector_of(addr: u32) -> Option<(u32, u32, u32)> {
     if addr < FLASH_BASE || addr >= FLASH_BASE + 0x10_0000 {
         return None;
