@@ -7,7 +7,7 @@
 //! from SRAM is executed instruction by instruction: at the maximum times the four DFU
 //! erases of `update-bad` alone are 2.7 G instructions) and two seeds of each power cut;
 //! the 200 seeds of each cut at the maximum flash times are the ignored tests:
-//! `cd vboard && cargo test --release --test update -- --ignored` (hours on two cores).
+//! `cd vboard && cargo test --release --test update -- --ignored` (75 min on two cores, 97900f2).
 
 use vboard::periph::flash::FlashTiming;
 use vboard::scene::{run, Options, SceneOptions};
