@@ -389,27 +389,22 @@ impl Xtask {
         );
         let host = host.unwrap_or_default();
         let m4 = m4.unwrap_or_default();
-        // The image's own memcpy and memclr (src/board/mem.rs), checked first on the M4.
-        let mem = m4
-            .lines()
-            .find(|l| l.starts_with("memcpy and memclr:"))
-            .unwrap_or("memcpy and memclr: no report (hung or failed to build)")
-            .trim();
-        println!("m4:   {mem}");
-        if !mem.ends_with("cases ok") {
-            println!("FAIL: the image's memcpy or memclr on the Cortex-M4");
-            return false;
-        }
-        // The image's own 64-bit division (src/board/div.rs), checked next.
-        let div = m4
-            .lines()
-            .find(|l| l.starts_with("64-bit division"))
-            .unwrap_or("64-bit division: no report (hung or failed to build)")
-            .trim();
-        println!("m4:   {div}");
-        if !div.ends_with("cases ok") {
-            println!("FAIL: the image's 64-bit division on the Cortex-M4");
-            return false;
+        // The image's own run-time functions, checked first on the M4, each in one line
+        // qemu-check prints: memcpy and memclr (src/board/mem.rs), then the 64-bit
+        // division (src/board/div.rs).
+        for (report, what) in [
+            ("memcpy and memclr", "memcpy or memclr"),
+            ("64-bit division", "64-bit division"),
+        ] {
+            let line = m4.lines().find(|l| l.starts_with(report)).map_or_else(
+                || format!("{report}: no report (hung or failed to build)"),
+                |l| l.trim().to_string(),
+            );
+            println!("m4:   {line}");
+            if !line.ends_with("cases ok") {
+                println!("FAIL: the image's {what} on the Cortex-M4");
+                return false;
+            }
         }
         let host = host.lines().next().unwrap_or("").trim();
         let m4 = m4
@@ -657,16 +652,16 @@ impl Xtask {
     }
 }
 
-/// The virtual board's longest tests (tens of seconds each; `cargo xtask vboard`
-/// prints every test's time), started first so that the lanes end together. Only a
-/// schedule: a name that no longer exists is skipped, a new long test costs only
-/// the balance.
 /// Virtual-board tests that run after the lanes, alone on the machine: they drive the
 /// board from a real program in wall time (lrzsz's `sb` over `serve --pty`, with its own
 /// timeouts), while the board runs in emulated time, slower than real time on a loaded
 /// machine; beside another lane's emulation `sb` timed out on block 0's ACK.
 const ALONE: &[&str] = &["lrzsz_sb_sends_a_signed_image_into_the_board_over_a_pty"];
 
+/// The virtual board's longest tests (tens of seconds each; `cargo xtask vboard`
+/// prints every test's time), started first so that the lanes end together. Only a
+/// schedule: a name that no longer exists is skipped, a new long test costs only
+/// the balance.
 const LONG_FIRST: &[&str] = &[
     "one_seed_at_cpi_1_and_3_and_the_cache_model_under_flood_meets_the_targets",
     "dock_hold_an_hour_on_the_board_counts_one_cycle_without_wear_while_mated",
