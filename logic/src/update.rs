@@ -16,8 +16,8 @@
 //! 0x0800_0000, or not an image at all, is refused here, before its signature is even
 //! looked at. Nothing here panics on any input.
 
-/// Length of the trailer.
-pub const TRAILER_LEN: usize = 72;
+/// Length of the trailer (the partition map's, which sizes the largest image by it).
+pub const TRAILER_LEN: usize = update_layout::layout::TRAILER_LEN as usize;
 /// Format version 1.
 pub const MAGIC: [u8; 4] = *b"DCS1";
 

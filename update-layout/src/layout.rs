@@ -49,6 +49,17 @@ pub const DFU_PAGES: [u32; 2] = if BUDGET_LAYOUT {
 /// The swap's unit: all of ACTIVE.
 pub const PAGE_LEN: u32 = ACTIVE_LEN;
 
+/// The update file's trailer, bytes: the signature (64), the image's length (4) and
+/// the magic (4), after the image's bytes (docking-logic's `update` module draws the
+/// file; `tools/sign-image.sh` writes it).
+pub const TRAILER_LEN: u32 = 72;
+
+/// The largest application an update can carry, bytes: its file (the image's bytes from
+/// ACTIVE's first address, padded to whole words, then the trailer) is received into DFU
+/// page 0, so the image gets a page less the trailer, not all of ACTIVE (`cargo xtask
+/// size` holds the image to it).
+pub const UPDATE_IMAGE_MAX: u32 = PAGE_LEN - TRAILER_LEN;
+
 /// The lowest and highest (exclusive) address the bootloader may erase or program:
 /// sectors 1-9.
 pub const WRITABLE: (u32, u32) = (STATE_BASE, ODOMETER_BASE);

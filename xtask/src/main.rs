@@ -278,6 +278,7 @@ impl Xtask {
             println!("FAIL: flash {} B is over issue 21's {UPDATE_BUDGET} B for the application behind the bootloader (sectors 2-4)", s.flash());
             ok = false;
         }
+        ok &= self.update_file_fits(&elf);
         ok &= self.lean_size();
         if s.flash() > FLASH_BUDGET {
             println!("FAIL: flash use over budget");
@@ -288,6 +289,42 @@ impl Xtask {
             ok = false;
         }
         ok
+    }
+
+    /// Whether the image can be delivered by a field update: its update file (what
+    /// `tools/sign-image.sh` writes and `update` receives into DFU page 0) is the image's
+    /// bytes as `llvm-objcopy -O binary` gives them (from ACTIVE's first address to the
+    /// end of `.data`'s load image, alignment gaps included), padded to whole words,
+    /// then the trailer. The flash figure counts the sections, not their span, and not
+    /// the trailer: an image under 96 KiB by that figure could link and still be refused
+    /// by `update` ("file larger than ACTIVE").
+    fn update_file_fits(&mut self, elf: &str) -> bool {
+        use update_layout::layout::{PAGE_LEN, TRAILER_LEN, UPDATE_IMAGE_MAX};
+        let bin = format!("{elf}.bin");
+        let objcopy = ["llvm-objcopy", "llvm-objcopy-14"]
+            .into_iter()
+            .find(|c| Command::new(c).arg("--version").output().is_ok());
+        let Some(objcopy) = objcopy else {
+            println!("FAIL: llvm-objcopy not found (apt-get install llvm): the update file's size is not known");
+            return false;
+        };
+        if !self.run(".", objcopy, &["-O", "binary", elf, &bin], &[]) {
+            return false;
+        }
+        let Ok(len) = std::fs::metadata(&bin).map(|m| m.len()) else {
+            println!("FAIL: no {bin}");
+            return false;
+        };
+        let image = len.div_ceil(4) * 4;
+        let file = image + u64::from(TRAILER_LEN);
+        println!(
+            "update file: {image} B image + {TRAILER_LEN} B trailer = {file} / {PAGE_LEN} bytes (DFU page 0; the image at most {UPDATE_IMAGE_MAX} B)"
+        );
+        if image > u64::from(UPDATE_IMAGE_MAX) {
+            println!("FAIL: the update file ({file} B) is larger than DFU page 0 ({PAGE_LEN} B): `update` would refuse this image");
+            return false;
+        }
+        true
     }
 
     /// The image without its updater (`--no-default-features`, copied to `target/lean`;
