@@ -268,6 +268,10 @@ static ESTOP_EDGES: EstopEdges = EstopEdges::new();
 /// Set by the control task when it has events or persistence for the idle loop.
 static IDLE_WORK: AtomicBool = AtomicBool::new(false);
 
+/// This boot is a trial after a field update, not confirmed yet (set at init, cleared by
+/// the service when it confirms: issue 21).
+static TRIAL: AtomicBool = AtomicBool::new(false);
+
 /// How long until TIM2's next update, µs (it counts µs up to ARR; the service keeps
 /// its reserve before it).
 fn tim2_left_us() -> u32 {
@@ -463,29 +467,22 @@ mod app {
         let journals = crash::journal_take();
         let journals: heapless::Vec<_, 2> = journals.into_iter().flatten().collect();
         ctrl.boot(cause, crashed, &journals);
-        // A trial boot after an update (issue 21, docs/update.md): the board came up,
-        // the flash answered and the odometer was restored, the HX711 answered its
-        // power cycle: confirm, or the next reset (the watchdog's included) rolls back.
-        let boot = match flash::OdometerFlash::boot_trial() {
-            flash::BootTrial::Trial => match flash::OdometerFlash::confirm_boot() {
-                Ok(()) => {
-                    defmt::info!("update: trial boot confirmed, this image is kept");
-                    flash::BootTrial::Trial
-                }
-                Err(e) => {
-                    defmt::warn!(
-                        "update: trial boot not confirmed ({}): the next reset rolls back",
-                        e
-                    );
-                    flash::BootTrial::Confirmed
-                }
-            },
-            flash::BootTrial::RolledBack => {
-                defmt::warn!("update: the last update never confirmed and was rolled back");
-                flash::BootTrial::RolledBack
+        // A trial boot after an update (issue 21, docs/update.md): its self-test is the
+        // board come up, the flash answering and the odometer restored (here), then a
+        // live sample from the load cell; the service confirms it at the first rest
+        // after that (`update::confirm_trial`). A reset before (the watchdog's included)
+        // rolls it back.
+        let boot = flash::OdometerFlash::boot_trial();
+        match boot {
+            flash::BootTrial::Trial => {
+                TRIAL.store(true, Ordering::Relaxed);
+                defmt::info!("update: trial boot, confirmed once the load cell answers");
             }
-            flash::BootTrial::Confirmed => flash::BootTrial::Confirmed,
-        };
+            flash::BootTrial::RolledBack => {
+                defmt::warn!("update: the last update never confirmed and was rolled back")
+            }
+            flash::BootTrial::Confirmed => {}
+        }
         // What `version` and Modbus identification say about the images; the image
         // record this boot owes (a confirmation, a rollback).
         let images = update::boot_report(ctrl, boot);
@@ -686,9 +683,10 @@ mod app {
     /// The service (`owner.rs`): idle's jobs and the flash's turn, with the controller,
     /// only in the window after a step; what idle reads published. Same priority as
     /// `control`: neither preempts the other.
-    #[task(binds = SPI1, priority = 1, shared = [ctrl])]
+    #[task(binds = SPI1, priority = 1, shared = [ctrl, kernel])]
     fn service(mut cx: service::Context) {
         let now_low = clock::now_us_low();
+        let kernel = &mut cx.shared.kernel;
         cx.shared.ctrl.lock(|ctrl| {
             let period_us = 1_000_000 / ctrl.sample_rate_sps().max(1);
             if !owner::in_window(now_low, period_us, tim2_left_us()) {
@@ -698,6 +696,16 @@ mod app {
             owner::MAILBOX.serve(ctrl);
             // The flash's turn (at rest only: `Controller::at_rest`).
             ctrl.background();
+            // A trial boot's last check, the load cell's live sample; its confirmation
+            // erases STATE's sector: at rest, as the odometer's erases.
+            if TRIAL.load(Ordering::Relaxed)
+                && ctrl.at_rest()
+                && !ctrl.updating()
+                && kernel.lock(|k| k.sensor_answered())
+            {
+                TRIAL.store(false, Ordering::Relaxed);
+                update::confirm_trial(ctrl);
+            }
             owner::publish_state(ctrl.state());
         });
         IDLE_WORK.store(true, Ordering::Relaxed);

@@ -92,3 +92,64 @@ fn a_record_of_a_kind_this_image_does_not_know_is_skipped_at_boot_and_kept_throu
     let r = boot(&flash);
     assert_eq!(counters(&r), after);
 }
+
+/// Issue 21's trial boot: at boot a trial image reports the image it replaced but
+/// writes no record; only its confirmation (after the self-test, the load cell's live
+/// sample included) records CONFIRMED, which the next boots read back. A trial that
+/// never confirms leaves no record claiming it did.
+#[test]
+fn a_trial_boot_records_its_confirmation_only_when_it_confirms() {
+    use docking_logic::update::{at_boot, confirmed, BootFacts, Version};
+    use update_layout::state::Boot;
+    let v = |patch| Version {
+        major: 0,
+        minor: 1,
+        patch,
+        build: 0,
+    };
+    let flash = SharedFlash::new(SimFlash::stm32f407_odometer());
+    let mut r = boot(&flash);
+    let image_record = |r: &mut Rig| {
+        let mut buf = [0u8; 64];
+        // The record's first byte is its event (logic/src/update.rs, `ImageRecord`).
+        r.ctrl.load_record(odometer::kind::IMAGE, &mut buf)?;
+        Some(buf[0])
+    };
+    let trial = BootFacts {
+        boot: Boot::Trial,
+        running: Some(v(1)),
+        page1: Some(v(0)),
+        test_key: true,
+    };
+    let report = at_boot(&mut r.ctrl, trial);
+    assert_eq!(
+        report.previous,
+        Some(v(0)),
+        "on trial: the image it replaced"
+    );
+    assert_eq!(
+        image_record(&mut r),
+        None,
+        "nothing recorded before the confirmation"
+    );
+
+    confirmed(&mut r.ctrl, &report);
+    assert_eq!(
+        image_record(&mut r),
+        Some(docking_logic::update::event::CONFIRMED)
+    );
+    drop(r);
+
+    // The next boot (STATE says BOOT) reads the confirmation back.
+    let mut r = boot(&flash);
+    let later = at_boot(
+        &mut r.ctrl,
+        BootFacts {
+            boot: Boot::Confirmed,
+            page1: None,
+            ..trial
+        },
+    );
+    assert_eq!(later.previous, Some(v(0)));
+    assert!(!later.rolled_back);
+}

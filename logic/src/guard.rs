@@ -411,6 +411,14 @@ impl SensorMonitor {
         }
     }
 
+    /// Whether the load cell answers: a sample has arrived (since the start or the last
+    /// [`Self::reset`]) and the latest is neither at a rail nor one of a stuck run. A
+    /// trial boot after a field update confirms only then (issue 21: "flash and sensor
+    /// answer"); nothing on the sample path reads it.
+    pub fn answered(&self) -> bool {
+        self.last_code.is_some() && self.rail_count == 0 && self.same_count < STUCK_SAMPLES
+    }
+
     /// Check for a disconnect at `now_us` (no sample for 3 periods).
     pub fn check_timeout(&self, now_us: u64) -> Option<SensorFault> {
         (now_us.saturating_sub(self.last_sample_us) > DISCONNECT_PERIODS * self.period_us)
@@ -588,5 +596,26 @@ mod tests {
             r = m.on_sample(5, i as u64, -8_388_608, 8_388_607);
         }
         assert_eq!(r, Some(SensorFault::Stuck));
+    }
+
+    /// The trial boot's check of the sensor: no answer before a sample, none from a
+    /// sample at a rail or a stuck run, one from a live sample; a reset forgets it.
+    #[test]
+    fn sensor_answers_only_with_a_live_sample() {
+        let (lo, hi) = (-8_388_608, 8_388_607);
+        let mut m = SensorMonitor::new(80, 0);
+        assert!(!m.answered(), "no sample yet");
+        m.on_sample(hi, 62_500, lo, hi);
+        assert!(!m.answered(), "at the rail");
+        m.on_sample(31_000, 75_000, lo, hi);
+        assert!(m.answered(), "a live sample");
+        for i in 1..STUCK_SAMPLES {
+            m.on_sample(31_000, 75_000 + i as u64 * 12_500, lo, hi);
+        }
+        assert!(!m.answered(), "stuck");
+        m.on_sample(31_001, 500_000, lo, hi);
+        assert!(m.answered());
+        m.reset(600_000);
+        assert!(!m.answered(), "forgotten by a reset");
     }
 }

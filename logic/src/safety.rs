@@ -180,6 +180,12 @@ impl<A: LoadCellAdc> SafetyKernel<A> {
         self.sensor.period_us()
     }
 
+    /// Whether the load cell answers ([`SensorMonitor::answered`]) and has not gone
+    /// silent since: the trial boot's check of the sensor (issue 21).
+    pub fn sensor_answered(&self) -> bool {
+        !self.silent_reported && self.sensor.answered()
+    }
+
     /// Single-sample spikes the guard has rejected.
     pub fn spikes_rejected(&self) -> u32 {
         self.guard.spikes_rejected()

@@ -151,9 +151,9 @@ impl ImageReport {
 /// What the board reads at boot, before [`at_boot`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct BootFacts {
-    /// The state record's word on this boot (after a trial's confirmation:
-    /// [`update_layout::state::Boot::Trial`] only when this image runs on trial and
-    /// just confirmed itself).
+    /// The state record's word on this boot: [`update_layout::state::Boot::Trial`]
+    /// when this image runs on trial (it confirms itself later, once its self-test
+    /// has passed: [`confirmed`]).
     pub boot: update_layout::state::Boot,
     /// This image's version (its header).
     pub running: Option<Version>,
@@ -287,9 +287,9 @@ impl core::fmt::Write for Buf<'_> {
     }
 }
 
-/// At boot, after a trial's confirmation: the report, from the facts and the newest
-/// image record, and the record this boot owes (a confirmation; a rollback not yet
-/// recorded). Nothing else is written.
+/// At boot: the report, from the facts and the newest image record, and the record
+/// this boot owes for a rollback not yet recorded. A trial's confirmation comes later
+/// and writes its own record ([`confirmed`]). Nothing else is written.
 pub fn at_boot(ctrl: &mut dyn Machine, facts: BootFacts) -> ImageReport {
     use update_layout::state::Boot;
     let mut r = ImageReport {
@@ -308,12 +308,7 @@ pub fn at_boot(ctrl: &mut dyn Machine, facts: BootFacts) -> ImageReport {
         (Boot::Trial, _) => {
             // Swapped in: DFU page 1 holds the image this one replaced.
             r.previous = facts.page1;
-            Some(ImageRecord::new(
-                event::CONFIRMED,
-                r.running,
-                r.previous,
-                None,
-            ))
+            None
         }
         (_, None) => None,
         (boot, Some(rec)) => {
@@ -337,11 +332,24 @@ pub fn at_boot(ctrl: &mut dyn Machine, facts: BootFacts) -> ImageReport {
         }
     };
     if let Some(rec) = write {
-        if ctrl.store_record(kind::IMAGE, rec.bytes()).is_err() {
-            error!("update: the image record was not written");
-        }
+        store_image_record(ctrl, &rec);
     }
     r
+}
+
+/// The trial boot confirmed (its self-test passed, STATE says BOOT): the record it
+/// owes, of the image `r` reports running and the one it replaced.
+pub fn confirmed(ctrl: &mut dyn Machine, r: &ImageReport) {
+    store_image_record(
+        ctrl,
+        &ImageRecord::new(event::CONFIRMED, r.running, r.previous, None),
+    );
+}
+
+fn store_image_record(ctrl: &mut dyn Machine, rec: &ImageRecord) {
+    if ctrl.store_record(kind::IMAGE, rec.bytes()).is_err() {
+        error!("update: the image record was not written");
+    }
 }
 
 #[cfg(test)]

@@ -269,7 +269,8 @@ impl OdometerFlash {
     /// erase, SWAP with the progress invalid, which the bootloader takes as a revert
     /// with nothing to copy (this image stays); a cut before the invalidation took, SWAP
     /// as it was: not confirmed, rolled back (boot/src/lib.rs tests each case). Only on a trial: a confirmed state is never rewritten (no erase per boot).
-    /// At init only (interrupts masked in the erase, the watchdog fed from SRAM).
+    /// From the flash's owner at rest (the service, `update::confirm_trial`), as the
+    /// odometer's erases: interrupts masked in the erase, the watchdog fed from SRAM.
     pub fn confirm_boot() -> Result<(), OdoFlashError> {
         if Self::boot_trial() != BootTrial::Trial {
             return Ok(());

@@ -173,8 +173,9 @@ impl Sectors for UpdateFlash {
     }
 }
 
-/// At init, after a trial's confirmation: what `version` and Modbus identification
-/// report, and the image record this boot owes (docs/update.md, "Versions").
+/// At init: what `version` and Modbus identification report, and the image record a
+/// rollback owes (a trial's confirmation records itself: [`confirm_trial`];
+/// docs/update.md, "Versions").
 pub fn boot_report(ctrl: &mut Ctrl, boot: update_layout::state::Boot) -> ImageReport {
     let facts = BootFacts {
         boot,
@@ -183,6 +184,23 @@ pub fn boot_report(ctrl: &mut Ctrl, boot: update_layout::state::Boot) -> ImageRe
         test_key: TEST_KEY,
     };
     docking_logic::update::at_boot(ctrl, facts)
+}
+
+/// A trial boot's self-test passed (init, then the load cell's live sample, at rest):
+/// confirm it (STATE says BOOT) and record it. A confirmation that fails leaves the
+/// trial to the next reset's rollback. From the service only (the flash's owner).
+#[inline(never)]
+pub fn confirm_trial(ctrl: &mut Ctrl) {
+    match super::flash::OdometerFlash::confirm_boot() {
+        Ok(()) => {
+            defmt::info!("update: trial boot confirmed, this image is kept");
+            let report = ctrl.images();
+            docking_logic::update::confirmed(ctrl, &report);
+        }
+        Err(_) => defmt::warn!(
+            "update: trial boot not confirmed (flash error): the next reset rolls back"
+        ),
+    }
 }
 
 #[cfg(feature = "updater")]

@@ -663,6 +663,74 @@ fn after_cut(
     Ok(())
 }
 
+/// From the marked flash `m`, the new image's trial boot with its load cell silent (the
+/// HX711 disconnected from power-on): its self-test never sees a live sample, so it
+/// never confirms (STATE stays SWAP however long it runs); the next reset (a pin reset
+/// here, the load cell connected again) rolls it back to the old image, which reports
+/// the rollback, with every counter and reading intact.
+pub fn update_silent_sensor(
+    opts: &Options,
+    m: &Marked,
+    checks: &mut Checks,
+) -> Result<Session, String> {
+    let mut s = from_marked(opts, m)?;
+    s.machine()
+        .hx
+        .set_fault(hil_sim::hx711::Hx711Fault::Disconnected);
+    let deadline = s.now() + 120 * PS_PER_S;
+    s.run_until(deadline, |x| {
+        x.board.log.iter().any(|l| {
+            l.msg
+                .contains("trial boot, confirmed once the load cell answers")
+        })
+    })
+    .map_err(|e| e.to_string())?;
+    let on_trial = which(&s, &m.old, &m.new) == "new";
+    s.run_for(5 * PS_PER_S).map_err(|e| e.to_string())?;
+    let confirmed = s
+        .board
+        .log
+        .iter()
+        .any(|l| l.msg.contains("trial boot confirmed"));
+    checks.push((
+        "silent load cell: the new image on trial, not confirmed after 5 s (STATE says SWAP)"
+            .into(),
+        on_trial && !confirmed && state_word(&s) == update_layout::state::SWAP,
+        format!(
+            "ACTIVE new {on_trial}, confirmed {confirmed}, STATE {:#010x}",
+            state_word(&s)
+        ),
+    ));
+    s.machine().hx.set_fault(hil_sim::hx711::Hx711Fault::None);
+    s.seen.boots = 0;
+    s.board.reset_pin();
+    let booted = run_to_boot(&mut s, 1, 120 * PS_PER_S).map_err(|e| e.to_string())?;
+    let img = which(&s, &m.old, &m.new);
+    checks.push((
+        "silent load cell, then a reset: the old image boots".into(),
+        booted && img == "old",
+        format!("ACTIVE {img}"),
+    ));
+    // The trial latched `sensor_disconnected` (its load cell was silent): one fault
+    // more on record, every other counter and reading as before.
+    let c = counters(&mut s).map_err(|e| e.to_string())?;
+    let faults = |x: &str| json_field(x, "faults").and_then(|f| f.parse::<u64>().ok());
+    let others = |x: &str| x.replacen(&format!("\"faults\":{}", faults(x).unwrap_or(0)), "", 1);
+    checks.push((
+        "silent load cell, then a reset: the trial's one fault on record, every other counter and reading intact".into(),
+        faults(&c) == faults(&m.counters).map(|f| f + 1) && others(&c) == others(&m.counters),
+        format!("before {} after {c}", m.counters),
+    ));
+    let v = version(&mut s).map_err(|e| e.to_string())?;
+    checks.push((
+        "silent load cell: the old image reports the rollback of 0.1.1".into(),
+        json_field(&v, "rolled_back").as_deref() == Some("true")
+            && json_field(&v, "rolled_back_version").as_deref() == Some("0.1.1"),
+        v.trim().to_string(),
+    ));
+    Ok(s)
+}
+
 /// One `update-cut` run of the transfer kind: the power cut once the board has
 /// acknowledged a seeded share of the file.
 pub fn update_cut_transfer(
