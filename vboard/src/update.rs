@@ -665,7 +665,8 @@ fn after_cut(
 
 /// From the marked flash `m`, the new image's trial boot with its load cell silent (the
 /// HX711 disconnected from power-on): its self-test never sees a live sample, so it
-/// never confirms (STATE stays SWAP however long it runs); the next reset (a pin reset
+/// never confirms (STATE stays SWAP however long it runs) and a technician's update
+/// meanwhile is refused (nothing is marked over a trial); the next reset (a pin reset
 /// here, the load cell connected again) rolls it back to the old image, which reports
 /// the rollback, with every counter and reading intact.
 pub fn update_silent_sensor(
@@ -700,6 +701,18 @@ pub fn update_silent_sensor(
             "ACTIVE new {on_trial}, confirmed {confirmed}, STATE {:#010x}",
             state_word(&s)
         ),
+    ));
+    // A technician's update meanwhile: refused at the mark (embassy-boot marks nothing
+    // over a trial), STATE untouched.
+    let entered = s.maint_enter().map_err(|e| e.to_string())?;
+    let file = signed_file(&never_confirming_image(), &test_key_seed());
+    let t = transfer(&mut s, &file, None, None).map_err(|e| e.to_string())?;
+    checks.push((
+        "silent load cell: an update meanwhile refused (on trial), STATE still SWAP".into(),
+        entered
+            && t.reply.contains("this image is on trial, not confirmed")
+            && state_word(&s) == update_layout::state::SWAP,
+        t.reply.trim().to_string(),
     ));
     s.machine().hx.set_fault(hil_sim::hx711::Hx711Fault::None);
     s.seen.boots = 0;
