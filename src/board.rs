@@ -484,7 +484,7 @@ mod app {
             flash::BootTrial::Confirmed => {}
         }
         // What `version` and Modbus identification say about the images; the image
-        // record this boot owes (a confirmation, a rollback).
+        // record a rollback owes (a trial's confirmation writes its own, later).
         let images = update::boot_report(ctrl, boot);
         ctrl.set_images(images);
         crash::journal_write(&ctrl.journal());
