@@ -19,7 +19,7 @@ mod step;
 mod update;
 
 use core::mem::MaybeUninit;
-use core::sync::atomic::{AtomicBool, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 
 use cortex_m_rt::{exception, ExceptionFrame};
 use defmt_rtt as _;
@@ -271,6 +271,13 @@ static IDLE_WORK: AtomicBool = AtomicBool::new(false);
 /// This boot is a trial after a field update, not confirmed yet (set at init, cleared by
 /// the service when it confirms: issue 21).
 static TRIAL: AtomicBool = AtomicBool::new(false);
+
+/// The load cell's code the service saw last while the trial waits ([`NO_CODE`]: none
+/// yet); a different one confirms it.
+static TRIAL_CODE: AtomicI32 = AtomicI32::new(NO_CODE);
+
+/// Not a code: the HX711's are 24-bit.
+const NO_CODE: i32 = i32::MIN;
 
 /// How long until TIM2's next update, µs (it counts µs up to ARR; the service keeps
 /// its reserve before it).
@@ -696,15 +703,18 @@ mod app {
             owner::MAILBOX.serve(ctrl);
             // The flash's turn (at rest only: `Controller::at_rest`).
             ctrl.background();
-            // A trial boot's last check, the load cell's live sample; its confirmation
-            // erases STATE's sector: at rest, as the odometer's erases.
-            if TRIAL.load(Ordering::Relaxed)
-                && ctrl.at_rest()
-                && !ctrl.updating()
-                && kernel.lock(|k| k.sensor_answered())
-            {
-                TRIAL.store(false, Ordering::Relaxed);
-                update::confirm_trial(ctrl);
+            // A trial boot's last check, the load cell answering: two live samples of
+            // different codes (one code alone is what a stuck converter gives too). Its
+            // confirmation erases STATE's sector: at rest, as the odometer's erases.
+            if TRIAL.load(Ordering::Relaxed) && ctrl.at_rest() && !ctrl.updating() {
+                if let Some(code) = kernel.lock(|k| k.answered_code()) {
+                    let before = TRIAL_CODE.load(Ordering::Relaxed);
+                    TRIAL_CODE.store(code, Ordering::Relaxed);
+                    if before != NO_CODE && before != code {
+                        TRIAL.store(false, Ordering::Relaxed);
+                        update::confirm_trial(ctrl);
+                    }
+                }
             }
             owner::publish_state(ctrl.state());
         });

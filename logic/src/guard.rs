@@ -411,12 +411,15 @@ impl SensorMonitor {
         }
     }
 
-    /// Whether the load cell answers: a sample has arrived (since the start or the last
-    /// [`Self::reset`]) and the latest is neither at a rail nor one of a stuck run. A
-    /// trial boot after a field update confirms only then (issue 21: "flash and sensor
-    /// answer"); nothing on the sample path reads it.
-    pub fn answered(&self) -> bool {
-        self.last_code.is_some() && self.rail_count == 0 && self.same_count < STUCK_SAMPLES
+    /// The latest code, if the load cell answers with it: a sample has arrived (since
+    /// the start or the last [`Self::reset`]) and it is neither at a rail nor the end of
+    /// a stuck run. The trial boot after a field update asks (issue 21: "flash and
+    /// sensor answer"), and confirms only on two different codes: one code alone is
+    /// also what a stuck converter, or a readout that reads a constant, gives before
+    /// [`STUCK_SAMPLES`] have passed. Nothing on the sample path reads it.
+    pub fn answered_code(&self) -> Option<i32> {
+        self.last_code
+            .filter(|_| self.rail_count == 0 && self.same_count < STUCK_SAMPLES)
     }
 
     /// Check for a disconnect at `now_us` (no sample for 3 periods).
@@ -599,23 +602,23 @@ mod tests {
     }
 
     /// The trial boot's check of the sensor: no answer before a sample, none from a
-    /// sample at a rail or a stuck run, one from a live sample; a reset forgets it.
+    /// sample at a rail or a stuck run, the code of a live sample; a reset forgets it.
     #[test]
     fn sensor_answers_only_with_a_live_sample() {
         let (lo, hi) = (-8_388_608, 8_388_607);
         let mut m = SensorMonitor::new(80, 0);
-        assert!(!m.answered(), "no sample yet");
+        assert_eq!(m.answered_code(), None, "no sample yet");
         m.on_sample(hi, 62_500, lo, hi);
-        assert!(!m.answered(), "at the rail");
+        assert_eq!(m.answered_code(), None, "at the rail");
         m.on_sample(31_000, 75_000, lo, hi);
-        assert!(m.answered(), "a live sample");
+        assert_eq!(m.answered_code(), Some(31_000), "a live sample");
         for i in 1..STUCK_SAMPLES {
             m.on_sample(31_000, 75_000 + i as u64 * 12_500, lo, hi);
         }
-        assert!(!m.answered(), "stuck");
+        assert_eq!(m.answered_code(), None, "stuck");
         m.on_sample(31_001, 500_000, lo, hi);
-        assert!(m.answered());
+        assert_eq!(m.answered_code(), Some(31_001));
         m.reset(600_000);
-        assert!(!m.answered(), "forgotten by a reset");
+        assert_eq!(m.answered_code(), None, "forgotten by a reset");
     }
 }

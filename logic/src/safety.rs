@@ -180,10 +180,15 @@ impl<A: LoadCellAdc> SafetyKernel<A> {
         self.sensor.period_us()
     }
 
-    /// Whether the load cell answers ([`SensorMonitor::answered`]) and has not gone
-    /// silent since: the trial boot's check of the sensor (issue 21).
-    pub fn sensor_answered(&self) -> bool {
-        !self.silent_reported && self.sensor.answered()
+    /// The latest code, if the load cell answers with it
+    /// ([`SensorMonitor::answered_code`]) and has not gone silent since: the trial
+    /// boot's check of the sensor (issue 21).
+    pub fn answered_code(&self) -> Option<i32> {
+        if self.silent_reported {
+            None
+        } else {
+            self.sensor.answered_code()
+        }
     }
 
     /// Single-sample spikes the guard has rejected.

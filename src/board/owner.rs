@@ -4,7 +4,9 @@
 //! the control step) and `service` (SPI1, a software-pended vector the board does not
 //! otherwise use). Tasks at one priority never preempt each other, so neither ever
 //! waits on a lock held by the other in the middle of its work: RTIC's lock between them
-//! costs nothing. The idle task (console, Modbus, the log) has **no access** to the
+//! costs nothing. (The service also reads the safety kernel's last code, under the
+//! kernel's lock, only at rest while a trial boot waits for its load cell: board.rs.)
+//! The idle task (console, Modbus, the log) has **no access** to the
 //! controller at all — RTIC checks that at compile time.
 //!
 //! Idle reaches the machine through [`Mailbox`], a one-slot request queue: it lends the

@@ -663,21 +663,26 @@ fn after_cut(
     Ok(())
 }
 
-/// From the marked flash `m`, the new image's trial boot with its load cell silent (the
-/// HX711 disconnected from power-on): its self-test never sees a live sample, so it
-/// never confirms (STATE stays SWAP however long it runs) and a technician's update
-/// meanwhile is refused (nothing is marked over a trial); the next reset (a pin reset
-/// here, the load cell connected again) rolls it back to the old image, which reports
-/// the rollback, with every counter and reading intact.
-pub fn update_silent_sensor(
+/// From the marked flash `m`, the new image's trial boot with its load cell dead from
+/// power-on: silent (`Hx711Fault::Disconnected`: no sample ever) or stuck
+/// (`Hx711Fault::Stuck`: every conversion the first one's code). Its self-test never
+/// sees two live samples of different codes, so it never confirms (STATE stays SWAP
+/// however long it runs) and a technician's update meanwhile is refused (nothing is
+/// marked over a trial); the next reset (a pin reset here, the load cell working again)
+/// rolls it back to the old image, which reports the rollback; the trial's sensor fault
+/// is on record, every other counter and reading intact.
+pub fn update_dead_sensor(
     opts: &Options,
     m: &Marked,
+    fault: hil_sim::hx711::Hx711Fault,
     checks: &mut Checks,
 ) -> Result<Session, String> {
+    let what = match fault {
+        hil_sim::hx711::Hx711Fault::Stuck => "stuck load cell",
+        _ => "silent load cell",
+    };
     let mut s = from_marked(opts, m)?;
-    s.machine()
-        .hx
-        .set_fault(hil_sim::hx711::Hx711Fault::Disconnected);
+    s.machine().hx.set_fault(fault);
     let deadline = s.now() + 120 * PS_PER_S;
     s.run_until(deadline, |x| {
         x.board.log.iter().any(|l| {
@@ -694,8 +699,7 @@ pub fn update_silent_sensor(
         .iter()
         .any(|l| l.msg.contains("trial boot confirmed"));
     checks.push((
-        "silent load cell: the new image on trial, not confirmed after 5 s (STATE says SWAP)"
-            .into(),
+        format!("{what}: the new image on trial, not confirmed after 5 s (STATE says SWAP)"),
         on_trial && !confirmed && state_word(&s) == update_layout::state::SWAP,
         format!(
             "ACTIVE new {on_trial}, confirmed {confirmed}, STATE {:#010x}",
@@ -708,7 +712,7 @@ pub fn update_silent_sensor(
     let file = signed_file(&never_confirming_image(), &test_key_seed());
     let t = transfer(&mut s, &file, None, None).map_err(|e| e.to_string())?;
     checks.push((
-        "silent load cell: an update meanwhile refused (on trial), STATE still SWAP".into(),
+        format!("{what}: an update meanwhile refused (on trial), STATE still SWAP"),
         entered
             && t.reply.contains("this image is on trial, not confirmed")
             && state_word(&s) == update_layout::state::SWAP,
@@ -720,23 +724,23 @@ pub fn update_silent_sensor(
     let booted = run_to_boot(&mut s, 1, 120 * PS_PER_S).map_err(|e| e.to_string())?;
     let img = which(&s, &m.old, &m.new);
     checks.push((
-        "silent load cell, then a reset: the old image boots".into(),
+        format!("{what}, then a reset: the old image boots"),
         booted && img == "old",
         format!("ACTIVE {img}"),
     ));
-    // The trial latched `sensor_disconnected` (its load cell was silent): one fault
-    // more on record, every other counter and reading as before.
+    // The trial latched its sensor fault (`sensor_disconnected` or `sensor_stuck`): one
+    // fault more on record, every other counter and reading as before.
     let c = counters(&mut s).map_err(|e| e.to_string())?;
     let faults = |x: &str| json_field(x, "faults").and_then(|f| f.parse::<u64>().ok());
     let others = |x: &str| x.replacen(&format!("\"faults\":{}", faults(x).unwrap_or(0)), "", 1);
     checks.push((
-        "silent load cell, then a reset: the trial's one fault on record, every other counter and reading intact".into(),
+        format!("{what}, then a reset: the trial's one fault on record, every other counter and reading intact"),
         faults(&c) == faults(&m.counters).map(|f| f + 1) && others(&c) == others(&m.counters),
         format!("before {} after {c}", m.counters),
     ));
     let v = version(&mut s).map_err(|e| e.to_string())?;
     checks.push((
-        "silent load cell: the old image reports the rollback of 0.1.1".into(),
+        format!("{what}: the old image reports the rollback of 0.1.1"),
         json_field(&v, "rolled_back").as_deref() == Some("true")
             && json_field(&v, "rolled_back_version").as_deref() == Some("0.1.1"),
         v.trim().to_string(),
