@@ -98,7 +98,7 @@ fn a_record_of_a_kind_this_image_does_not_know_is_skipped_at_boot_and_kept_throu
 /// sample included) records CONFIRMED, which the next boots read back. A trial that
 /// never confirms leaves no record claiming it did.
 #[test]
-fn a_trial_boot_records_its_confirmation_only_when_it_confirms() {
+fn a_trial_writes_no_image_record_at_boot_and_its_confirmation_writes_confirmed() {
     use docking_logic::update::{at_boot, confirmed, BootFacts, Version};
     use update_layout::state::Boot;
     let v = |patch| Version {
