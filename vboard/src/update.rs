@@ -227,6 +227,11 @@ fn counters(s: &mut Session) -> Result<String, Halt> {
     Ok(format!("{}|{}", w.trim(), m.trim()))
 }
 
+/// Whether the firmware has logged a line containing `text` (defmt, over RTT).
+fn logged(s: &Session, text: &str) -> bool {
+    s.board.log.iter().any(|l| l.msg.contains(text))
+}
+
 fn version(s: &mut Session) -> Result<String, Halt> {
     s.console_json("version --json")
 }
@@ -303,11 +308,7 @@ pub fn update(s: &mut Session, checks: &mut Checks) -> Result<(), Halt> {
     ));
     // The restart, the bootloader's swap, the new image's trial boot.
     let booted = run_to_boot(s, boots + 1, 90 * PS_PER_S)?;
-    let confirmed = s
-        .board
-        .log
-        .iter()
-        .any(|l| l.msg.contains("trial boot confirmed"));
+    let confirmed = logged(s, "trial boot confirmed");
     checks.push((
         "the new image booted and confirmed itself".into(),
         booted && confirmed && state_word(s) == update_layout::state::BOOT,
@@ -480,7 +481,7 @@ pub fn update_rollback(s: &mut Session, checks: &mut Checks) -> Result<(), Halt>
         json_field(&v, "version").as_deref() == Some("0.1.0")
             && json_field(&v, "rolled_back").as_deref() == Some("true")
             && json_field(&v, "rolled_back_version").as_deref() == Some("9.9.9")
-            && s.board.log.iter().any(|l| l.msg.contains("rolled back")),
+            && logged(s, "rolled back"),
         v.trim().into(),
     ));
     checks.push((
@@ -685,19 +686,12 @@ pub fn update_dead_sensor(
     s.machine().hx.set_fault(fault);
     let deadline = s.now() + 120 * PS_PER_S;
     s.run_until(deadline, |x| {
-        x.board.log.iter().any(|l| {
-            l.msg
-                .contains("trial boot, confirmed once the load cell answers")
-        })
+        logged(x, "trial boot, confirmed once the load cell answers")
     })
     .map_err(|e| e.to_string())?;
     let on_trial = which(&s, &m.old, &m.new) == "new";
     s.run_for(5 * PS_PER_S).map_err(|e| e.to_string())?;
-    let confirmed = s
-        .board
-        .log
-        .iter()
-        .any(|l| l.msg.contains("trial boot confirmed"));
+    let confirmed = logged(&s, "trial boot confirmed");
     checks.push((
         format!("{what}: the new image on trial, not confirmed after 5 s (STATE says SWAP)"),
         on_trial && !confirmed && state_word(&s) == update_layout::state::SWAP,
