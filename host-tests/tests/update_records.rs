@@ -153,3 +153,86 @@ fn a_trial_writes_no_image_record_at_boot_and_its_confirmation_writes_confirmed(
     assert_eq!(later.previous, Some(v(0)));
     assert!(!later.rolled_back);
 }
+
+/// A power cut between the trial's confirmation (STATE says BOOT) and its CONFIRMED
+/// record: the newest record is still the old image's MARKED one, which names this image.
+/// The next boot, a confirmed one, writes the record the cut lost, naming the image
+/// this one replaced; the boot after it writes nothing more. (Before, the record was
+/// lost and `previous` stayed unknown.) A MARKED record that names another image is
+/// left alone.
+#[test]
+fn a_power_cut_between_the_confirmation_and_its_record_is_recorded_at_the_next_boot() {
+    use docking_logic::update::{at_boot, event, marked_record, BootFacts, Version};
+    use update_layout::state::Boot;
+    let v = |patch| Version {
+        major: 0,
+        minor: 1,
+        patch,
+        build: 0,
+    };
+    let image_record = |r: &mut Rig| {
+        let mut buf = [0u8; 64];
+        let n = r.ctrl.load_record(odometer::kind::IMAGE, &mut buf)?;
+        Some(buf[..n].to_vec())
+    };
+    let flash = SharedFlash::new(SimFlash::stm32f407_odometer());
+    // 0.1.0 marks 0.1.1 for the swap.
+    let mut r = boot(&flash);
+    let old = at_boot(
+        &mut r.ctrl,
+        BootFacts {
+            boot: Boot::Confirmed,
+            running: Some(v(0)),
+            page1: None,
+            test_key: true,
+        },
+    );
+    let marked = marked_record(&old, Some(v(1)));
+    r.ctrl
+        .store_record(odometer::kind::IMAGE, marked.bytes())
+        .unwrap();
+    drop(r);
+
+    // A confirmed boot of another image (0.1.2) leaves 0.1.1's MARKED record alone.
+    let mut r = boot(&flash);
+    let other = at_boot(
+        &mut r.ctrl,
+        BootFacts {
+            boot: Boot::Confirmed,
+            running: Some(v(2)),
+            page1: Some(v(0)),
+            test_key: true,
+        },
+    );
+    assert_eq!(other.previous, None);
+    assert_eq!(image_record(&mut r).unwrap()[0], event::MARKED);
+    drop(r);
+
+    // 0.1.1 confirmed itself; the power went before its record. The next boot:
+    let facts = BootFacts {
+        boot: Boot::Confirmed,
+        running: Some(v(1)),
+        page1: Some(v(0)),
+        test_key: true,
+    };
+    let mut r = boot(&flash);
+    let report = at_boot(&mut r.ctrl, facts);
+    assert_eq!(report.previous, Some(v(0)), "the image it replaced");
+    assert!(!report.rolled_back);
+    let rec = image_record(&mut r).unwrap();
+    assert_eq!(rec[0], event::CONFIRMED, "the record the cut lost, written");
+    drop(r);
+
+    // And the boot after reads it back, writing nothing.
+    let seq = |f: &SharedFlash| {
+        let (mut log, _) = open_log(f.clone()).unwrap();
+        log.latest(odometer::kind::IMAGE).unwrap().map(|r| r.seq)
+    };
+    let written = seq(&flash);
+    let mut r = boot(&flash);
+    let again = at_boot(&mut r.ctrl, facts);
+    assert_eq!(again.previous, Some(v(0)));
+    assert_eq!(image_record(&mut r).unwrap(), rec);
+    drop(r);
+    assert_eq!(seq(&flash), written, "no record more");
+}

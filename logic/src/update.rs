@@ -288,8 +288,10 @@ impl core::fmt::Write for Buf<'_> {
 }
 
 /// At boot: the report, from the facts and the newest image record, and the record
-/// this boot owes for a rollback not yet recorded. A trial's confirmation comes later
-/// and writes its own record ([`confirmed`]). Nothing else is written.
+/// this boot owes: a rollback not yet recorded, or a confirmation whose record a power
+/// cut lost (the trial wrote BOOT to the state, then the power went before
+/// [`confirmed`] wrote CONFIRMED). A trial's confirmation comes later and writes its own
+/// record ([`confirmed`]). Nothing else is written.
 pub fn at_boot(ctrl: &mut dyn Machine, facts: BootFacts) -> ImageReport {
     use update_layout::state::Boot;
     let mut r = ImageReport {
@@ -300,10 +302,12 @@ pub fn at_boot(ctrl: &mut dyn Machine, facts: BootFacts) -> ImageReport {
         rolled_back_version: None,
     };
     let mut buf = [0u8; core::mem::size_of::<ImageRecord>()];
+    let running = facts.running.map(Version::to_bytes);
     let newest = ctrl
         .load_record(kind::IMAGE, &mut buf)
-        .and_then(|n| ImageRecord::parse(buf.get(..n)?))
-        .filter(|rec| facts.running.map(Version::to_bytes) == Some(rec.running));
+        .and_then(|n| ImageRecord::parse(buf.get(..n)?));
+    // The record this boot owes: its event and `other` (with the report's running and
+    // previous images).
     let write = match (facts.boot, newest) {
         (Boot::Trial, _) => {
             // Swapped in: DFU page 1 holds the image this one replaced.
@@ -311,17 +315,26 @@ pub fn at_boot(ctrl: &mut dyn Machine, facts: BootFacts) -> ImageReport {
             None
         }
         (_, None) => None,
+        (boot, Some(rec)) if Some(rec.running) != running => {
+            // Another image's record. If it is the one that marked this image for the
+            // swap and the state says BOOT, the trial confirmed itself and the power
+            // went before its CONFIRMED record was written: it is written now, as the
+            // confirmation would have written it.
+            (boot == Boot::Confirmed
+                && rec.event == event::MARKED
+                && rec.other_known == 1
+                && Some(rec.other) == running)
+                .then(|| {
+                    r.previous = facts.page1;
+                    (event::CONFIRMED, None)
+                })
+        }
         (boot, Some(rec)) => {
             r.previous = rec.previous();
             match (boot, rec.event) {
                 (Boot::RolledBack, event::MARKED) => {
                     r.rolled_back_version = rec.other();
-                    Some(ImageRecord::new(
-                        event::ROLLED_BACK,
-                        r.running,
-                        r.previous,
-                        rec.other(),
-                    ))
+                    Some((event::ROLLED_BACK, rec.other()))
                 }
                 (Boot::RolledBack, event::ROLLED_BACK) => {
                     r.rolled_back_version = rec.other();
@@ -331,8 +344,8 @@ pub fn at_boot(ctrl: &mut dyn Machine, facts: BootFacts) -> ImageReport {
             }
         }
     };
-    if let Some(rec) = write {
-        store_image_record(ctrl, &rec);
+    if let Some((event, other)) = write {
+        store_image_record(ctrl, &ImageRecord::new(event, r.running, r.previous, other));
     }
     r
 }

@@ -646,6 +646,14 @@ fn after_cut(
         booted && want.contains(&img) && v_ok,
         format!("ACTIVE {img}, {}", v.trim()),
     ));
+    if img == "new" {
+        // On trial, from DFU page 1; confirmed, from its CONFIRMED record.
+        checks.push((
+            format!("{what}: the new image names the one it replaced (0.1.0)"),
+            json_field(&v, "previous").as_deref() == Some("0.1.0"),
+            v.trim().to_string(),
+        ));
+    }
     let c = counters(s)?;
     checks.push((
         format!("{what}: every counter and reading intact"),
@@ -845,6 +853,81 @@ pub fn update_cut_marked(
         cut_ps,
     )
     .map_err(|e| e.to_string())?;
+    Ok(s)
+}
+
+/// The event of the newest image record in the odometer's flash (a copy of it is
+/// opened: nothing is written), `None` without one.
+fn image_event(s: &Session) -> Option<u8> {
+    let flash = SharedFlash::new(s.board.soc().world.flash.with(|f| f.clone()));
+    let (mut log, _) = docking_logic::odometer::open_log(flash).ok()?;
+    let rec = log.latest(docking_logic::odometer::kind::IMAGE).ok()??;
+    // The record's first byte is its event (logic/src/update.rs, `ImageRecord`).
+    rec.data().first().copied()
+}
+
+/// From the marked flash `m`, the power cut at the worst instant of the new image's
+/// first boot: the trial has confirmed itself (STATE says BOOT), its CONFIRMED record is
+/// not written yet. The instant is found on one run (to the millisecond), then a second
+/// run from the same flash (the board is deterministic) goes to it in 2 µs steps. The
+/// next boot is a confirmed one; it writes the record the cut lost, so `version` names
+/// the image this one replaced. (Before `at_boot` wrote it, the record was lost and
+/// `previous` stayed unknown for good.)
+pub fn update_cut_at_confirmation(
+    opts: &Options,
+    m: &Marked,
+    checks: &mut Checks,
+) -> Result<Session, String> {
+    const BOOT: u32 = update_layout::state::BOOT;
+    let mut s = from_marked(opts, m)?;
+    let deadline = s.now() + 120 * PS_PER_S;
+    if !s
+        .run_until(deadline, |x| state_word(x) == BOOT)
+        .map_err(|e| e.to_string())?
+    {
+        return Err("the new image never confirmed itself".into());
+    }
+    let confirmed_ps = s.now();
+    let mut s = from_marked(opts, m)?;
+    s.run_until(confirmed_ps.saturating_sub(3 * PS_PER_MS), |_| false)
+        .map_err(|e| e.to_string())?;
+    while state_word(&s) != BOOT && s.now() < confirmed_ps + PS_PER_MS {
+        let next = s.now() + 2 * PS_PER_MS / 1_000;
+        s.board.run_until(next).map_err(|e| e.to_string())?;
+    }
+    let event = image_event(&s);
+    checks.push((
+        format!(
+            "power cut {:.6} s after the restart: STATE says BOOT, the newest image record \
+             is still MARKED",
+            s.now() as f64 / PS_PER_S as f64
+        ),
+        state_word(&s) == BOOT && event == Some(docking_logic::update::event::MARKED),
+        format!(
+            "STATE {:#010x}, newest image record's event {event:?}",
+            state_word(&s)
+        ),
+    ));
+    let cut_ps = s.now();
+    s.board.power_on();
+    s.seen.boots = 0;
+    after_cut(
+        &mut s,
+        &m.old,
+        &m.new,
+        &m.counters,
+        &["new"],
+        checks,
+        "cut before the CONFIRMED record",
+        cut_ps,
+    )
+    .map_err(|e| e.to_string())?;
+    let event = image_event(&s);
+    checks.push((
+        "the next boot wrote the CONFIRMED record the cut lost".into(),
+        event == Some(docking_logic::update::event::CONFIRMED),
+        format!("newest image record's event {event:?}"),
+    ));
     Ok(s)
 }
 
