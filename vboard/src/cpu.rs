@@ -653,6 +653,7 @@ const FRAME_REGS: [RegisterARM; 6] = [
 /// stacked (the stack points outside RAM).
 fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
     let xpsr = reg(uc, RegisterARM::XPSR);
+    let from_exc = (xpsr & 0x1FF) as usize;
     let control = reg(uc, RegisterARM::CONTROL);
     let handler = xpsr & 0x1FF != 0;
     let use_psp = !handler && control & 2 != 0;
@@ -711,9 +712,25 @@ fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
     if let Some(c) = s.exc_entries.get_mut(e as usize) {
         *c += 1;
     }
+    note_entry(s, e, from_exc, Some(ret));
+    Ok(())
+}
+
+/// Exception `e` entered now, from exception `from_exc` (0: thread mode) at `from_pc`
+/// (stacked) or tail-chained after it (`None`): its entry time, and for the sampler's
+/// (EXTI0) the wait since its DOUT edge, with where the longest ended.
+fn note_entry(s: &mut Soc, e: u32, from_exc: usize, from_pc: Option<u32>) {
     let now = s.now();
     s.entry_log.note(e, now);
-    Ok(())
+    if e == exc::IRQ0 + 6 {
+        if let Some(t) = s.exti0_edge_ps {
+            let wait = now.saturating_sub(t);
+            if wait > s.sample_entry_latency.max_ps {
+                s.sample_entry_max_from = (from_exc, from_pc);
+            }
+            s.sample_entry_latency.add(wait);
+        }
+    }
 }
 
 /// Exception return through EXC_RETURN (the engine's interrupt 8): tail-chain or
@@ -750,8 +767,7 @@ fn exception_return(uc: &mut Unicorn<'_, Soc>) {
             if let Some(c) = s.exc_entries.get_mut(n as usize) {
                 *c += 1;
             }
-            let now = s.now();
-            s.entry_log.note(n, now);
+            note_entry(s, n, ipsr as usize, None);
             return;
         }
     }

@@ -932,6 +932,14 @@ pub struct Report {
     pub sample_latency_mean_us: f64,
     /// See [`Report::sample_latency_mean_us`].
     pub sample_latency_max_us: f64,
+    /// For every sample: DOUT falling → its handler entered (what it waited for, apart
+    /// from what it ran), mean and maximum, µs.
+    pub sample_entry_latency_mean_us: f64,
+    /// See [`Report::sample_entry_latency_mean_us`].
+    pub sample_entry_latency_max_us: f64,
+    /// Where the longest of those waits ended: the function the sampler preempted (with
+    /// the exception it ran in), or the exception it was tail-chained after.
+    pub sample_entry_max_at: String,
     /// The longest all-interrupts-masked window while the propulsion was on, µs, and the
     /// function it began in.
     pub masked_max_us: f64,
@@ -1049,7 +1057,7 @@ impl Report {
             })
             .collect();
         format!(
-            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_input_lost\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"modbus_overruns\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{},\"moving_s\":{},\"control_period_max_ms\":{},\"control_entry_latency_max_us\":{},\"control_entry_latency_max_us_all\":{},\"control_late\":{},\"watchdog_feed_gap_max_ms\":{},\"watchdog_feeds_missed\":{},\"estop_edges_moving\":{},\"estop_off_max_us\":{},\"estop_edges_not_stopped\":{}}}",
+            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"sample_entry_latency_mean_us\":{},\"sample_entry_latency_max_us\":{},\"sample_entry_max_at\":\"{}\",\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_input_lost\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"modbus_overruns\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{},\"moving_s\":{},\"control_period_max_ms\":{},\"control_entry_latency_max_us\":{},\"control_entry_latency_max_us_all\":{},\"control_late\":{},\"watchdog_feed_gap_max_ms\":{},\"watchdog_feeds_missed\":{},\"estop_edges_moving\":{},\"estop_off_max_us\":{},\"estop_edges_not_stopped\":{}}}",
             self.reset_count,
             strs(&causes),
             num(self.instructions_per_control_step),
@@ -1058,6 +1066,9 @@ impl Report {
             self.samples_read,
             num(self.sample_latency_mean_us),
             num(self.sample_latency_max_us),
+            num(self.sample_entry_latency_mean_us),
+            num(self.sample_entry_latency_max_us),
+            json_escape(&self.sample_entry_max_at),
             num(self.masked_max_us),
             json_escape(&self.masked_max_at),
             self.samples_missed,
@@ -1131,9 +1142,11 @@ impl Report {
         }
         if self.sample_latency_max_us > 0.0 {
             s += &format!(
-                "\n  every sample while moving, DOUT falling → its handler done: mean {:.1} µs, max {:.1} µs; longest all-masked window {:.1} µs ({})",
+                "\n  every sample while moving, DOUT falling → its handler done: mean {:.1} µs, max {:.1} µs (→ its handler entered: mean {:.2} µs, max {:.2} µs); longest all-masked window {:.1} µs ({})",
                 self.sample_latency_mean_us,
                 self.sample_latency_max_us,
+                self.sample_entry_latency_mean_us,
+                self.sample_entry_latency_max_us,
                 self.masked_max_us,
                 self.masked_max_at
             );
@@ -1580,6 +1593,16 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         samples_read: hx.samples_read,
         sample_latency_mean_us: soc.sample_latency.mean_us(),
         sample_latency_max_us: soc.sample_latency.max_us(),
+        sample_entry_latency_mean_us: soc.sample_entry_latency.mean_us(),
+        sample_entry_latency_max_us: soc.sample_entry_latency.max_us(),
+        sample_entry_max_at: match soc.sample_entry_max_from {
+            (_, _) if soc.sample_entry_latency.count == 0 => "-".to_string(),
+            (exc, Some(pc)) => format!(
+                "{} (exception {exc})",
+                s.board.image.function_at(pc).unwrap_or("-")
+            ),
+            (exc, None) => format!("tail-chained after exception {exc}"),
+        },
         masked_max_us: soc.mask_max.0 as f64 * 1e-6,
         masked_max_at: s
             .board

@@ -288,6 +288,14 @@ pub struct Soc {
     /// handler that served it: what a stop decided in that handler takes at most, for
     /// every sample, not only the one that trips.
     pub sample_latency: LatencyStats,
+    /// The same edges to the *entry* of their handler: what the sampler waited for
+    /// (a higher or equal priority running, BASEPRI at its ceiling, a masked window, the
+    /// exception entry), apart from what it ran.
+    pub sample_entry_latency: LatencyStats,
+    /// Where the longest of those waits ended: the exception running then (0: thread
+    /// mode) and, when the sampler preempted it, the address it preempted (`None`: it
+    /// was tail-chained after that exception).
+    pub sample_entry_max_from: (usize, Option<u32>),
     /// An all-interrupts-masked window in progress (start, the `cpsid` site, the time
     /// asleep so far then).
     pub mask_start: Option<(u64, u32, u64)>,
@@ -376,6 +384,8 @@ impl Soc {
             current_exc: 0,
             exti0_edge_ps: None,
             sample_latency: LatencyStats::default(),
+            sample_entry_latency: LatencyStats::default(),
+            sample_entry_max_from: (0, None),
             mask_start: None,
             mask_max: (0, 0),
             block_at: (0, 0),

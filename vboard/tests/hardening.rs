@@ -47,6 +47,17 @@ fn overload_stop_during_a_flood(rate_sps: u32) {
         "worst DOUT → sample read {} µs",
         r.sample_latency_max_us
     );
+    // And the sampler (EXTI0, under only the E-STOP) waited for nothing but a window
+    // with every interrupt masked: no lower task holds the kernel's lock, or anything
+    // else at the sampler's ceiling, longer. (Allowance: the exception entry, 12 cycles,
+    // the FPU's lazy stacking, and the wake from `wfi`.)
+    assert!(
+        r.sample_entry_latency_max_us <= r.masked_max_us + 0.25,
+        "the sampler waited {} µs to start (ended in {}); longest all-masked window {} µs",
+        r.sample_entry_latency_max_us,
+        r.sample_entry_max_at,
+        r.masked_max_us
+    );
     assert_eq!(r.samples_missed, 0);
     assert!(r.scene.motors_disabled);
     assert!(r.core_faults.is_empty(), "{:?}", r.core_faults);
