@@ -5,6 +5,7 @@
 
 use docking_logic::odometer::{self, open_log};
 use docking_logic::sequencer::State;
+use docking_logic::update::Version;
 use hil_sim::flash::{SharedFlash, SimFlash};
 use hil_sim::rig::{Rig, RigOptions, BOOT_TICKS};
 use host_tests::{run_cycles, run_until};
@@ -21,6 +22,24 @@ fn boot(flash: &SharedFlash) -> Rig {
         r.tick();
     }
     r
+}
+
+/// Version 0.1.`patch`.
+fn v(patch: u16) -> Version {
+    Version {
+        major: 0,
+        minor: 1,
+        patch,
+        build: 0,
+    }
+}
+
+/// The newest image record's bytes (its first is its event: logic/src/update.rs,
+/// `ImageRecord`), `None` without one.
+fn image_record(r: &mut Rig) -> Option<Vec<u8>> {
+    let mut buf = [0u8; 64];
+    let n = r.ctrl.load_record(odometer::kind::IMAGE, &mut buf)?;
+    Some(buf[..n].to_vec())
 }
 
 fn counters(r: &Rig) -> (u32, u32) {
@@ -99,22 +118,10 @@ fn a_record_of_a_kind_this_image_does_not_know_is_skipped_at_boot_and_kept_throu
 /// never confirms leaves no record claiming it did.
 #[test]
 fn a_trial_writes_no_image_record_at_boot_and_its_confirmation_writes_confirmed() {
-    use docking_logic::update::{at_boot, confirmed, BootFacts, Version};
+    use docking_logic::update::{at_boot, confirmed, BootFacts};
     use update_layout::state::Boot;
-    let v = |patch| Version {
-        major: 0,
-        minor: 1,
-        patch,
-        build: 0,
-    };
     let flash = SharedFlash::new(SimFlash::stm32f407_odometer());
     let mut r = boot(&flash);
-    let image_record = |r: &mut Rig| {
-        let mut buf = [0u8; 64];
-        // The record's first byte is its event (logic/src/update.rs, `ImageRecord`).
-        r.ctrl.load_record(odometer::kind::IMAGE, &mut buf)?;
-        Some(buf[0])
-    };
     let trial = BootFacts {
         boot: Boot::Trial,
         running: Some(v(1)),
@@ -135,7 +142,7 @@ fn a_trial_writes_no_image_record_at_boot_and_its_confirmation_writes_confirmed(
 
     confirmed(&mut r.ctrl, &report);
     assert_eq!(
-        image_record(&mut r),
+        image_record(&mut r).map(|rec| rec[0]),
         Some(docking_logic::update::event::CONFIRMED)
     );
     drop(r);
@@ -162,18 +169,14 @@ fn a_trial_writes_no_image_record_at_boot_and_its_confirmation_writes_confirmed(
 /// left alone.
 #[test]
 fn a_power_cut_between_the_confirmation_and_its_record_is_recorded_at_the_next_boot() {
-    use docking_logic::update::{at_boot, event, marked_record, BootFacts, Version};
+    use docking_logic::update::{at_boot, event, marked_record, BootFacts};
     use update_layout::state::Boot;
-    let v = |patch| Version {
-        major: 0,
-        minor: 1,
-        patch,
-        build: 0,
-    };
-    let image_record = |r: &mut Rig| {
-        let mut buf = [0u8; 64];
-        let n = r.ctrl.load_record(odometer::kind::IMAGE, &mut buf)?;
-        Some(buf[..n].to_vec())
+    // 0.1.1's confirmed boots, swapped in over 0.1.0.
+    let facts = BootFacts {
+        boot: Boot::Confirmed,
+        running: Some(v(1)),
+        page1: Some(v(0)),
+        test_key: true,
     };
     let flash = SharedFlash::new(SimFlash::stm32f407_odometer());
     // 0.1.0 marks 0.1.1 for the swap.
@@ -181,10 +184,9 @@ fn a_power_cut_between_the_confirmation_and_its_record_is_recorded_at_the_next_b
     let old = at_boot(
         &mut r.ctrl,
         BootFacts {
-            boot: Boot::Confirmed,
             running: Some(v(0)),
             page1: None,
-            test_key: true,
+            ..facts
         },
     );
     let marked = marked_record(&old, Some(v(1)));
@@ -198,10 +200,8 @@ fn a_power_cut_between_the_confirmation_and_its_record_is_recorded_at_the_next_b
     let other = at_boot(
         &mut r.ctrl,
         BootFacts {
-            boot: Boot::Confirmed,
             running: Some(v(2)),
-            page1: Some(v(0)),
-            test_key: true,
+            ..facts
         },
     );
     assert_eq!(other.previous, None);
@@ -209,12 +209,6 @@ fn a_power_cut_between_the_confirmation_and_its_record_is_recorded_at_the_next_b
     drop(r);
 
     // 0.1.1 confirmed itself; the power went before its record. The next boot:
-    let facts = BootFacts {
-        boot: Boot::Confirmed,
-        running: Some(v(1)),
-        page1: Some(v(0)),
-        test_key: true,
-    };
     let mut r = boot(&flash);
     let report = at_boot(&mut r.ctrl, facts);
     assert_eq!(report.previous, Some(v(0)), "the image it replaced");

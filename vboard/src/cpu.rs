@@ -655,7 +655,7 @@ fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
     let xpsr = reg(uc, RegisterARM::XPSR);
     let from_exc = (xpsr & 0x1FF) as usize;
     let control = reg(uc, RegisterARM::CONTROL);
-    let handler = xpsr & 0x1FF != 0;
+    let handler = from_exc != 0;
     let use_psp = !handler && control & 2 != 0;
     let fpca = control & 4 != 0;
     let sp = reg(

@@ -1707,7 +1707,7 @@ pub struct Prefill {
 /// The newest record of every kind: (seq, payload).
 pub type Newest = Vec<Option<(u32, Vec<u8>)>>;
 
-fn read_newest(flash: &SharedFlash) -> Result<Newest, String> {
+pub(crate) fn read_newest(flash: &SharedFlash) -> Result<Newest, String> {
     let (mut log, _) =
         docking_logic::odometer::open_log(flash.clone()).map_err(|e| format!("open: {e}"))?;
     Ok((0..docking_logic::storage::MAX_KINDS)

@@ -837,33 +837,37 @@ pub fn update_cut_marked(
         true,
         String::new(),
     ));
+    // The swap resumes from its progress words and the new image runs; a cut in its
+    // first instants, before it confirmed itself, rolls it back: either is whole.
+    cut_marked_board(&mut s, m, &["new", "old"], checks, what)?;
+    Ok(s)
+}
+
+/// Cut the power of a board started from the marked flash `m` now, power it on again
+/// and check what boots ([`after_cut`]: one of `want`, whole, with `m`'s counters).
+fn cut_marked_board(
+    s: &mut Session,
+    m: &Marked,
+    want: &[&str],
+    checks: &mut Checks,
+    what: &str,
+) -> Result<(), String> {
     let cut_ps = s.now();
     s.board.power_on();
     s.seen.boots = 0;
-    // The swap resumes from its progress words and the new image runs; a cut in its
-    // first instants, before it confirmed itself, rolls it back: either is whole.
-    after_cut(
-        &mut s,
-        &m.old,
-        &m.new,
-        &m.counters,
-        &["new", "old"],
-        checks,
-        what,
-        cut_ps,
-    )
-    .map_err(|e| e.to_string())?;
-    Ok(s)
+    after_cut(s, &m.old, &m.new, &m.counters, want, checks, what, cut_ps).map_err(|e| e.to_string())
 }
 
 /// The event of the newest image record in the odometer's flash (a copy of it is
 /// opened: nothing is written), `None` without one.
 fn image_event(s: &Session) -> Option<u8> {
-    let flash = SharedFlash::new(s.board.soc().world.flash.with(|f| f.clone()));
-    let (mut log, _) = docking_logic::odometer::open_log(flash).ok()?;
-    let rec = log.latest(docking_logic::odometer::kind::IMAGE).ok()??;
+    let copy = SharedFlash::new(s.board.soc().world.flash.with(|f| f.clone()));
+    let newest = crate::scene::read_newest(&copy).ok()?;
+    let (_, data) = newest
+        .get(usize::from(docking_logic::odometer::kind::IMAGE))?
+        .as_ref()?;
     // The record's first byte is its event (logic/src/update.rs, `ImageRecord`).
-    rec.data().first().copied()
+    data.first().copied()
 }
 
 /// From the marked flash `m`, the power cut at the worst instant of the new image's
@@ -908,20 +912,13 @@ pub fn update_cut_at_confirmation(
             state_word(&s)
         ),
     ));
-    let cut_ps = s.now();
-    s.board.power_on();
-    s.seen.boots = 0;
-    after_cut(
+    cut_marked_board(
         &mut s,
-        &m.old,
-        &m.new,
-        &m.counters,
+        m,
         &["new"],
         checks,
         "cut before the CONFIRMED record",
-        cut_ps,
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     let event = image_event(&s);
     checks.push((
         "the next boot wrote the CONFIRMED record the cut lost".into(),
