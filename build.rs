@@ -96,12 +96,20 @@ fn main() {
 /// hot.x defines `_stext` after `.text.hot`, which lands after `.image_header` (both
 /// are inserted after `.vector_table`; image-header.x's assertions check the header's
 /// place).
+///
+/// The layout is also given to the tools as symbols of the ELF (`__layout_id`,
+/// `__active_start`, `__active_end`): `tools/sign-image.sh` checks the image it signs
+/// against them rather than against a copy of the map.
 fn active_x() -> String {
-    use layout::{ACTIVE_BASE, ACTIVE_LEN};
+    use layout::{ACTIVE_BASE, ACTIVE_LEN, LAYOUT};
     format!(
-        "/* Written by build.rs from update-layout (the partition map): ACTIVE. */\n\
-         MEMORY\n{{\n  FLASH : ORIGIN = {ACTIVE_BASE:#010x}, LENGTH = {}K\n}}\n",
-        ACTIVE_LEN / 1024
+        "/* Written by build.rs from update-layout (the partition map): ACTIVE, layout {}. */\n\
+         MEMORY\n{{\n  FLASH : ORIGIN = {ACTIVE_BASE:#010x}, LENGTH = {}K\n}}\n\
+         __layout_id = {};\n__active_start = ORIGIN(FLASH);\n\
+         __active_end = ORIGIN(FLASH) + LENGTH(FLASH);\n",
+        LAYOUT.name(),
+        ACTIVE_LEN / 1024,
+        LAYOUT.id()
     )
 }
 

@@ -19,7 +19,7 @@ mod step;
 mod update;
 
 use core::mem::MaybeUninit;
-use core::sync::atomic::{AtomicBool, AtomicI32, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU8, Ordering};
 
 use cortex_m_rt::{exception, ExceptionFrame};
 use defmt_rtt as _;
@@ -275,6 +275,9 @@ static TRIAL: AtomicBool = AtomicBool::new(false);
 /// The load cell's code the service saw last while the trial waits ([`NO_CODE`]: none
 /// yet); a different one confirms it.
 static TRIAL_CODE: AtomicI32 = AtomicI32::new(NO_CODE);
+
+/// Attempts at the trial's confirmation so far (`update::CONFIRM_ATTEMPTS` at most).
+static TRIAL_ATTEMPTS: AtomicU8 = AtomicU8::new(0);
 
 /// Not a code: the HX711's are 24-bit.
 const NO_CODE: i32 = i32::MIN;
@@ -702,17 +705,28 @@ mod app {
             owner::apply_published(ctrl);
             owner::MAILBOX.serve(ctrl);
             // The flash's turn (at rest only: `Controller::at_rest`).
+            let erases = OdometerFlash::erases();
             ctrl.background();
             // A trial boot's last check, the load cell answering: two live samples of
             // different codes (one code alone is what a stuck converter gives too). Its
-            // confirmation erases STATE's sector: at rest, as the odometer's erases.
-            if TRIAL.load(Ordering::Relaxed) && ctrl.at_rest() && !ctrl.updating() {
+            // confirmation erases STATE's sector: at rest, as the odometer's erases, and
+            // not in a window that erased already (one erase a window: the control
+            // step's deadline and the watchdog keep their margins; issue 31). A failed
+            // attempt is tried again at a later rest, up to `update::CONFIRM_ATTEMPTS`.
+            if TRIAL.load(Ordering::Relaxed)
+                && ctrl.at_rest()
+                && !ctrl.updating()
+                && OdometerFlash::erases() == erases
+            {
                 if let Some(code) = kernel.lock(|k| k.answered_code()) {
                     let before = TRIAL_CODE.load(Ordering::Relaxed);
                     TRIAL_CODE.store(code, Ordering::Relaxed);
                     if before != NO_CODE && before != code {
-                        TRIAL.store(false, Ordering::Relaxed);
-                        update::confirm_trial(ctrl);
+                        let attempt = TRIAL_ATTEMPTS.load(Ordering::Relaxed).saturating_add(1);
+                        TRIAL_ATTEMPTS.store(attempt, Ordering::Relaxed);
+                        if update::confirm_trial(ctrl, attempt) {
+                            TRIAL.store(false, Ordering::Relaxed);
+                        }
                     }
                 }
             }

@@ -4,29 +4,22 @@
 //! ([`prepare`], [`bootable`]). The binary (`src/main.rs`) adds the board: the safe
 //! outputs, the register-level flash driver and the jump.
 //!
-//! # Why embassy-boot, and why sector-mapped partitions
+//! # Why embassy-boot, and its pages
 //!
 //! embassy-boot 0.7's swap is power-fail safe (docs/update.md, "The state record"):
 //! each copy is recorded by one word program after it completes and is redone whole
 //! from a source not yet overwritten. Its unit, `PAGE_SIZE`, must divide both ACTIVE and
-//! DFU and be a multiple of both erase sizes; the F407's mixed 16/64/128 KiB sectors
-//! give ACTIVE right behind the bootloader no uniform erase size. So ACTIVE is handed to
-//! it as **one page** and DFU as two pages laid in whole 128 KiB sectors ([`part`]); the
-//! copy itself goes through a 4 KiB buffer (embassy-boot chunks a page by the buffer's
-//! length: no 128 KiB RAM buffer is needed).
+//! DFU and be a multiple of both erase sizes. In layout C every page is one 128 KiB
+//! sector: ACTIVE two (sectors 5-6), DFU three (7-9) ([`part`]); the copy goes through a
+//! 4 KiB buffer (embassy-boot chunks a page by the buffer's length: no 128 KiB RAM
+//! buffer is needed). A page already blank is not erased again and erased words are
+//! verified rather than programmed ([`part`]'s module doc): the swap costs what the
+//! image is, not what ACTIVE is.
 //!
 //! # The state record (sector 1; embassy-boot 0.7's format, version 1 here)
 //!
-//! ```text
-//!  offset  0        4        8        12       16       20       24 ... 16 KiB
-//!         +--------+--------+--------+--------+--------+--------+-----------+
-//!         | magic  | valid  | swap 0 | swap 1 | rev. 0 | rev. 1 |  erased   |
-//!         +--------+--------+--------+--------+--------+--------+-----------+
-//!  magic: F0F0F0F0 SWAP, D0D0D0D0 BOOT, C0C0C0C0 REVERT; anything else = BOOT
-//!  valid: FFFFFFFF = progress words valid; anything else = "every step done"
-//!  swap 0: ACTIVE -> DFU page 1  swap 1: DFU page 0 -> ACTIVE   (00000000 = done)
-//!  rev. 0: ACTIVE -> DFU page 0  rev. 1: DFU page 1 -> ACTIVE
-//! ```
+//! `update_layout::state` draws it: the magic, the progress-valid word, then one
+//! progress word per page copy (`2 + 4 × pages` words: 10 in layout C).
 //!
 //! Nothing read from flash can make this code panic: embassy-boot's assertions are on
 //! the partitions' sizes (fixed, checked by the tests), every address is checked before
@@ -85,7 +78,10 @@ pub fn bootable<F: Sectors>(flash: &RefCell<F>) -> Option<(u32, u32)> {
 #[allow(clippy::unwrap_used, clippy::indexing_slicing, clippy::panic)]
 mod tests {
     use super::*;
-    use crate::layout::{sector_of, DFU_PAGES, FLASH_BASE, PAGE_LEN, STATE_BASE, WRITABLE};
+    use crate::layout::ACTIVE_PAGES;
+    use crate::layout::{
+        bootloader_may_write, sector_of, DFU_PAGES, FLASH_BASE, PAGE_LEN, STATE_BASE,
+    };
     use crate::part::FlashError;
     use embassy_boot::BlockingFirmwareState;
 
@@ -98,6 +94,9 @@ mod tests {
         ops: u64,
         cut_at: Option<u64>,
         seed: u64,
+        /// Sectors erased and words programmed, whole operations only.
+        erases: u32,
+        words: u32,
     }
 
     impl Sim {
@@ -107,6 +106,8 @@ mod tests {
                 ops: 0,
                 cut_at: None,
                 seed: 0x1234_5678,
+                erases: 0,
+                words: 0,
             }
         }
         fn noise(&mut self) -> u8 {
@@ -149,11 +150,9 @@ mod tests {
         fn erase_sector(&mut self, base: u32) -> Result<(), FlashError> {
             let (_, start, len) = sector_of(base).unwrap();
             assert_eq!(start, base);
-            assert!(
-                base >= WRITABLE.0 && base + len <= WRITABLE.1,
-                "erase of {base:#x}"
-            );
+            assert!(bootloader_may_write(base, len), "erase of {base:#x}");
             let whole = self.tick()?;
+            self.erases += u32::from(whole);
             let i = Self::at(base);
             let half = if whole { len } else { len / 2 };
             self.mem[i..i + half as usize].fill(0xFF);
@@ -167,9 +166,10 @@ mod tests {
             Ok(())
         }
         fn program(&mut self, addr: u32, data: &[u8]) -> Result<(), FlashError> {
-            assert!(addr >= WRITABLE.0 && addr + data.len() as u32 <= WRITABLE.1);
+            assert!(bootloader_may_write(addr, data.len() as u32));
             assert_eq!(addr % 4, 0);
             let whole = self.tick()?;
+            self.words += u32::from(whole) * (data.len() / 4) as u32;
             let n = if whole {
                 data.len()
             } else {
@@ -187,9 +187,9 @@ mod tests {
         }
     }
 
-    /// An image of `PAGE_LEN` bytes: a vector table (SP, reset vector) then a pattern.
+    /// An image of all of ACTIVE: a vector table (SP, reset vector) then a pattern.
     fn image(tag: u8) -> Vec<u8> {
-        let mut v: Vec<u8> = (0..PAGE_LEN)
+        let mut v: Vec<u8> = (0..ACTIVE_LEN)
             .map(|i| (i as u8) ^ tag ^ (i >> 9) as u8)
             .collect();
         v[..4].copy_from_slice(&0x2002_0000u32.to_le_bytes());
@@ -262,22 +262,29 @@ mod tests {
 
     #[test]
     fn a_power_cut_at_any_operation_of_the_swap_or_the_revert_leaves_an_image_whole() {
-        let (a, b) = (image(1), image(2));
+        // Images of all of ACTIVE, and images under a page (whose blank pages the swap
+        // skips: the skipped erases and the verified erased words under cuts too).
+        for (a, b) in [(image(1), image(2)), (small(1, 100_000), small(2, 90_000))] {
+            cuts_in_swap_and_revert(&a, &b);
+        }
+    }
+
+    fn cuts_in_swap_and_revert(a: &[u8], b: &[u8]) {
         // How many flash operations the swap and the revert take.
-        let flash = with_update(&a, &b);
+        let flash = with_update(a, b);
         boot(&flash, None);
         let swap_ops = flash.borrow().ops;
         boot(&flash, None);
         let revert_ops = flash.borrow().ops;
         assert!(swap_ops > 40 && revert_ops > 40, "{swap_ops} {revert_ops}");
         for cut in 1..=swap_ops {
-            let flash = with_update(&a, &b);
+            let flash = with_update(a, b);
             // Cut during the swap, then boots run it to the end: the new image.
             assert_eq!(boot(&flash, Some(cut)), BootState::Swap);
             assert!(active(&flash) == b, "cut at swap operation {cut}");
         }
         for cut in 1..=revert_ops {
-            let flash = with_update(&a, &b);
+            let flash = with_update(a, b);
             boot(&flash, None);
             boot(&flash, Some(cut));
             assert!(active(&flash) == a, "cut at revert operation {cut}");
@@ -334,6 +341,63 @@ mod tests {
             boot(&flash, None);
             assert!(active(&flash) == kept, "cut at confirming operation {cut}");
         }
+    }
+
+    /// `len` bytes of `image(tag)`, the rest of ACTIVE erased.
+    fn small(tag: u8, len: usize) -> Vec<u8> {
+        let mut v = image(tag);
+        v[len..].fill(0xFF);
+        v
+    }
+
+    #[test]
+    fn a_small_image_swaps_and_reverts_with_the_erases_and_programs_it_needs() {
+        // As the updater leaves the board: the running image (100 000 B) in ACTIVE, the
+        // new one (90 000 B) received into DFU page 0, DFU page 1 erased by the
+        // receiver, DFU page 2 holding the last swap's ACTIVE page 1 (blank: that image
+        // was under a page too).
+        let (a, b) = (small(1, 100_000), small(2, 90_000));
+        let flash = with_update(&a, &b);
+        flash.borrow_mut().put(DFU_PAGES[1], &[0u8; 64]);
+        flash.borrow_mut().erase_sector(DFU_PAGES[1]).unwrap();
+        let (e0, w0) = (flash.borrow().erases, flash.borrow().words);
+        assert_eq!(boot(&flash, None), BootState::Swap);
+        assert!(active(&flash) == b);
+        let (erases, words) = (flash.borrow().erases - e0, flash.borrow().words - w0);
+        // ACTIVE page 1 and DFU pages 1 and 2 read blank: DFU page 1 is erased all the
+        // same before the old image is programmed into it (an erase cut short reads
+        // blank too), ACTIVE page 0 because it holds the old image; ACTIVE page 1 and
+        // DFU page 2 receive erased words only and are not erased. The old image's words
+        // into DFU page 1, the new one's into ACTIVE, and 4 of the 10 progress words.
+        assert_eq!(erases, 2, "the swap erased {erases} sectors");
+        assert_eq!(
+            words,
+            (100_000 + 90_000) / 4 + 4,
+            "the swap programmed {words} words"
+        );
+        // The revert: DFU page 0 (the new image) and ACTIVE page 0 and DFU page 1 (the
+        // old image, moved back) are erased; ACTIVE page 1 stays blank.
+        let (e0, w0) = (flash.borrow().erases, flash.borrow().words);
+        assert_eq!(boot(&flash, None), BootState::Swap);
+        assert!(active(&flash) == a, "rolled back");
+        let (erases, words) = (flash.borrow().erases - e0, flash.borrow().words - w0);
+        assert_eq!(
+            erases,
+            3 + 1,
+            "the revert erased {erases} sectors (with STATE's)"
+        );
+        // Both images once, 4 progress words, the invalidation and REVERT's magic.
+        assert_eq!(
+            words,
+            (90_000 + 100_000) / 4 + 4 + 2,
+            "the revert programmed {words} words"
+        );
+        // The pages outside the images stay erased.
+        assert!(flash
+            .borrow()
+            .get(ACTIVE_PAGES[1], PAGE_LEN)
+            .iter()
+            .all(|&x| x == 0xFF));
     }
 
     #[test]

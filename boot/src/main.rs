@@ -1,11 +1,14 @@
 //! The bootloader image (sector 0): safe outputs, swap or revert as the state sector
-//! asks, then the application at `0x0800_8000` (docs/update.md).
+//! asks, then the application at ACTIVE's first address (`0x0802_0000` in layout C;
+//! docs/update.md).
 //!
 //! 1. `__pre_init`, its first instructions, before any RAM is set up: every motor and
 //!    PLC output to its safe level (EN high, STEP low, lock IN1/IN2 low, READY, MATED,
 //!    FAULT, MAINTENANCE low), the same stores as the application's `__pre_init`.
 //! 2. [`docking_boot::prepare`]: embassy-boot's swap or revert, through [`Flash`], a
-//!    register-level driver that refuses anything outside sectors 1-9.
+//!    register-level driver that refuses anything but STATE, ACTIVE and DFU
+//!    (`layout::bootloader_may_write`: never its own sector, the project's sectors 2-4
+//!    or the odometer's).
 //! 3. ACTIVE's vector table checked ([`docking_boot::bootable`]); VTOR set; the
 //!    application's stack pointer loaded and its reset vector taken.
 //!
@@ -25,7 +28,7 @@ mod board {
     use core::cell::RefCell;
 
     use cortex_m_rt::entry;
-    use docking_boot::layout::{sector_of, ACTIVE_BASE, WRITABLE};
+    use docking_boot::layout::{bootloader_may_write, sector_of, ACTIVE_BASE};
     use docking_boot::part::{FlashError, Sectors};
     use docking_boot::{bootable, prepare, Buf, BUF_LEN};
 
@@ -136,8 +139,8 @@ mod board {
         feed();
     }
 
-    /// The flash, sectors 1-9 writable (register level, PSIZE ×32: the board runs at
-    /// 3.3 V).
+    /// The flash, STATE, ACTIVE and DFU writable (register level, PSIZE ×32: the board
+    /// runs at 3.3 V).
     pub struct Flash;
 
     impl Flash {
@@ -183,8 +186,7 @@ mod board {
     }
 
     fn in_writable(addr: u32, len: usize) -> bool {
-        let end = addr as u64 + len as u64;
-        addr >= WRITABLE.0 && end <= WRITABLE.1 as u64
+        u32::try_from(len).is_ok_and(|len| bootloader_may_write(addr, len))
     }
 
     impl Sectors for Flash {
@@ -232,7 +234,7 @@ mod board {
                 let [a, b, c, d] = [w[0], w[1], w[2], w[3]];
                 let v = u32::from_le_bytes([a, b, c, d]);
                 let p = (addr as usize + 4 * i) as *mut u32;
-                // SAFETY: a word inside sectors 1-9 (checked above), PG set: a program.
+                // SAFETY: a word inside STATE, ACTIVE or DFU (checked above), PG set: a program.
                 unsafe { core::ptr::write_volatile(p, v) };
                 cortex_m::asm::dsb();
                 r = self.wait();

@@ -75,12 +75,9 @@ pub fn signed_file(image: &[u8], seed: &[u8; 32]) -> Vec<u8> {
     f
 }
 
-const SOH: u8 = 0x01;
-const STX: u8 = 0x02;
-const EOT: u8 = 0x04;
-const ACK: u8 = 0x06;
-const NAK: u8 = 0x15;
-const CAN: u8 = 0x18;
+// The protocol's bytes are the receiver's (one definition); the CRC below is the
+// sender's own, so that a mistake in the receiver's table is not also the sender's.
+use docking_logic::ymodem::{ACK, C, CAN, EOT, NAK, SOH, STX};
 
 /// Where the sender stands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -195,7 +192,7 @@ impl YmodemSender {
         }
         self.can = false;
         match (self.state, b) {
-            (SendState::Start, b'C') => {
+            (SendState::Start, C) => {
                 self.state = SendState::Header;
                 self.header()
             }
@@ -203,11 +200,11 @@ impl YmodemSender {
                 self.state = SendState::HeaderC;
                 Vec::new()
             }
-            (SendState::Header, NAK | b'C') => {
+            (SendState::Header, NAK | C) => {
                 self.retries += 1;
                 self.header()
             }
-            (SendState::HeaderC, b'C') => {
+            (SendState::HeaderC, C) => {
                 if self.blocks() == 0 {
                     self.state = SendState::Eot(1);
                     return vec![EOT];
@@ -236,7 +233,7 @@ impl YmodemSender {
                 self.state = SendState::Close;
                 Vec::new()
             }
-            (SendState::Close, b'C') => Self::packet(0, &[], 128, 0),
+            (SendState::Close, C) => Self::packet(0, &[], 128, 0),
             (SendState::Close, ACK) => {
                 self.state = SendState::Done;
                 Vec::new()

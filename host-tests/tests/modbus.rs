@@ -323,14 +323,16 @@ fn device_identification_basic_regular_extended_and_individual() {
 
     let extended = ask(&mut r, UNIT, &[0x2B, 0x0E, 0x03, 0x00]).unwrap();
     let (_, _, objs) = objects(&extended);
-    // The serial, then the images (issue 21): the simulator has no image header.
+    // The serial, then the images (issue 21; the trial, issue 31): the simulator has
+    // no image header and runs no trial.
     assert_eq!(
-        objs[objs.len() - 4..],
+        objs[objs.len() - 5..],
         [
             (0x80, SERIAL.to_owned()),
             (0x81, "none".to_owned()),
             (0x82, "unknown".to_owned()),
-            (0x83, "no".to_owned())
+            (0x83, "no".to_owned()),
+            (0x84, "no".to_owned())
         ]
     );
 
@@ -345,7 +347,7 @@ fn device_identification_basic_regular_extended_and_individual() {
     assert_eq!(objs, [(0x80, SERIAL.to_owned())]);
     let (_, _, objs) = objects(&ask(&mut r, UNIT, &[0x2B, 0x0E, 0x04, 0x02]).unwrap());
     assert_eq!(objs, [(0x02, version.to_owned())]);
-    for obj in [0x03, 0x06, 0x7F, 0x84, 0xFF] {
+    for obj in [0x03, 0x06, 0x7F, 0x85, 0xFF] {
         assert_eq!(exception(&mut r, &[0x2B, 0x0E, 0x04, obj]), 2, "{obj:#x}");
     }
     // Bad read device id code: 3; another MEI type: 1; wrong length: 3.

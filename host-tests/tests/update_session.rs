@@ -2,7 +2,9 @@
 //! YMODEM-1K receiver, the trailer check, embassy-boot's `verify_and_mark_updated` with
 //! salty — over a simulated flash laid out as the board's (DFU pages, STATE): a signed
 //! image is marked for the swap; a corrupted, truncated, unsigned or wrongly signed one
-//! is refused and STATE is not touched. (On the image itself: vboard's `update` scenes.)
+//! is refused and STATE is not touched; one for another layout is refused before
+//! anything is erased; DFU is erased page by page as the file reaches it. (On the image
+//! itself: vboard's `update` scenes.)
 
 use std::cell::RefCell;
 use std::collections::VecDeque;
@@ -10,7 +12,11 @@ use std::collections::VecDeque;
 use docking_logic::console::update::{why, Outcome, UpdateSession};
 use docking_logic::hal::ConsoleIo;
 use hil_sim::update::{other_key_seed, public_key, signed_file, test_key_seed, YmodemSender};
-use update_layout::layout::{ACTIVE_BASE, DFU_PAGES, FLASH_BASE, STATE_BASE, STATE_LEN};
+use update_layout::header::{Header, Version, HEADER_OFFSET};
+use update_layout::layout::{
+    Layout, ACTIVE_BASE, ACTIVE_LEN, DFU_BASE, DFU_PAGES, FLASH_BASE, LAYOUT, PAGE_LEN, STATE_BASE,
+    STATE_LEN,
+};
 use update_layout::part::{FlashError, Sectors};
 
 /// The 1 MiB of flash, erased; counts what is written where.
@@ -18,6 +24,27 @@ struct Flash {
     mem: Vec<u8>,
     state_writes: u32,
     dfu_erases: u32,
+    /// The session's poll count at each DFU erase.
+    erase_polls: Vec<u32>,
+    polls: u32,
+}
+
+impl Flash {
+    fn new() -> Self {
+        Self {
+            mem: vec![0xFF; 0x10_0000],
+            state_writes: 0,
+            dfu_erases: 0,
+            erase_polls: Vec::new(),
+            polls: 0,
+        }
+    }
+}
+
+/// Where the updater may write: the DFU pages an update file fills, and STATE.
+fn updater_may_write(addr: u32, len: u32) -> bool {
+    (addr >= DFU_BASE && addr + len <= DFU_BASE + ACTIVE_LEN)
+        || (addr >= STATE_BASE && addr + len <= STATE_BASE + STATE_LEN)
 }
 
 impl Sectors for Flash {
@@ -29,13 +56,14 @@ impl Sectors for Flash {
     fn erase_sector(&mut self, base: u32) -> Result<(), FlashError> {
         let (_, start, len) = update_layout::layout::sector_of(base).unwrap();
         assert!(
-            base == STATE_BASE || (DFU_PAGES[0]..DFU_PAGES[1]).contains(&base),
+            start == base && updater_may_write(base, len),
             "the updater erased sector {base:#x}"
         );
         if base == STATE_BASE {
             self.state_writes += 1;
         } else {
             self.dfu_erases += 1;
+            self.erase_polls.push(self.polls);
         }
         let i = (start - FLASH_BASE) as usize;
         self.mem[i..i + len as usize].fill(0xFF);
@@ -43,8 +71,7 @@ impl Sectors for Flash {
     }
     fn program(&mut self, addr: u32, data: &[u8]) -> Result<(), FlashError> {
         assert!(
-            (STATE_BASE..STATE_BASE + STATE_LEN).contains(&addr)
-                || (DFU_PAGES[0]..DFU_PAGES[1]).contains(&addr),
+            updater_may_write(addr, data.len() as u32),
             "the updater programmed {addr:#x}"
         );
         if addr < STATE_BASE + STATE_LEN {
@@ -75,17 +102,48 @@ impl ConsoleIo for Link {
     }
 }
 
-/// A board's ACTIVE image: a vector table into ACTIVE, then a pattern.
+/// A board's ACTIVE image: a vector table into ACTIVE, the image header naming this
+/// layout, then a pattern.
 fn image(len: usize) -> Vec<u8> {
+    image_for(len, ACTIVE_BASE, Some(LAYOUT.id()))
+}
+
+/// An image linked at `base` whose header names layout `id` (`None`: no header).
+fn image_for(len: usize, base: u32, id: Option<u8>) -> Vec<u8> {
     let mut v: Vec<u8> = (0..len).map(|i| (i * 7 + i / 251) as u8).collect();
     v[..4].copy_from_slice(&0x2002_0000u32.to_le_bytes());
-    v[4..8].copy_from_slice(&(ACTIVE_BASE + 0x1001).to_le_bytes());
+    v[4..8].copy_from_slice(&(base + 0x1001).to_le_bytes());
+    if let Some(id) = id {
+        let h = Header {
+            version: Version {
+                major: 0,
+                minor: 1,
+                patch: 1,
+                build: 0,
+            },
+            flags: u32::from(id) << update_layout::header::LAYOUT_SHIFT,
+            key_id: [0; 16],
+        };
+        v[HEADER_OFFSET as usize..][..32].copy_from_slice(&h.to_bytes());
+    }
     v
 }
 
 /// Send `file` by YMODEM into a session; the outcome and the flash after it.
 fn deliver(file: Vec<u8>) -> (Outcome, Flash, Vec<u8>) {
     deliver_with(file, 0, None)
+}
+
+/// As [`deliver_with`], onto a flash prepared by `prepare`.
+fn deliver_onto(
+    file: Vec<u8>,
+    erase_ms: u64,
+    sender_timeout_ms: Option<u64>,
+    prepare: impl FnOnce(&mut Flash),
+) -> (Outcome, Flash, Vec<u8>) {
+    let mut f = Flash::new();
+    prepare(&mut f);
+    run_session(f, file, erase_ms, sender_timeout_ms)
 }
 
 /// As [`deliver`], a DFU erase taking `erase_ms` (the poll that erases returns that
@@ -97,11 +155,16 @@ fn deliver_with(
     erase_ms: u64,
     sender_timeout_ms: Option<u64>,
 ) -> (Outcome, Flash, Vec<u8>) {
-    let flash = RefCell::new(Flash {
-        mem: vec![0xFF; 0x10_0000],
-        state_writes: 0,
-        dfu_erases: 0,
-    });
+    run_session(Flash::new(), file, erase_ms, sender_timeout_ms)
+}
+
+fn run_session(
+    flash: Flash,
+    file: Vec<u8>,
+    erase_ms: u64,
+    sender_timeout_ms: Option<u64>,
+) -> (Outcome, Flash, Vec<u8>) {
+    let flash = RefCell::new(flash);
     // A confirmed board: STATE says BOOT.
     flash.borrow_mut().mem[(STATE_BASE - FLASH_BASE) as usize..][..4].fill(0xD0);
     let state_before = flash.borrow().mem[(STATE_BASE - FLASH_BASE) as usize..][..64].to_vec();
@@ -120,6 +183,7 @@ fn deliver_with(
     let mut heard = 0u64;
     while t < 600_000 {
         let erases = flash.borrow().dfu_erases;
+        flash.borrow_mut().polls += 1;
         if let Some(o) = s.poll(&mut link, &flash, &key, t) {
             out = Some(o);
             break;
@@ -166,9 +230,8 @@ fn state_word(f: &Flash) -> [u8; 4] {
 
 #[test]
 fn a_signed_image_is_received_verified_and_marked_for_the_swap() {
-    // An image near ACTIVE's size (whatever the layout: 96 KiB since the budget
-    // layout, 224 KiB before), 4 KiB short of it.
-    let len = update_layout::layout::ACTIVE_LEN as usize - 4096;
+    // An image near ACTIVE's size (two DFU pages in layout C), 4 KiB short of it.
+    let len = ACTIVE_LEN as usize - 4096;
     let img = image(len);
     let (out, flash, _) = deliver(signed_file(&img, &test_key_seed()));
     assert!(
@@ -179,32 +242,144 @@ fn a_signed_image_is_received_verified_and_marked_for_the_swap() {
     let at = (DFU_PAGES[0] - FLASH_BASE) as usize;
     assert!(
         flash.mem[at..at + img.len()] == img[..],
-        "DFU page 0 holds the image"
+        "DFU holds the image"
     );
 }
 
-/// The poll that erased DFU page 0 (seconds on the board) came back with its old time;
+/// The poll that erased a DFU page (seconds on the board) came back with its old time;
 /// the next took the erase for the sender's silence and sent a NAK, the sender sent
 /// block 1 again, and its extra ACK put sender and receiver one block apart: the
 /// transfer hung at the end (found on the virtual board, `vboard scene update`).
 #[test]
 fn a_long_erase_was_taken_for_silence_and_a_block_went_twice() {
     let img = image(20_000);
-    let (out, _, _) = deliver_with(signed_file(&img, &test_key_seed()), 4_000, None);
+    let (out, flash, _) = deliver_onto(signed_file(&img, &test_key_seed()), 4_000, None, |f| {
+        // An earlier image in DFU page 0: it is erased (a blank one would not be).
+        f.mem[(DFU_PAGES[0] - FLASH_BASE) as usize] = 0
+    });
     assert!(matches!(out, Outcome::Verified { .. }), "{out:?}");
+    assert_eq!(flash.dfu_erases, 1);
 }
 
-/// DFU page 0 was erased after block 0, while the sender waited for block 0's ACK: an
-/// erase longer than the sender's timeout (lrzsz's `sb`: 10 s; two 128 KiB sectors at
-/// the datasheet's worst, or the virtual board under a loaded CI machine) had it send
-/// block 0 again, the receiver acknowledged both, and the sender ran one ACK ahead: "a
-/// block out of sequence" at the end (`vboard/tests/serve.rs`'s lrzsz test under
-/// load). The page is erased before the first 'C' now, while the sender waits for it.
+/// Each DFU page is erased just before the first block that lands in it, while the
+/// sender waits for that block's ACK: at the datasheet's maximum for a 128 KiB sector at
+/// ×32 (2 s) the ACK comes well inside the sender's 10 s (lrzsz's `sb`), and it sends
+/// nothing twice.
 #[test]
-fn a_sender_timing_out_during_the_dfu_erase_sent_block_0_twice() {
-    let img = image(20_000);
-    let (out, _, _) = deliver_with(signed_file(&img, &test_key_seed()), 12_000, Some(10_000));
+fn a_dfu_erase_at_the_datasheets_maximum_holds_an_ack_within_the_senders_timeout() {
+    let img = image(ACTIVE_LEN as usize - 4096);
+    let file = signed_file(&img, &test_key_seed());
+    let (out, flash, _) = deliver_onto(file, 2_000, Some(10_000), |f| {
+        // Both pages hold an earlier image: each is erased.
+        for p in &DFU_PAGES[..2] {
+            f.mem[(p - FLASH_BASE) as usize] = 0;
+        }
+    });
     assert!(matches!(out, Outcome::Verified { .. }), "{out:?}");
+    assert_eq!(
+        flash.dfu_erases, 2,
+        "both DFU pages the file reaches, once each"
+    );
+}
+
+/// The first 'C' goes out at the session's first poll, before anything is erased (the
+/// whole DFU used to be erased first: seconds with nothing on the technician's screen);
+/// DFU page 0 is erased only when block 1 has shown an image for this layout.
+#[test]
+fn the_first_c_goes_out_at_once_and_dfu_is_erased_by_the_first_block() {
+    let flash = RefCell::new(Flash::new());
+    flash.borrow_mut().mem[(DFU_PAGES[0] - FLASH_BASE) as usize] = 0;
+    let mut s = UpdateSession::new();
+    let mut link = Link::default();
+    let key = public_key(&test_key_seed());
+    s.start(0);
+    assert_eq!(s.poll(&mut link, &flash, &key, 0), None);
+    assert_eq!(link.from_board, b"C", "the first 'C' at the first poll");
+    assert_eq!(
+        flash.borrow().dfu_erases,
+        0,
+        "nothing erased before block 1"
+    );
+    // The whole transfer: the first erase came with block 1.
+    let (out, flash, _) = deliver_onto(
+        signed_file(&image(30_000), &test_key_seed()),
+        1_000,
+        Some(10_000),
+        |f| f.mem[(DFU_PAGES[0] - FLASH_BASE) as usize] = 0,
+    );
+    assert!(matches!(out, Outcome::Verified { .. }), "{out:?}");
+    assert_eq!(flash.dfu_erases, 1);
+    assert!(
+        flash.erase_polls[0] > 2,
+        "DFU erased at poll {:?}",
+        flash.erase_polls
+    );
+}
+
+/// The swap copies all of ACTIVE's DFU pages to ACTIVE: a DFU page the file does not
+/// reach is erased after the transfer when it holds an earlier image's bytes (as DFU
+/// page 1 does after every swap), and left alone when it reads blank; a page the file
+/// is programmed into is erased whatever it reads.
+#[test]
+fn dfu_pages_the_file_does_not_reach_are_left_erased_for_the_swap() {
+    let file = signed_file(&image(40_000), &test_key_seed());
+    let page1 = (DFU_PAGES[1] - FLASH_BASE) as usize;
+    let (out, flash, _) = deliver_onto(file.clone(), 0, None, |f| {
+        f.mem[page1..page1 + 1000].fill(0x42);
+    });
+    assert!(matches!(out, Outcome::Verified { .. }), "{out:?}");
+    assert!(flash.mem[page1..page1 + PAGE_LEN as usize]
+        .iter()
+        .all(|&b| b == 0xFF));
+    assert_eq!(
+        flash.dfu_erases, 2,
+        "page 0 (the file's) and page 1 (not blank)"
+    );
+    let (out, flash, _) = deliver(file);
+    assert!(matches!(out, Outcome::Verified { .. }), "{out:?}");
+    // Page 0 is erased although it reads blank (an erase cut short reads blank too:
+    // nothing is programmed into a page not erased in this session); page 1, which
+    // nothing is programmed into, is left as it reads.
+    assert_eq!(flash.dfu_erases, 1, "page 0 only");
+    // The swap's spare page is never the updater's (the flash model asserts it).
+}
+
+/// A file built for another partition map is refused by its first block, before
+/// anything is erased or marked: linked for layout B (its header names none), linked for
+/// this layout but naming another, or without a header.
+#[test]
+fn a_file_for_another_layout_is_refused_before_anything_is_erased() {
+    use docking_logic::update::Refusal;
+    for (name, img, expect) in [
+        (
+            "linked for layout B",
+            image_for(60_000, Layout::B.active_base(), Some(0)),
+            Refusal::OtherLayout(None),
+        ),
+        (
+            "naming layout B",
+            image_for(60_000, ACTIVE_BASE, Some(Layout::B.id())),
+            Refusal::OtherLayout(Some(Layout::B)),
+        ),
+        (
+            "no header",
+            image_for(60_000, ACTIVE_BASE, None),
+            Refusal::NoHeader,
+        ),
+    ] {
+        let (out, flash, answers) =
+            deliver_onto(signed_file(&img, &test_key_seed()), 0, None, |f| {
+                f.mem[(DFU_PAGES[0] - FLASH_BASE) as usize] = 0
+            });
+        assert_eq!(out, Outcome::Refused(expect.text()), "{name}");
+        assert!(
+            answers.windows(2).any(|w| w == [0x18, 0x18]),
+            "{name}: CAN CAN sent"
+        );
+        assert_eq!(flash.dfu_erases, 0, "{name}: DFU erased");
+        assert_eq!(flash.state_writes, 0, "{name}: STATE written");
+        assert_eq!(flash.mem[(DFU_PAGES[0] - FLASH_BASE) as usize], 0);
+    }
 }
 
 /// Every bad file ends in a refusal and leaves STATE as it was (not one write to it).
@@ -217,8 +392,7 @@ fn corrupted_truncated_unsigned_and_wrongly_signed_images_are_refused_with_state
     let truncated = good[..good.len() - 1000].to_vec();
     let unsigned = img.clone();
     let other = signed_file(&img, &other_key_seed());
-    let mut foreign = image(60_000);
-    foreign[4..8].copy_from_slice(&0x0800_0189u32.to_le_bytes());
+    let foreign = image_for(60_000, 0x0800_0000, Some(LAYOUT.id()));
     let foreign = signed_file(&foreign, &test_key_seed());
     for (name, file, expect) in [
         ("a flipped bit", flipped, why::SIGNATURE),
@@ -248,7 +422,7 @@ fn corrupted_truncated_unsigned_and_wrongly_signed_images_are_refused_with_state
 
 #[test]
 fn a_file_larger_than_active_is_cancelled_before_anything_is_written() {
-    let img = image(update_layout::layout::ACTIVE_LEN as usize);
+    let img = image(ACTIVE_LEN as usize);
     let (out, flash, answers) = deliver(signed_file(&img, &test_key_seed()));
     assert_eq!(out, Outcome::Refused(why::TOO_LARGE));
     assert!(
@@ -262,11 +436,7 @@ fn a_file_larger_than_active_is_cancelled_before_anything_is_written() {
 
 #[test]
 fn silence_cancels_the_transfer_after_a_minute_with_c_every_three_seconds() {
-    let flash = RefCell::new(Flash {
-        mem: vec![0xFF; 0x10_0000],
-        state_writes: 0,
-        dfu_erases: 0,
-    });
+    let flash = RefCell::new(Flash::new());
     let mut s = UpdateSession::new();
     let mut link = Link::default();
     s.start(0);

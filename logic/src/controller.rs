@@ -675,6 +675,9 @@ pub enum MaintError {
     /// The option bytes could not be programmed (locked, write-protected, or the
     /// flash interface reported an error).
     OptionBytes,
+    /// This image runs on trial after an update (not confirmed yet): DFU holds the image
+    /// a rollback needs, so no update may write it (issue 31).
+    OnTrial,
 }
 
 impl MaintError {
@@ -694,6 +697,9 @@ impl MaintError {
             }
             Self::OptionBytes => {
                 "the option bytes could not be programmed (flash interface error; see the log)"
+            }
+            Self::OnTrial => {
+                "this image is on trial, not confirmed (DFU holds the image a rollback needs): it confirms itself at rest once the load cell answers, see `version`"
             }
             Self::BaselineAfterUse => {
                 "the cone has docked since it was installed: its bore is no longer its new \
@@ -2102,6 +2108,9 @@ impl<B: Bsp> Controller<B> {
     /// [`Self::end_update`] READY is low and every request but a stop is refused, from
     /// the console, Modbus and the DOCK pin alike (a DOCK edge is refused and logged).
     pub fn begin_update(&mut self) -> Result<(), MaintError> {
+        if self.diag.images.trial != crate::update::Trial::No {
+            return Err(MaintError::OnTrial);
+        }
         self.flash_turn()?;
         if !self.plc.updating {
             info!("firmware update: receiving; READY low, requests refused");

@@ -103,6 +103,8 @@ pub trait Machine {
     fn calibrate_span(&mut self, force_mn: i32) -> Result<Calibration, CalibrateError>;
     /// [`Controller::images`].
     fn images(&self) -> ImageReport;
+    /// [`Controller::set_images`].
+    fn set_images(&mut self, images: ImageReport);
     /// [`Controller::begin_update`].
     fn begin_update(&mut self) -> Result<(), MaintError>;
     /// [`Controller::end_update`].
@@ -222,6 +224,9 @@ impl<B: Bsp> Machine for Controller<B> {
     }
     fn images(&self) -> ImageReport {
         Controller::images(self)
+    }
+    fn set_images(&mut self, images: ImageReport) {
+        Controller::set_images(self, images)
     }
     fn begin_update(&mut self) -> Result<(), MaintError> {
         Controller::begin_update(self)

@@ -12,9 +12,14 @@
 //!
 //! `tools/sign-image.sh` writes it. Format version 1 is the magic `DCS1`; another
 //! format takes another magic. The image must be an application linked behind the
-//! bootloader ([`vector_table_ok`], the bootloader's own rule): a file built for
-//! 0x0800_0000, or not an image at all, is refused here, before its signature is even
-//! looked at. Nothing here panics on any input.
+//! bootloader of this board's layout ([`check_head`]: the vector table by the
+//! bootloader's own rule, [`vector_table_ok`], and the image header naming the layout,
+//! `update_layout::layout::LAYOUT`): a file built for 0x0800_0000, for another layout,
+//! or not an image at all, is refused by its first block, before anything is erased,
+//! and again before its signature is looked at. Nothing here panics on any input.
+
+use update_layout::header::{Header, HEADER_LEN, HEADER_OFFSET};
+use update_layout::layout::{Layout, ACTIVE_BASE, ACTIVE_LEN, LAYOUT};
 
 /// Length of the trailer (the partition map's, which sizes the largest image by it).
 pub const TRAILER_LEN: usize = update_layout::layout::TRAILER_LEN as usize;
@@ -45,6 +50,12 @@ pub enum Refusal {
     TooLarge,
     /// The image's vector table does not point into the application's partition.
     NotBootable,
+    /// No image header (`update_layout::header`): not built by this project, its layout
+    /// unknown.
+    NoHeader,
+    /// Built for another partition map than this board's (the layout its header or its
+    /// vector table names; `None`: a header from before layout C, which names none).
+    OtherLayout(Option<Layout>),
 }
 
 impl Refusal {
@@ -57,7 +68,59 @@ impl Refusal {
             Self::NotWords => "not whole words",
             Self::TooLarge => "image larger than ACTIVE",
             Self::NotBootable => "not linked behind the bootloader",
+            Self::NoHeader => "no image header (not built by this project's build)",
+            Self::OtherLayout(l) => other_layout_text(l),
         }
+    }
+}
+
+/// The refusal of an image built for layout `l` (this board's is [`LAYOUT`]): a board's
+/// layout changes only by a probe (docs/update.md, "Migration").
+const fn other_layout_text(l: Option<Layout>) -> &'static str {
+    match l {
+        None => "built for an earlier layout (A or B); this board has layout C: flash it with a probe (tools/flash-board.sh)",
+        Some(Layout::A) => "built for layout A; this board has layout C: flash it with a probe (tools/flash-board.sh)",
+        Some(Layout::B) => "built for layout B; this board has layout C: flash it with a probe (tools/flash-board.sh)",
+        Some(Layout::C) => "built for layout C; this board has another: flash it with a probe (tools/flash-board.sh)",
+    }
+}
+
+// The texts above name layout C as this board's.
+const _: () = assert!(matches!(LAYOUT, Layout::C));
+
+/// The first bytes of a file (`head`: its first block, or more) checked before anything
+/// is erased: the vector table must point into this layout's ACTIVE
+/// ([`vector_table_ok`]; one that points into another layout's names it), and the image
+/// header, once `head` reaches it, must name this layout. A `head` shorter than the
+/// header (a sender's 128-byte first block) is checked for its vector table only; the
+/// whole check runs again on the received file ([`check`]'s caller).
+pub fn check_head(head: &[u8]) -> Result<(), Refusal> {
+    let Some(vt) = head.first_chunk::<8>() else {
+        return Err(Refusal::TooShort);
+    };
+    if !vector_table_ok(vt, ACTIVE_BASE, ACTIVE_LEN) {
+        let [_, _, _, _, e, f, g, h] = *vt;
+        let pc = u32::from_le_bytes([e, f, g, h]);
+        let other = [Layout::A, Layout::B, Layout::C]
+            .into_iter()
+            .find(|l| *l != LAYOUT && l.in_active(pc));
+        return Err(match other {
+            // A and B share ACTIVE's address: their files name neither.
+            Some(Layout::A | Layout::B) => Refusal::OtherLayout(None),
+            Some(l) => Refusal::OtherLayout(Some(l)),
+            None => Refusal::NotBootable,
+        });
+    }
+    let at = HEADER_OFFSET as usize;
+    let Some(bytes) = head.get(at..at + HEADER_LEN) else {
+        return Ok(());
+    };
+    let mut h = [0u8; HEADER_LEN];
+    h.copy_from_slice(bytes);
+    let header = Header::parse(&h).ok_or(Refusal::NoHeader)?;
+    match header.layout_id() {
+        id if id == LAYOUT.id() => Ok(()),
+        id => Err(Refusal::OtherLayout(Layout::from_id(id))),
     }
 }
 
@@ -135,6 +198,47 @@ pub struct ImageReport {
     pub rolled_back: bool,
     /// The version of the image rolled back, if known.
     pub rolled_back_version: Option<Version>,
+    /// Whether this image runs on trial after an update, and how its confirmation
+    /// stands (issue 31: `version` and Modbus identification say so, and `update` is
+    /// refused on trial: DFU holds the image a rollback needs).
+    pub trial: Trial,
+}
+
+/// Where a new image stands after its swap (the state record's SWAP at boot).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Trial {
+    /// Confirmed (or never updated): the image is kept.
+    No,
+    /// On trial: it confirms itself at rest once the load cell has answered; a reset
+    /// before that rolls it back.
+    Waiting,
+    /// On trial, and its confirmation could not be written (the state sector's flash,
+    /// every attempt): the next reset rolls it back.
+    Failed,
+}
+
+impl Trial {
+    /// `version`'s word, and Modbus identification's object 0x84.
+    pub const fn word(self) -> &'static str {
+        match self {
+            Self::No => "no",
+            Self::Waiting => "yes",
+            Self::Failed => "failed",
+        }
+    }
+
+    /// What a technician does about it (`version`'s text; `None`: nothing to do).
+    pub const fn advice(self) -> Option<&'static str> {
+        match self {
+            Self::No => None,
+            Self::Waiting => Some(
+                "on trial: it confirms itself at rest once the load cell answers; a reset before that rolls it back; update is refused until then",
+            ),
+            Self::Failed => Some(
+                "on trial and its confirmation failed (state sector flash): the next reset rolls it back; check the board and update again",
+            ),
+        }
+    }
 }
 
 impl ImageReport {
@@ -145,6 +249,7 @@ impl ImageReport {
         previous: None,
         rolled_back: false,
         rolled_back_version: None,
+        trial: Trial::No,
     };
 }
 
@@ -300,6 +405,10 @@ pub fn at_boot(ctrl: &mut dyn Machine, facts: BootFacts) -> ImageReport {
         previous: None,
         rolled_back: facts.boot == Boot::RolledBack,
         rolled_back_version: None,
+        trial: match facts.boot {
+            Boot::Trial => Trial::Waiting,
+            _ => Trial::No,
+        },
     };
     let mut buf = [0u8; core::mem::size_of::<ImageRecord>()];
     let running = facts.running.map(Version::to_bytes);
@@ -351,12 +460,17 @@ pub fn at_boot(ctrl: &mut dyn Machine, facts: BootFacts) -> ImageReport {
 }
 
 /// The trial boot confirmed (its self-test passed, STATE says BOOT): the record it
-/// owes, of the image `r` reports running and the one it replaced.
+/// owes, of the image `r` reports running and the one it replaced; the report says the
+/// image is kept.
 pub fn confirmed(ctrl: &mut dyn Machine, r: &ImageReport) {
     store_image_record(
         ctrl,
         &ImageRecord::new(event::CONFIRMED, r.running, r.previous, None),
     );
+    ctrl.set_images(ImageReport {
+        trial: Trial::No,
+        ..*r
+    });
 }
 
 fn store_image_record(ctrl: &mut dyn Machine, rec: &ImageRecord) {
@@ -370,6 +484,7 @@ fn store_image_record(ctrl: &mut dyn Machine, rec: &ImageRecord) {
 mod tests {
     extern crate std;
     use super::*;
+    use std::vec;
     use std::vec::Vec;
 
     const BASE: u32 = 0x0800_8000;
@@ -420,5 +535,57 @@ mod tests {
         for r in [Refusal::TooShort, Refusal::NoMagic, Refusal::NotBootable] {
             assert!(!r.text().is_empty());
         }
+    }
+
+    /// The first KiB of an image linked at `base` whose header names layout `id`.
+    fn head(base: u32, id: Option<u8>) -> Vec<u8> {
+        let mut f = vec![0xFFu8; 1024];
+        f[..4].copy_from_slice(&0x2000_6000u32.to_le_bytes());
+        f[4..8].copy_from_slice(&(base + 0x1001).to_le_bytes());
+        if let Some(id) = id {
+            let h = Header {
+                version: Version::default(),
+                flags: u32::from(id) << update_layout::header::LAYOUT_SHIFT,
+                key_id: [0; 16],
+            };
+            f[HEADER_OFFSET as usize..][..HEADER_LEN].copy_from_slice(&h.to_bytes());
+        }
+        f
+    }
+
+    #[test]
+    fn a_file_for_another_layout_is_refused_by_its_first_block() {
+        let c = Layout::C.active_base();
+        assert_eq!(check_head(&head(c, Some(3))), Ok(()));
+        // Linked for layouts A and B (ACTIVE at 0x0800_8000), whose headers name none.
+        let r = check_head(&head(0x0800_8000, Some(0)));
+        assert_eq!(r, Err(Refusal::OtherLayout(None)));
+        assert!(r.unwrap_err().text().contains("flash it with a probe"));
+        // Linked for C but naming another layout, or none, or no header at all.
+        assert_eq!(
+            check_head(&head(c, Some(2))),
+            Err(Refusal::OtherLayout(Some(Layout::B)))
+        );
+        assert_eq!(
+            check_head(&head(c, Some(0))),
+            Err(Refusal::OtherLayout(None))
+        );
+        assert_eq!(
+            check_head(&head(c, Some(9))),
+            Err(Refusal::OtherLayout(None))
+        );
+        assert_eq!(check_head(&head(c, None)), Err(Refusal::NoHeader));
+        // Not an image (no vector table into any ACTIVE).
+        assert_eq!(
+            check_head(&head(0x0800_0000, Some(3))),
+            Err(Refusal::NotBootable)
+        );
+        assert_eq!(check_head(&[0u8; 7]), Err(Refusal::TooShort));
+        // A 128-byte first block: its vector table only; the header is checked later.
+        assert_eq!(check_head(&head(c, None)[..128]), Ok(()));
+        assert_eq!(
+            check_head(&head(0x0800_8000, None)[..128]),
+            Err(Refusal::OtherLayout(None))
+        );
     }
 }

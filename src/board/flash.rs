@@ -88,6 +88,9 @@ fn flush_caches() {
     }
 }
 
+/// Sector erases started since boot ([`OdometerFlash::erases`]).
+static ERASES: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
+
 /// Longest wait for a sector erase: the datasheet's 2 s maximum at ×32, plus half.
 pub const ERASE_TIMEOUT_CYCLES: u32 = 3 * SYSCLK_HZ;
 
@@ -223,7 +226,13 @@ impl OdometerFlash {
         }
     }
 
+    /// Sector erases started since boot (the service runs one a rest window: issue 31).
+    pub fn erases() -> u32 {
+        ERASES.load(core::sync::atomic::Ordering::Relaxed)
+    }
+
     fn erase_sector(sector: u32) -> Result<(), OdoFlashError> {
+        ERASES.fetch_add(1, core::sync::atomic::Ordering::Relaxed);
         Self::begin()?;
         let cr = CR_PSIZE_X32 | CR_SER | (sector << 3);
         let sr = cortex_m::interrupt::free(|_| {
@@ -285,10 +294,11 @@ impl OdometerFlash {
     }
 
     #[cfg(feature = "updater")]
-    /// Erase the sector at `base` for the updater (`update.rs`): a sector of DFU page 0
-    /// or STATE only, from SRAM with the watchdog fed, as the odometer's. Any other
-    /// sector (the bootloader, ACTIVE, DFU page 1, the odometer) is refused before a
-    /// register is touched. Call only from the controller's owner, at rest.
+    /// Erase the sector at `base` for the updater (`update.rs`): a sector of the DFU
+    /// pages an update fills, or STATE, from SRAM with the watchdog fed, as the
+    /// odometer's. Any other sector (the bootloader, the project's sectors 2-4, ACTIVE,
+    /// DFU's spare page, the odometer) is refused before a register is touched. Call
+    /// only from the controller's owner, at rest.
     pub fn erase_update_sector(base: u32) -> Result<(), OdoFlashError> {
         let (n, start, len) =
             update_layout::layout::sector_of(base).ok_or(OdoFlashError::OutOfBounds)?;
@@ -299,8 +309,9 @@ impl OdometerFlash {
     }
 
     #[cfg(feature = "updater")]
-    /// Program whole words at `addr` for the updater: inside DFU page 0 or STATE only
-    /// (as [`Self::erase_update_sector`]). Call only from the owner, at rest.
+    /// Program whole words at `addr` for the updater: inside the DFU pages an update
+    /// fills or STATE only (as [`Self::erase_update_sector`]). Call only from the owner,
+    /// at rest.
     pub fn program_update(addr: u32, data: &[u8]) -> Result<(), OdoFlashError> {
         let len = u32::try_from(data.len()).map_err(|_| OdoFlashError::OutOfBounds)?;
         if addr % 4 != 0 || len % 4 != 0 {
@@ -316,7 +327,7 @@ impl OdometerFlash {
         for (a, w) in (addr..).step_by(4).zip(data.chunks_exact(4)) {
             let mut le = [0u8; 4];
             le.copy_from_slice(w);
-            // SAFETY: a word-aligned address inside DFU page 0 or STATE (checked above),
+            // SAFETY: a word-aligned address inside DFU or STATE (checked above),
             // PG set: the store programs it.
             unsafe { core::ptr::write_volatile(a as *mut u32, u32::from_le_bytes(le)) };
             result = Self::status(Self::wait_idle());
@@ -347,20 +358,16 @@ impl OdometerFlash {
 }
 
 #[cfg(feature = "updater")]
-/// Whether `[addr, addr + len)` lies in what the updater writes: the sectors of DFU
-/// page 0, or STATE.
+/// Whether `[addr, addr + len)` lies in what the updater writes: the DFU pages an update
+/// file fills (ACTIVE's length from DFU's start; the swap's spare page is the
+/// bootloader's), or STATE.
 fn updater_may_write(addr: u32, len: u32) -> bool {
-    use update_layout::layout::{DFU_PAGES, PAGE_LEN, STATE_BASE, STATE_LEN};
+    use update_layout::layout::{ACTIVE_LEN, DFU_BASE, STATE_BASE, STATE_LEN};
     let Some(end) = addr.checked_add(len) else {
         return false;
     };
-    let dfu0 = DFU_PAGES[0];
-    // The page's sectors, whole (the tail of its last sector is never used).
-    let dfu0_end = match update_layout::layout::sector_of(dfu0 + PAGE_LEN - 1) {
-        Some((_, s, l)) => s + l,
-        None => return false,
-    };
-    (addr >= dfu0 && end <= dfu0_end) || (addr >= STATE_BASE && end <= STATE_BASE + STATE_LEN)
+    (addr >= DFU_BASE && end <= DFU_BASE + ACTIVE_LEN)
+        || (addr >= STATE_BASE && end <= STATE_BASE + STATE_LEN)
 }
 
 impl ErrorType for OdometerFlash {

@@ -1,12 +1,13 @@
 //! The board's side of the field update (issue 21, docs/update.md): the image header,
-//! the public key updates are verified with, and the flash of DFU page 0 and STATE
+//! the public key updates are verified with, and the flash of DFU and STATE
 //! behind the controller's owner.
 //!
 //! # The image header
 //!
 //! [`IMAGE_HEADER`] sits at ACTIVE + 0x200, right after the vector table
 //! (`image-header.x`, written by build.rs): the version from Cargo.toml (build 0, not
-//! stamped) and the first bytes of [`PUBLIC_KEY`]. The signing tool stamps another
+//! stamped), the layout it is linked for (`update_layout::layout::LAYOUT`; an updater of
+//! another layout refuses it) and the first bytes of [`PUBLIC_KEY`]. The signing tool stamps another
 //! version into it before it signs. The running image reads its version from flash
 //! ([`running_header`]), never from the constant: what runs is what was stamped.
 
@@ -52,7 +53,7 @@ static IMAGE_HEADER: [u8; HEADER_LEN] = Header {
         patch: parse(env!("CARGO_PKG_VERSION_PATCH")) as u16,
         build: 0,
     },
-    flags: 0,
+    flags: Header::flags_for(update_layout::layout::LAYOUT),
     key_id: key_id(),
 }
 .to_bytes();
@@ -75,12 +76,13 @@ pub fn running_header() -> Option<Header> {
     header_at(ACTIVE_BASE)
 }
 
-/// The header of the image in DFU page `page` (1: the one the last swap replaced).
+/// The header of the image in DFU page `page` (1: the one the last swap replaced; its
+/// first page is there, embassy-boot's swap copies ACTIVE page 0 to DFU page 1).
 pub fn dfu_header(page: usize) -> Option<Header> {
     header_at(*DFU_PAGES.get(page)?)
 }
 
-// --- DFU page 0 and STATE, behind the controller's owner --------------------------------
+// --- DFU and STATE, behind the controller's owner ------------------------------------
 
 use docking_logic::update::{BootFacts, ImageReport};
 #[cfg(feature = "updater")]
@@ -115,7 +117,8 @@ impl Session {
 /// writes these sectors), erases and programs through the controller's owner — a job
 /// in the service's window, run only while an update is under way and the machine is
 /// at rest (`Controller::at_rest`) — by [`OdometerFlash::erase_update_sector`] and
-/// [`OdometerFlash::program_update`], which refuse anything but DFU page 0 and STATE.
+/// [`OdometerFlash::program_update`], which refuse anything but the DFU pages an update
+/// file fills (ACTIVE's length of DFU) and STATE.
 /// Call from idle only (the mailbox's rule).
 pub struct UpdateFlash;
 
@@ -186,20 +189,46 @@ pub fn boot_report(ctrl: &mut Ctrl, boot: update_layout::state::Boot) -> ImageRe
     docking_logic::update::at_boot(ctrl, facts)
 }
 
-/// A trial boot's self-test passed (init, then the load cell's live sample, at rest):
-/// confirm it (STATE says BOOT) and record it. A confirmation that fails leaves the
-/// trial to the next reset's rollback. From the service only (the flash's owner).
+/// Attempts at a trial's confirmation, each in a rest window of its own (issue 31).
+pub const CONFIRM_ATTEMPTS: u8 = 3;
+
+/// A trial boot's self-test passed (init, then the load cell's live samples, at rest):
+/// confirm it (STATE says BOOT) and record it; `attempt` (1 to [`CONFIRM_ATTEMPTS`])
+/// is logged. Whether the trial is over: confirmed, or its last attempt failed, which
+/// `version` and Modbus identification then report (`trial=failed`: the next reset
+/// rolls the image back). From the service only (the flash's owner).
 #[inline(never)]
-pub fn confirm_trial(ctrl: &mut Ctrl) {
+pub fn confirm_trial(ctrl: &mut Ctrl, attempt: u8) -> bool {
     match super::flash::OdometerFlash::confirm_boot() {
         Ok(()) => {
             defmt::info!("update: trial boot confirmed, this image is kept");
             let report = ctrl.images();
             docking_logic::update::confirmed(ctrl, &report);
+            true
         }
-        Err(_) => defmt::warn!(
-            "update: trial boot not confirmed (flash error): the next reset rolls back"
-        ),
+        Err(e) if attempt < CONFIRM_ATTEMPTS => {
+            defmt::warn!(
+                "update: trial boot not confirmed (flash error {}), attempt {=u8} of {=u8}: tried again at the next rest",
+                e,
+                attempt,
+                CONFIRM_ATTEMPTS
+            );
+            false
+        }
+        Err(e) => {
+            defmt::error!(
+                "update: trial boot not confirmed (flash error {}), attempt {=u8} of {=u8}: the next reset rolls this image back",
+                e,
+                attempt,
+                CONFIRM_ATTEMPTS
+            );
+            let report = ctrl.images();
+            ctrl.set_images(docking_logic::update::ImageReport {
+                trial: docking_logic::update::Trial::Failed,
+                ..report
+            });
+            true
+        }
     }
 }
 

@@ -10,7 +10,9 @@
 //!  +-------+-------+-------+--------+--------+--------+------------------+
 //!  version: major.minor.patch+build, as MCUboot's `imgtool sign --version` stamps it
 //!  flags:   bit 0: stamped by the signing tool (else the build's own, from Cargo.toml,
-//!           build 0); the other bits 0
+//!           build 0); bits 8-15: the partition map the image is linked for
+//!           (`layout::Layout`'s number; 0 in images built before layout C, whose
+//!           headers named none); the other bits 0
 //!  key id:  the first 16 bytes of the ed25519 public key the image verifies updates with
 //! ```
 //!
@@ -28,6 +30,8 @@ pub const HEADER_LEN: usize = 32;
 pub const MAGIC: [u8; 4] = *b"DCIH";
 /// Flag: the version was stamped by the signing tool.
 pub const FLAG_STAMPED: u32 = 1;
+/// The flags' bits that hold the image's layout (`layout::Layout::id`).
+pub const LAYOUT_SHIFT: u32 = 8;
 /// Bytes of the public key kept as its id.
 pub const KEY_ID_LEN: usize = 16;
 
@@ -129,6 +133,16 @@ pub struct Header {
 }
 
 impl Header {
+    /// The flags of an image built for `layout`, not stamped.
+    pub const fn flags_for(layout: crate::layout::Layout) -> u32 {
+        (layout.id() as u32) << LAYOUT_SHIFT
+    }
+
+    /// The number of the layout the image names (0: none, an image from before layout C).
+    pub const fn layout_id(&self) -> u8 {
+        (self.flags >> LAYOUT_SHIFT) as u8
+    }
+
     /// The header's bytes.
     pub const fn to_bytes(self) -> [u8; HEADER_LEN] {
         let [m0, m1, m2, m3] = MAGIC;
@@ -200,9 +214,30 @@ mod tests {
             key_id: [7; KEY_ID_LEN],
         };
         let b = h.to_bytes();
+        assert_eq!(
+            h.layout_id(),
+            0,
+            "no layout named: an image from before layout C"
+        );
         assert_eq!(&b[..4], b"DCIH");
         assert_eq!(&b[4..12], &[1, 2, 3, 0, 4, 0, 0, 0]);
         assert_eq!(Header::parse(&b), Some(h));
         assert_eq!(Header::parse(&[0xFF; HEADER_LEN]), None);
+    }
+
+    #[test]
+    fn a_header_names_its_layout_in_flags_bits_8_to_15() {
+        use crate::layout::Layout;
+        let flags = Header::flags_for(Layout::C) | FLAG_STAMPED;
+        assert_eq!(flags, 0x0301);
+        let h = Header {
+            version: Version::default(),
+            flags,
+            key_id: [0; KEY_ID_LEN],
+        };
+        let b = h.to_bytes();
+        // The byte at header offset 13 (image offset 0x20D) is the layout's number.
+        assert_eq!(b[13], 3);
+        assert_eq!(Header::parse(&b).map(|h| h.layout_id()), Some(3));
     }
 }

@@ -5,6 +5,7 @@
 use object::{Object, ObjectSegment, ObjectSymbol};
 
 use crate::periph::flash::{FLASH_BASE, ODOMETER_BASE};
+use update_layout::layout::{ACTIVE_BASE, BOOT_LEN, STATE_BASE, STATE_LEN};
 
 /// A loaded image.
 pub struct Image {
@@ -47,12 +48,13 @@ impl Image {
         Ok(img)
     }
 
-    /// Whether this is an application linked behind the bootloader (nothing in sectors
-    /// 0-1, a vector table at 0x0800_8000): a probe flashes it together with the
-    /// bootloader, and so does [`Image::load`].
+    /// Whether this is an application linked behind the bootloader (nothing below
+    /// ACTIVE, a vector table at its first address: update-layout's map): a probe
+    /// flashes it together with the bootloader, and so does [`Image::load`].
     pub fn behind_bootloader(&self) -> bool {
-        self.flash[..0x8000].iter().all(|&b| b == 0xFF)
-            && self.flash[0x8000..0x8008].iter().any(|&b| b != 0xFF)
+        let active = (ACTIVE_BASE - FLASH_BASE) as usize;
+        self.flash[..active].iter().all(|&b| b == 0xFF)
+            && self.flash[active..active + 8].iter().any(|&b| b != 0xFF)
     }
 
     /// Load the bootloader image `path` (`boot/`'s release build by default,
@@ -63,7 +65,8 @@ impl Image {
             let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../boot");
             if let Some(src) = newer_file(
                 std::path::Path::new(path),
-                &[root.join("src")],
+                // The partition map it is built on (update-layout) too.
+                &[root.join("src"), root.join("../update-layout/src")],
                 &["Cargo.toml", "Cargo.lock", "build.rs", "memory.x"].map(|f| root.join(f)),
             ) {
                 return Err(format!(
@@ -164,21 +167,22 @@ impl Image {
             .map(|(name, _, _)| name.as_str())
     }
 
-    /// This image (an application linked behind the bootloader, at `0x0800_8000`) with the
-    /// bootloader image `boot` in sector 0, as a probe flashes the pair: sectors 0 and 1
-    /// (the bootloader and its state) must be blank in this image, and `boot` must load
-    /// nothing past them. The symbols (the RTT control block) stay this image's.
+    /// This image (an application linked behind the bootloader, at ACTIVE's first
+    /// address) with the bootloader image `boot` in sector 0, as a probe flashes the
+    /// pair: sectors 0 and 1 (the bootloader and its state) must be blank in this image,
+    /// and `boot` must load nothing past its sector. The symbols (the RTT control block)
+    /// stay this image's.
     pub fn under_bootloader(mut self, boot: &Image) -> Result<Self, String> {
-        const BOOT_END: usize = 0x8000;
+        const BOOT_END: usize = (STATE_BASE + STATE_LEN - FLASH_BASE) as usize;
         if self.flash[..BOOT_END].iter().any(|&b| b != 0xFF) {
             return Err(format!(
-                "{}: the application loads into sectors 0-1 (linked at 0x08000000): link it behind the bootloader, at 0x08008000",
+                "{}: the application loads into sectors 0-1 (linked at 0x08000000): link it behind the bootloader, at {ACTIVE_BASE:#010x}",
                 self.path
             ));
         }
-        if boot.flash_used as usize > BOOT_END {
+        if boot.flash_used > BOOT_LEN {
             return Err(format!(
-                "{}: the bootloader loads past sector 1 ({} B)",
+                "{}: the bootloader loads past sector 0 ({} B)",
                 boot.path, boot.flash_used
             ));
         }
@@ -220,7 +224,11 @@ impl Image {
 pub fn newer_source(elf: &std::path::Path, root: &std::path::Path) -> Option<std::path::PathBuf> {
     newer_file(
         elf,
-        &[root.join("src"), root.join("logic/src")],
+        &[
+            root.join("src"),
+            root.join("logic/src"),
+            root.join("update-layout/src"),
+        ],
         &[
             "Cargo.toml",
             "logic/Cargo.toml",

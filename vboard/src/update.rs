@@ -86,9 +86,15 @@ pub struct Transfer {
     /// The sender was cut off (power cut) after this many acknowledged bytes.
     pub cut_at: Option<usize>,
     /// The longest pause between two bytes on the line from `update` to the receiver's
-    /// first 'C' (the command's echo and its reply), ms: a reply cut in two by the DFU
+    /// first 'C' (the command's echo and its reply), ms: a reply cut in two by a DFU
     /// erase (the CPU and the transmit interrupt stalled) pauses for seconds.
     pub reply_gap_ms: f64,
+    /// Virtual time from `update` typed to the receiver's first 'C', ms (issue 31: the
+    /// transfer starts within a second; DFU is erased page by page as blocks arrive).
+    pub first_c_ms: f64,
+    /// Code-flash sectors erased from `update` to the reply (the DFU pages; none for a
+    /// file refused by its first block).
+    pub erases: u64,
 }
 
 /// Type `update` and send `file` by YMODEM-1K; `cut_at_bytes`: pull the power once the
@@ -103,6 +109,7 @@ pub fn transfer(
     let t0 = s.now();
     let wall0 = std::time::Instant::now();
     let mut out = Transfer::default();
+    let erases0 = s.board.soc().code_erases;
     let start = s.board.soc().console_out.len();
     let _ = s.board.soc_mut().console_send(b"update\r\n");
     let mut sender = YmodemSender::new("docking-controller.dcs", file.to_vec());
@@ -130,6 +137,7 @@ pub fn transfer(
                     .any(|w| w[0].1 == b'\r' && w[1].1 == b'\n')
             }) {
                 gap_done = true;
+                out.first_c_ms = (out_bytes[c].0 - t0) as f64 / PS_PER_MS as f64;
                 out.reply_gap_ms = out_bytes[..c]
                     .windows(2)
                     .map(|w| (w[1].0 - w[0].0) as f64 / PS_PER_MS as f64)
@@ -137,6 +145,20 @@ pub fn transfer(
             }
         }
         seen += bytes.len();
+        if sender.state == hil_sim::update::SendState::Start {
+            // `update` refused at once (no 'C' will come): its one line is the reply.
+            let text: Vec<u8> = s.board.soc().console_out[start..]
+                .iter()
+                .map(|&(_, b)| b)
+                .collect();
+            let text = String::from_utf8_lossy(&text).into_owned();
+            if let Some(line) = text.split("\r\n").find(|l| l.starts_with("error:")) {
+                if text.contains(&format!("{line}\r\n")) {
+                    out.reply = line.to_string();
+                    break;
+                }
+            }
+        }
         if !sender.finished() {
             for b in bytes {
                 if std::env::var_os("VBOARD_TRACE_UPDATE").is_some()
@@ -197,6 +219,7 @@ pub fn transfer(
     }
     s.set_dock(false);
     out.seconds = (s.now() - t0) as f64 / PS_PER_S as f64;
+    out.erases = s.board.soc().code_erases - erases0;
     if std::env::var_os("VBOARD_TRACE_UPDATE").is_some() {
         eprintln!(
             "transfer: {:.1} s virtual, {:.1} s wall",
@@ -292,9 +315,14 @@ pub fn update(s: &mut Session, checks: &mut Checks) -> Result<(), Halt> {
         format!("{} ({:.1} s)", t.reply, t.seconds),
     ));
     checks.push((
-        "update's reply whole on the line before the DFU erase (no pause over 20 ms in it)".into(),
+        "update's reply whole on the line before the first 'C' (no pause over 20 ms in it)".into(),
         t.reply_gap_ms < 20.0,
         format!("longest pause {:.3} ms", t.reply_gap_ms),
+    ));
+    checks.push((
+        "the first 'C' within 1 s of `update` (nothing erased before the first block)".into(),
+        t.first_c_ms <= 1_000.0,
+        format!("{:.1} ms", t.first_c_ms),
     ));
     checks.push((
         "READY low and nothing moving for the whole update, the DOCK edge refused".into(),
@@ -350,8 +378,20 @@ pub fn update(s: &mut Session, checks: &mut Checks) -> Result<(), Halt> {
     Ok(())
 }
 
-/// The bad files of `update-bad`: (what, file, the refusal's words).
-pub fn bad_files(app: &[u8]) -> Vec<(&'static str, Vec<u8>, &'static str)> {
+/// A bad file of `update-bad`.
+pub struct BadFile {
+    /// What is wrong with it.
+    pub what: &'static str,
+    /// The file.
+    pub file: Vec<u8>,
+    /// Words of the refusal.
+    pub words: &'static str,
+    /// Refused by its first block: nothing may be erased.
+    pub before_erase: bool,
+}
+
+/// The bad files of `update-bad`.
+pub fn bad_files(app: &[u8]) -> Vec<BadFile> {
     let good = update_file(app, NEW_VERSION);
     let mut flipped = good.clone();
     flipped[good.len() / 3] ^= 0x01;
@@ -359,22 +399,47 @@ pub fn bad_files(app: &[u8]) -> Vec<(&'static str, Vec<u8>, &'static str)> {
     // same refusals at a sixth of the transfer time.
     let mut small = app[..16 * 1024].to_vec();
     stamp(&mut small, NEW_VERSION);
+    // The image built for layout B: its header names B (a file of an earlier build is
+    // also linked at B's ACTIVE; either is refused by its first block).
+    let mut layout_b = app.to_vec();
+    let at = update_layout::header::HEADER_OFFSET as usize + 13;
+    layout_b[at] = update_layout::layout::Layout::B.id();
+    let bad = |what, file, words, before_erase| BadFile {
+        what,
+        file,
+        words,
+        before_erase,
+    };
     vec![
-        (
+        bad(
             "corrupted (one bit flipped)",
             flipped,
             "signature does not verify",
+            false,
         ),
-        (
+        bad(
             "truncated (the file cut at 16 KiB)",
             good[..16 * 1024].to_vec(),
             "no update trailer",
+            false,
         ),
-        ("unsigned (no trailer)", small.clone(), "no update trailer"),
-        (
+        bad(
+            "unsigned (no trailer)",
+            small.clone(),
+            "no update trailer",
+            false,
+        ),
+        bad(
             "signed with another key",
             signed_file(&small, &other_key_seed()),
             "signature does not verify",
+            false,
+        ),
+        bad(
+            "built for layout B",
+            update_file(&layout_b, NEW_VERSION),
+            "built for layout B; this board has layout C",
+            true,
         ),
     ]
 }
@@ -387,13 +452,26 @@ pub fn update_bad(s: &mut Session, checks: &mut Checks) -> Result<(), Halt> {
     let state_before = state_word(s);
     let active_before = read_flash(s, ACTIVE_BASE, ACTIVE_LEN);
     let app = app_bytes(&s.board.image);
-    for (what, file, words) in bad_files(&app) {
+    for BadFile {
+        what,
+        file,
+        words,
+        before_erase,
+    } in bad_files(&app)
+    {
         let t = transfer(s, &file, None, None)?;
         checks.push((
             format!("{what}: refused in one line"),
             t.reply.starts_with("error: update refused:") && t.reply.contains(words),
             t.reply.clone(),
         ));
+        if before_erase {
+            checks.push((
+                format!("{what}: refused before anything was erased"),
+                t.erases == 0,
+                format!("{} sectors erased", t.erases),
+            ));
+        }
         checks.push((
             format!("{what}: STATE untouched, READY low and nothing moving meanwhile"),
             state_word(s) == state_before && !t.ready_seen && !t.moved,
@@ -444,7 +522,8 @@ pub fn never_confirming_image() -> Vec<u8> {
                 patch: 9,
                 build: 0,
             },
-            flags: update_layout::header::FLAG_STAMPED,
+            flags: update_layout::header::FLAG_STAMPED
+                | update_layout::header::Header::flags_for(update_layout::layout::LAYOUT),
             key_id: [0; 16],
         }
         .to_bytes(),
@@ -708,19 +787,27 @@ pub fn update_dead_sensor(
             state_word(&s)
         ),
     ));
-    // A technician's update meanwhile: refused at the mark (embassy-boot marks nothing
-    // over a trial), STATE untouched. (With the silent load cell only: the refusal does
-    // not depend on why the trial waits, and each transfer erases DFU page 0.)
+    // A technician's update meanwhile: refused at `update`, before anything is erased
+    // (DFU holds the image the rollback needs: issue 31), STATE untouched. (With the
+    // silent load cell only: the refusal does not depend on why the trial waits.)
     if fault == hil_sim::hx711::Hx711Fault::Disconnected {
         let entered = s.maint_enter().map_err(|e| e.to_string())?;
         let file = signed_file(&never_confirming_image(), &test_key_seed());
         let t = transfer(&mut s, &file, None, None).map_err(|e| e.to_string())?;
         checks.push((
-            format!("{what}: an update meanwhile refused (on trial), STATE still SWAP"),
+            format!("{what}: an update meanwhile refused (on trial) before anything was erased, STATE still SWAP"),
             entered
                 && t.reply.contains("this image is on trial, not confirmed")
+                && t.erases == 0
                 && state_word(&s) == update_layout::state::SWAP,
-            t.reply.trim().to_string(),
+            format!("{} ({} sectors erased)", t.reply.trim(), t.erases),
+        ));
+        let v = version(&mut s).map_err(|e| e.to_string())?;
+        checks.push((
+            format!("{what}: version says the image is on trial, and what to do"),
+            json_field(&v, "trial").as_deref() == Some("yes")
+                && json_field(&v, "trial_advice").is_some_and(|a| a.contains("rolls it back")),
+            v.trim().to_string(),
         ));
     }
     s.machine().hx.set_fault(hil_sim::hx711::Hx711Fault::None);

@@ -43,11 +43,12 @@ fn the_release_image_updates_itself_over_the_console_with_every_counter_intact()
     scene("update");
 }
 
-/// Two of `update-bad`'s files in CI (the scene has all four; the corrupted full-size
-/// image is also the host's `update_session` test): a truncated file and an image
-/// signed with another key, each refused in one line, STATE untouched.
+/// Three of `update-bad`'s files in CI (the scene has all five; the corrupted full-size
+/// image is also the host's `update_session` test): a truncated file, an image signed
+/// with another key and an image built for layout B, each refused in one line, STATE
+/// untouched, the last before anything is erased.
 #[test]
-fn a_truncated_and_a_wrongly_signed_image_are_refused_with_state_untouched() {
+fn a_truncated_a_wrongly_signed_and_another_layouts_image_are_refused_with_state_untouched() {
     let mut s = vboard::scene::Session::new(typical()).unwrap();
     let deadline = s.now() + 60 * vboard::time::PS_PER_S;
     s.run_until(deadline, |x| x.seen.boots >= 1 && x.at_rest())
@@ -55,12 +56,22 @@ fn a_truncated_and_a_wrongly_signed_image_are_refused_with_state_untouched() {
     assert!(s.maint_enter().unwrap());
     let state = s.board.peek(update_layout::layout::STATE_BASE);
     let app = vboard::update::app_bytes(&s.board.image);
-    for (what, file, words) in bad_files(&app).into_iter().skip(1).step_by(2) {
-        let t = transfer(&mut s, &file, None, None).unwrap();
+    let picked = bad_files(&app)
+        .into_iter()
+        .enumerate()
+        .filter(|(i, f)| i % 2 == 1 || f.before_erase);
+    for (_, f) in picked {
+        let what = f.what;
+        let t = transfer(&mut s, &f.file, None, None).unwrap();
         assert!(
-            t.reply.starts_with("error: update refused:") && t.reply.contains(words),
+            t.reply.starts_with("error: update refused:") && t.reply.contains(f.words),
             "{what}: {}",
             t.reply
+        );
+        assert!(
+            !f.before_erase || t.erases == 0,
+            "{what}: {} erased",
+            t.erases
         );
         assert!(!t.ready_seen && !t.moved, "{what}");
         assert_eq!(

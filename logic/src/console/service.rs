@@ -1172,9 +1172,11 @@ impl Console {
     }
 
     /// `version`: the running image (its header's version; the build's without one),
-    /// `(test key)` when the built-in key is the test key, the image it replaced, and a
-    /// rollback (issue 21). Fields added to 927460b's reply, none renamed: the text's
-    /// first two words and the JSON's `name` and `version` are as they were.
+    /// `(test key)` when the built-in key is the test key, the image it replaced, a
+    /// rollback (issue 21), and whether it runs on trial (issue 31: `trial=yes|failed`,
+    /// then what to do, on a line of its own). Fields added to 927460b's reply, none
+    /// renamed: the text's first two words and the JSON's `name` and `version` are as
+    /// they were.
     #[inline(never)]
     fn version(&mut self, r: &crate::update::ImageReport, json: bool) {
         use super::update::version_text;
@@ -1201,8 +1203,13 @@ impl Console {
                 };
                 f.bool("rolled_back", r.rolled_back)?;
                 match (r.rolled_back, r.rolled_back_version) {
-                    (true, Some(_)) => f.str("rolled_back_version", rolled),
-                    _ => f.none("rolled_back_version"),
+                    (true, Some(_)) => f.str("rolled_back_version", rolled)?,
+                    _ => f.none("rolled_back_version")?,
+                };
+                f.str("trial", r.trial.word())?;
+                match r.trial.advice() {
+                    Some(a) => f.str("trial_advice", a),
+                    None => f.none("trial_advice"),
                 }
             });
         } else {
@@ -1218,9 +1225,15 @@ impl Console {
                         previous,
                         " rolled_back=",
                         rolled,
+                        " trial=",
+                        r.trial.word(),
                         "\r\n",
                     ],
-                )
+                )?;
+                match r.trial.advice() {
+                    Some(a) => write_all(o, &["  ", a, "\r\n"]),
+                    None => Ok(()),
+                }
             });
         }
     }

@@ -1,5 +1,5 @@
 //! The `update` command (issue 21, docs/update.md): a signed image received by
-//! YMODEM-1K into DFU page 0, its trailer checked, its ed25519 signature verified by
+//! YMODEM-1K into DFU, its trailer checked, its ed25519 signature verified by
 //! embassy-boot's `verify_and_mark_updated` (which marks it for the bootloader's swap
 //! only when the signature holds), then a restart into it.
 //!
@@ -7,13 +7,19 @@
 //!  technician        console (maintenance mode, at rest)            flash
 //!  update  ───────▶  ok: update: send the signed image by YMODEM-1K …
 //!                    (READY low, every request but stop refused: Controller::begin_update)
-//!                                                                   erase DFU page 0
-//!          ◀───────  'C' every 3 s
+//!          ◀───────  'C' at once, then every 3 s
 //!  block 0 ───────▶  size ≤ ACTIVE
 //!          ◀───────  ACK 'C'
-//!  block n ───────▶                                                  program the block
-//!          ◀───────  ACK                     (progress in the log, every 10 %)
-//!  EOT, end ──────▶  trailer: magic, length, words, vector table
+//!  block 1 ───────▶  vector table and header: this layout's       (nothing erased
+//!                    (`update::check_head`; else refused here)     before this check)
+//!                                                                   erase DFU page 0
+//!          ◀───────  ACK                     (held while the page erases: 1-2 s;
+//!  block n ───────▶                           senders wait 10 s)    program the block
+//!          ◀───────  ACK                     (a block entering the next DFU page
+//!                                             erases that page first)
+//!  EOT, end ──────▶  DFU pages the file did not reach, up to ACTIVE's, erased where not
+//!                    blank (the swap copies them to ACTIVE);
+//!                    trailer: magic, length, words, vector table, header's layout
 //!                    SHA-512 of the image, ed25519 with the built-in key
 //!                    → STATE: SWAP (embassy-boot)                    STATE marked
 //!          ◀───────  ok: update verified: version V …; restarting     audit, image record
@@ -22,21 +28,22 @@
 //!
 //! Every way it can fail ends in one line, `error: update refused: <why>`, with STATE
 //! as it was (nothing is marked before the signature holds): the sender's cancel, 60 s
-//! of silence, a file larger than ACTIVE, a flash error, a bad trailer
-//! ([`crate::update::Refusal`]), a signature that does not verify (unsigned, another
-//! key's, or a byte changed), or a trial image not yet confirmed. After a refusal the
-//! line is let go quiet first (the sender's last bytes are not taken for commands).
+//! of silence, a file larger than ACTIVE, a file for another layout (before anything is
+//! erased), a flash error, a bad trailer ([`crate::update::Refusal`]), a signature that
+//! does not verify (unsigned, another key's, or a byte changed), or a trial image not
+//! yet confirmed. After a refusal the line is let go quiet first (the sender's last
+//! bytes are not taken for commands).
 //!
 //! Nothing is printed while the transfer runs: the link carries YMODEM then. The
-//! session runs in the board's idle loop (`UpdateSession::poll`, feature `updater`), without the
-//! controller; the flash it writes through is the board's (DFU page 0 and STATE behind
-//! the controller's owner, at rest). No `core::fmt`: fixed texts and a hand-written
-//! decimal.
+//! session runs in the board's idle loop (`UpdateSession::poll`, feature `updater`),
+//! without the controller; the flash it writes through is the board's (DFU and STATE
+//! behind the controller's owner, at rest). No `core::fmt`: fixed texts and a
+//! hand-written decimal.
 
 #[cfg(feature = "updater")]
 pub use session::UpdateSession;
 use update_layout::header::{Version, VERSION_TEXT_MAX};
-use update_layout::layout::PAGE_LEN;
+use update_layout::layout::ACTIVE_LEN;
 
 use super::json::dec_text;
 use super::service::{action, Console};
@@ -48,11 +55,6 @@ use crate::update::{marked_record, ImageReport};
 pub const IDLE_MS: u64 = 3_000;
 /// Silence after which the transfer is cancelled, ms.
 pub const SILENCE_MS: u64 = 60_000;
-/// From `update`'s reply to the erase of DFU page 0, ms: the reply (~130 bytes, 11 ms at
-/// 115 200 Bd) leaves the transmit ring first. The erase stalls the CPU for seconds and
-/// the console's transmit interrupt with it: a reply still queued would stop halfway
-/// (the virtual board's lrzsz test saw "ok" and, seconds later, the rest).
-pub const ERASE_AFTER_MS: u64 = 100;
 /// After a refusal: the line must be quiet this long before the reply, ms.
 pub const QUIET_MS: u64 = 1_000;
 /// ...but the reply comes at the latest this long after the refusal, ms.
@@ -104,15 +106,15 @@ mod session {
     use embassy_boot::{BlockingFirmwareUpdater, FirmwareUpdaterConfig, FirmwareUpdaterError};
     use embedded_storage::nor_flash::{NorFlash, ReadNorFlash};
     use update_layout::header::{Header, HEADER_LEN, HEADER_OFFSET};
-    use update_layout::layout::{ACTIVE_BASE, PAGE_LEN};
+    use update_layout::layout::{ACTIVE_BASE, ACTIVE_LEN, ACTIVE_PAGES, PAGE_LEN};
     use update_layout::part::{FlashError, Paged, Sectors, State};
 
-    use super::{why, Outcome, ERASE_AFTER_MS, IDLE_MS, QUIET_MAX_MS, QUIET_MS, SILENCE_MS};
+    use super::{why, Outcome, IDLE_MS, QUIET_MAX_MS, QUIET_MS, SILENCE_MS};
     use crate::hal::ConsoleIo;
-    use crate::update::{check, TRAILER_LEN};
+    use crate::update::{check, check_head, TRAILER_LEN};
     use crate::ymodem::{Abort, Action, Receiver};
 
-    /// DFU (its two pages, as embassy-boot sees it) over the board's flash.
+    /// DFU (its pages, as embassy-boot sees it) over the board's flash.
     type Dfu<'a> = Paged<'a, dyn Sectors + 'a>;
     /// STATE over the board's flash.
     type StateFlash<'a> = State<'a, dyn Sectors + 'a>;
@@ -120,11 +122,6 @@ mod session {
     #[derive(Clone, Copy, Debug, PartialEq, Eq)]
     enum Phase {
         Off,
-        /// Started: DFU page 0 is erased at the first poll at or after `at` (ms), before
-        /// the first 'C'.
-        Erasing {
-            at: u64,
-        },
         Receiving,
         /// Refused: waiting for the line to go quiet (`until`), at the latest `deadline`.
         Quiet {
@@ -145,6 +142,9 @@ mod session {
         /// A flash operation ran in the last poll (an erase takes seconds): the next poll
         /// counts the silence from its own time, not from before it.
         worked: bool,
+        /// DFU pages erased (or found blank) in this session: each is erased before the
+        /// first block that lands in it.
+        erased_pages: u32,
     }
 
     impl Default for UpdateSession {
@@ -165,6 +165,7 @@ mod session {
                 progress: 0,
                 why: None,
                 worked: false,
+                erased_pages: 0,
             }
         }
 
@@ -173,17 +174,16 @@ mod session {
             self.phase != Phase::Off
         }
 
-        /// Begin: a poll [`ERASE_AFTER_MS`] later erases DFU page 0 (seconds; the sender
-        /// waits for the first 'C', which goes out at the poll after).
+        /// Begin: the first 'C' goes out at the first poll; nothing is erased before the
+        /// first block has shown the file to be an image for this board's layout.
         pub fn start(&mut self, now_ms: u64) {
-            self.rx = Receiver::new(PAGE_LEN);
-            self.phase = Phase::Erasing {
-                at: now_ms.saturating_add(ERASE_AFTER_MS),
-            };
+            self.rx = Receiver::new(ACTIVE_LEN);
+            self.phase = Phase::Receiving;
             self.last_rx_ms = now_ms;
             // Never: the first 'C' goes out at once.
             self.last_idle_ms = u64::MAX;
             self.progress = 0;
+            self.erased_pages = 0;
         }
 
         fn refuse(&mut self, why: &'static str, now_ms: u64) {
@@ -196,7 +196,7 @@ mod session {
         }
 
         /// Run the session: bytes in, flash written through `flash` (the DFU partition:
-        /// page 0 then page 1, as embassy-boot sees it, and STATE; `update_layout::part`),
+        /// its pages, as embassy-boot sees it, and STATE; `update_layout::part`),
         /// YMODEM's answers out. `key`: the ed25519 public key built in. `Some` once it
         /// has ended.
         ///
@@ -229,22 +229,6 @@ mod session {
                     self.phase = Phase::Quiet { until, deadline };
                     None
                 }
-                Phase::Erasing { at } if now_ms < at => None,
-                Phase::Erasing { .. } => {
-                    // Before the first 'C', while the sender waits for it (a minute and
-                    // more: YMODEM senders wait long for the receiver to start): an erase
-                    // of seconds after block 0, while the sender waited for its ACK (lrzsz
-                    // `sb`: 10 s), had the sender send block 0 again when the erase ran
-                    // long, and its extra ACK put the sender one ACK ahead: a block out
-                    // of sequence at the end of the file.
-                    info!("update: erasing DFU page 0");
-                    self.worked = true;
-                    if dfu.erase(0, PAGE_LEN).is_err() {
-                        return self.cancel(io, why::FLASH, now_ms);
-                    }
-                    self.phase = Phase::Receiving;
-                    None
-                }
                 Phase::Receiving => self.receive(io, &mut dfu, &mut state, key, now_ms),
             }
         }
@@ -275,13 +259,21 @@ mod session {
                     Action::None => {}
                     Action::Send(bytes) => send(io, bytes),
                     Action::Start { size } => {
-                        // DFU page 0 was erased before the first 'C' (Phase::Erasing).
                         info!("update: receiving {} bytes", size);
                         send(io, self.rx.ack());
                     }
                     Action::Data { offset, len } => {
+                        if offset == 0 {
+                            // Before anything is erased: an image for this layout.
+                            if let Err(r) = check_head(self.rx.data()) {
+                                return self.cancel(io, r.text(), now_ms);
+                            }
+                        }
                         self.worked = true;
-                        if program(dfu, offset, self.rx.data()).is_err() {
+                        let end = offset.saturating_add(self.rx.data().len() as u32);
+                        if self.erase_pages_below(dfu, end).is_err()
+                            || program(dfu, offset, self.rx.data()).is_err()
+                        {
                             return self.cancel(io, why::FLASH, now_ms);
                         }
                         send(io, self.rx.ack());
@@ -290,7 +282,13 @@ mod session {
                     Action::Done(bytes) => {
                         send(io, bytes);
                         let size = self.rx.size();
-                        let out = verify(dfu, state, key, size);
+                        // The swap copies all of ACTIVE's pages of DFU: those the file
+                        // did not reach must not hold an earlier image's bytes.
+                        self.worked = true;
+                        let out = match self.clear_pages_after(dfu) {
+                            Ok(()) => verify(dfu, state, key, size),
+                            Err(_) => Outcome::Refused(why::FLASH),
+                        };
                         return match out {
                             Outcome::Verified { .. } => {
                                 self.phase = Phase::Off;
@@ -334,6 +332,32 @@ mod session {
             }
             self.refuse(why, now_ms);
             None
+        }
+
+        /// Erase every DFU page below `end` not erased yet in this session, blank or not
+        /// (data is programmed into it: `update_layout::part`'s module doc); never
+        /// beyond ACTIVE's pages (the swap's spare page is the bootloader's).
+        fn erase_pages_below(&mut self, dfu: &mut Dfu<'_>, end: u32) -> Result<(), FlashError> {
+            let pages = end.min(ACTIVE_LEN).div_ceil(PAGE_LEN);
+            while self.erased_pages < pages.min(ACTIVE_PAGES.len() as u32) {
+                let p = self.erased_pages;
+                info!("update: erasing DFU page {}", p);
+                dfu.erase_page(p)?;
+                self.erased_pages += 1;
+            }
+            Ok(())
+        }
+
+        /// The DFU pages of ACTIVE's the file did not reach, left reading blank (erased
+        /// only where they do not: nothing is programmed into them).
+        fn clear_pages_after(&mut self, dfu: &mut Dfu<'_>) -> Result<(), FlashError> {
+            for p in self.erased_pages..ACTIVE_PAGES.len() as u32 {
+                if dfu.clear_page(p)? {
+                    info!("update: DFU page {} cleared for the swap", p);
+                }
+            }
+            self.erased_pages = ACTIVE_PAGES.len() as u32;
+            Ok(())
         }
 
         fn report_progress(&mut self, done: u32) {
@@ -391,8 +415,9 @@ mod session {
         }
     }
 
-    /// The file of `size` bytes in DFU page 0: its trailer checked, then embassy-boot's
-    /// verification, which marks it for the swap only if the signature holds.
+    /// The file of `size` bytes in DFU: its trailer and its first bytes (vector table,
+    /// header's layout) checked, then embassy-boot's verification, which marks it for
+    /// the swap only if the signature holds.
     fn verify(dfu: &mut Dfu<'_>, state: &mut StateFlash<'_>, key: &[u8; 32], size: u32) -> Outcome {
         let mut head = [0u8; 8];
         let mut tail = [0u8; TRAILER_LEN];
@@ -403,15 +428,25 @@ mod session {
         if dfu.read(0, &mut head).is_err() || dfu.read(tail_at, &mut tail).is_err() {
             return Outcome::Refused(why::FLASH);
         }
-        let trailer = match check(size, &head, &tail, ACTIVE_BASE, PAGE_LEN) {
+        let trailer = match check(size, &head, &tail, ACTIVE_BASE, ACTIVE_LEN) {
             Ok(t) => t,
             Err(r) => return Outcome::Refused(r.text()),
         };
-        let mut h = [0u8; HEADER_LEN];
-        let version = (trailer.len >= HEADER_OFFSET + HEADER_LEN as u32)
-            .then(|| dfu.read(HEADER_OFFSET, &mut h).ok())
-            .flatten()
-            .and_then(|()| Header::parse(&h))
+        // The first block was checked as it came; a sender's 128-byte blocks bring the
+        // header later: all of it again, from the flash.
+        let mut first = [0u8; HEADER_OFFSET as usize + HEADER_LEN];
+        if trailer.len < first.len() as u32 {
+            return Outcome::Refused(crate::update::Refusal::NoHeader.text());
+        }
+        if dfu.read(0, &mut first).is_err() {
+            return Outcome::Refused(why::FLASH);
+        }
+        if let Err(r) = check_head(&first) {
+            return Outcome::Refused(r.text());
+        }
+        let version = first
+            .last_chunk::<HEADER_LEN>()
+            .and_then(Header::parse)
             .map(|h| h.version);
         // embassy-boot's state buffer is one word of STATE (its own assertion).
         if <StateFlash<'_> as NorFlash>::WRITE_SIZE != 4 {
@@ -463,7 +498,7 @@ pub(super) fn begin(console: &mut Console, ctrl: &mut dyn Machine) {
     let mut n = [0u8; 20];
     console.reply_parts(&[
         b"ok: update: send the signed image by YMODEM-1K now (sb -k FILE, or the terminal's YMODEM upload); at most ",
-        dec_text(PAGE_LEN.into(), &mut n).as_bytes(),
+        dec_text(ACTIVE_LEN.into(), &mut n).as_bytes(),
         b" bytes; 60 s of silence cancels\r\n",
     ]);
     console.request_update();

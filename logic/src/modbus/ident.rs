@@ -10,7 +10,10 @@
 //! images (issue 21): 0x81 the previous image's version (`none`), 0x82 the key the
 //! image verifies updates with (`test` or `integrator`; `unknown` without an image
 //! header: the simulators), 0x83 the last update rolled
-//! back (`no`, its version, or `yes` when its version is not known). A
+//! back (`no`, its version, or `yes` when its version is not known), 0x84 whether the
+//! running image is on trial after an update (`no`, `yes`: it confirms itself at rest
+//! once the load cell answers, a reset before rolls it back; `failed`: its confirmation
+//! could not be written, the next reset rolls it back; issue 31). A
 //! stream that does not fit one reply sets "more follows" and the next object id; a
 //! stream request for an object id that does not exist restarts at object 0 (the spec's
 //! rule); an individual request for one is exception 02; any other read device id code
@@ -42,10 +45,12 @@ pub const OBJECT_PREVIOUS: u8 = 0x81;
 pub const OBJECT_KEY: u8 = 0x82;
 /// Object 0x83 (private): the last update rolled back.
 pub const OBJECT_ROLLED_BACK: u8 = 0x83;
+/// Object 0x84 (private): the running image on trial (`no`, `yes`, `failed`).
+pub const OBJECT_TRIAL: u8 = 0x84;
 /// The conformity level: basic, regular and extended, stream and individual access.
 pub const CONFORMITY: u8 = 0x83;
 /// The objects, in stream order.
-const OBJECTS: [u8; 9] = [
+const OBJECTS: [u8; 10] = [
     0,
     1,
     2,
@@ -55,6 +60,7 @@ const OBJECTS: [u8; 9] = [
     OBJECT_PREVIOUS,
     OBJECT_KEY,
     OBJECT_ROLLED_BACK,
+    OBJECT_TRIAL,
 ];
 
 /// The images' texts.
@@ -63,6 +69,7 @@ struct Texts<'a> {
     previous: &'a str,
     rolled: &'a str,
     key: &'static str,
+    trial: &'static str,
 }
 
 fn device_object<'a>(
@@ -78,6 +85,7 @@ fn device_object<'a>(
         OBJECT_PREVIOUS => t.previous.as_bytes(),
         OBJECT_KEY => t.key.as_bytes(),
         OBJECT_ROLLED_BACK => t.rolled.as_bytes(),
+        OBJECT_TRIAL => t.trial.as_bytes(),
         4 => names.product.as_bytes(),
         5 => MODEL_NAME.as_bytes(),
         OBJECT_SERIAL => {
@@ -114,6 +122,7 @@ pub(super) fn device_identification(
             (Some(_), true) => "test",
             (Some(_), false) => "integrator",
         },
+        trial: images.trial.word(),
     };
     const HEAD: usize = 8; // unit, 0x2B, 0x0E, code, conformity, more, next, count
     let &[_, mei, code, object] = pdu else {

@@ -89,7 +89,7 @@ pub enum FlashTiming {
 
 impl FlashTiming {
     /// Word (any PSIZE) program time, ps.
-    pub fn program_ps(self) -> u64 {
+    pub const fn program_ps(self) -> u64 {
         match self {
             Self::Typical => 16_000_000,
             Self::Max => 100_000_000,
@@ -97,15 +97,15 @@ impl FlashTiming {
     }
 
     /// Erase time of a sector of `kib` KiB at PSIZE `psize` (0 = x8, 1 = x16, 2/3 = x32), ps.
-    pub fn erase_ps(self, kib: u32, psize: u32) -> u64 {
-        let col = psize.min(2) as usize;
+    pub const fn erase_ps(self, kib: u32, psize: u32) -> u64 {
+        let col = if psize > 2 { 2 } else { psize as usize };
         // [x8, x16, x32] typical, ms
         let typ_ms: [u64; 3] = match kib {
             16 => [400, 300, 250],
             64 => [1_200, 700, 550],
             _ => [2_000, 1_300, 1_000],
         };
-        let ms = typ_ms[col] * if self == Self::Max { 2 } else { 1 };
+        let ms = typ_ms[col] * if matches!(self, Self::Max) { 2 } else { 1 };
         ms * 1_000_000_000
     }
 }
