@@ -9,6 +9,8 @@
     python3 tools/size-report.py --inlined idle       # what was inlined into `...::idle`
     python3 tools/size-report.py --inlined idle --inlined-depth 2   # two inline levels
     python3 tools/size-report.py --baseline old.elf   # per-function differences to another image
+    python3 tools/size-report.py --baseline tools/size-baseline.txt   # ... to a recorded one
+    python3 tools/size-report.py --record tools/size-baseline.txt     # record this image's sizes
     python3 tools/size-report.py --inline-sites       # functions inlined at several places
 
 Every symbol that occupies flash is counted: code and read-only data (`t T r R`), the
@@ -22,6 +24,11 @@ crate `a`); `.Lanon.*` constants are grouped as `[anonymous constants]`.
 from the DWARF line tables (`addr2line -i` on every halfword): `self` is the bytes whose
 innermost frame is that function, `incl.` the bytes with it anywhere in the inline stack.
 Needs the release profile's `debug = 2` (it does not change the image).
+
+`--record FILE` writes this image's figures (its flash, then every symbol's size, one a
+line) to FILE, headed by the commit it was built from: the size policy's baseline
+(`cargo xtask size` compares the image with it function by function, docs/board.md,
+"Flash and size"). `--baseline` takes such a file as well as an ELF.
 
 `--inline-sites` lists the functions the compiler inlined at two or more places, from
 the DWARF inline records (`llvm-dwarfdump`, Debian's `llvm`): the number of copies,
@@ -259,15 +266,49 @@ def inline_sites(elf, top):
         print(f"{fmt_bytes(saved)} {count:>6} {fmt_bytes(total)}  {name}")
 
 
-def diff(elf, base, top):
-    new = collections.Counter()
-    old = collections.Counter()
-    # Unnamed constants are renumbered by every build: compared as one row.
-    for count, path in ((new, elf), (old, base)):
+def figures(path):
+    """(flash bytes, Counter of bytes by symbol name) of an ELF or of a file --record wrote.
+    Unnamed constants are renumbered by every build: counted as one row."""
+    counts = collections.Counter()
+    with open(path, "rb") as f:
+        is_elf = f.read(4) == b"\x7fELF"
+    if is_elf:
         for _, size, _, name in symbols(path):
-            count["[anonymous constants]" if name.startswith(".L") else name] += size
-    fn = sum(section_sizes(elf).get(s, 0) for s in FLASH_SECTIONS)
-    fo = sum(section_sizes(base).get(s, 0) for s in FLASH_SECTIONS)
+            counts["[anonymous constants]" if name.startswith(".L") else name] += size
+        return sum(section_sizes(path).get(s, 0) for s in FLASH_SECTIONS), counts
+    flash = None
+    with open(path, encoding="utf-8") as f:
+        for ln in f:
+            ln = ln.rstrip("\n")
+            if ln.startswith("#"):
+                m = re.search(r"\bflash (\d+)", ln)
+                if m:
+                    flash = int(m.group(1))
+                continue
+            size, _, name = ln.partition("\t")
+            if size.isdigit():
+                counts[name] += int(size)
+    if flash is None:
+        sys.exit(f"{path}: not an ELF nor a file of --record (no '# ... flash N' line)")
+    return flash, counts
+
+
+def record(elf, out):
+    flash, counts = figures(elf)
+    try:
+        commit = run(["git", "rev-parse", "HEAD"]).strip()
+    except (subprocess.CalledProcessError, FileNotFoundError):
+        commit = "unknown"
+    with open(out, "w", encoding="utf-8") as f:
+        f.write(f"# size baseline: commit {commit} flash {flash} (python3 tools/size-report.py --record)\n")
+        for name, size in sorted(counts.items(), key=lambda c: (-c[1], c[0])):
+            f.write(f"{size}\t{name}\n")
+    print(f"{out}: flash {flash} B, {len(counts)} symbols, commit {commit}")
+
+
+def diff(elf, base, top):
+    fn, new = figures(elf)
+    fo, old = figures(base)
     print(f"flash {fo} -> {fn} B ({fn - fo:+d})")
     ch = [(new[k] - old[k], k) for k in set(new) | set(old) if new[k] != old[k]]
     ch.sort(key=lambda c: -abs(c[0]))
@@ -283,7 +324,8 @@ def main():
     ap.add_argument("--no-groups", action="store_true", help="only the top symbols")
     ap.add_argument("--inlined", metavar="SYMBOL", help="break down the functions whose name contains SYMBOL")
     ap.add_argument("--inlined-depth", type=int, default=1, help="inline level for --inlined (default 1)")
-    ap.add_argument("--baseline", metavar="ELF", help="print per-symbol differences to this image")
+    ap.add_argument("--baseline", metavar="ELF", help="print per-symbol differences to this image (or a --record file)")
+    ap.add_argument("--record", metavar="FILE", help="write this image's per-symbol sizes to FILE (the size baseline)")
     ap.add_argument("--inline-sites", action="store_true", help="functions inlined at two or more places")
     a = ap.parse_args()
     if not os.path.exists(a.elf):
@@ -292,6 +334,8 @@ def main():
         inline_sites(a.elf, a.top)
     elif a.inlined is not None:
         inlined(a.elf, a.inlined, a.top, a.inlined_depth)
+    elif a.record:
+        record(a.elf, a.record)
     elif a.baseline:
         diff(a.elf, a.baseline, a.top)
     else:
