@@ -67,41 +67,39 @@ const DEFAULT_CALIBRATION: Calibration = Calibration::SIM_DEFAULT;
 // --- Safe state, by raw register writes (RM0090 §7.4, §8.4) ------------------------
 // Used first thing at boot and from the panic and HardFault handlers, where the HAL's
 // pin objects are out of reach or the HAL's state cannot be trusted.
-const RCC_AHB1ENR: *mut u32 = 0x4002_3830 as *mut u32;
-const GPIOD_BASE: usize = 0x4002_0C00;
-const GPIOE_BASE: usize = 0x4002_1000;
-const MODER: usize = 0x00;
-const BSRR: usize = 0x18;
 const SYST_CSR: *mut u32 = 0xE000_E010 as *mut u32;
 
 /// Drive every motor output to its safe (disabled) state: stop step pulses, propulsion
 /// EN (PE11) high, STEP (PE9) low, lock IN1/IN2 (PD12/PD13) low. Idempotent, needs no
 /// HAL object, safe to call from any context.
 pub fn force_safe_outputs() {
+    use update_layout::safe::{
+        BSRR, D_LEVELS, D_MODE_MASK, D_MODE_OUT, E_LEVELS, E_MODE_MASK, E_MODE_OUT, GPIOD,
+        GPIOD_E_CLOCKS, GPIOE, MODER, RCC_AHB1ENR,
+    };
+    let reg = |a: u32| a as *mut u32;
     // SAFETY: fixed, documented MMIO addresses of this chip; the writes only set the
-    // motor pins' output level and mode and stop SysTick, which is what every caller
-    // wants, whatever the HAL believes about them.
+    // motor and PLC pins' output level and mode and stop SysTick, which is what every
+    // caller wants, whatever the HAL believes about them.
     unsafe {
         core::ptr::write_volatile(SYST_CSR, 0); // stop the step-pulse tick
-        let en = core::ptr::read_volatile(RCC_AHB1ENR);
-        core::ptr::write_volatile(RCC_AHB1ENR, en | (1 << 3) | (1 << 4)); // GPIOD, GPIOE clocks
-                                                                          // A write to a peripheral right after its clock enable can be lost (RM0090
-                                                                          // §6.3.11, ES0182 errata 2.2.x): the bus must see the enable first.
+        let en = core::ptr::read_volatile(reg(RCC_AHB1ENR));
+        core::ptr::write_volatile(reg(RCC_AHB1ENR), en | GPIOD_E_CLOCKS);
+        // A write to a peripheral right after its clock enable can be lost (RM0090
+        // §6.3.11, ES0182 errata 2.2.x): the bus must see the enable first.
         cortex_m::asm::dsb();
-        // Levels first (BSRR), then mode, so the pin never drives the wrong level.
-        core::ptr::write_volatile((GPIOE_BASE + BSRR) as *mut u32, (1 << 11) | (1 << (9 + 16)));
-        // Lock bridge low; the PLC outputs (PD0..PD3) low too: a crashing controller is
-        // not ready and reports nothing mated.
-        core::ptr::write_volatile(
-            (GPIOD_BASE + BSRR) as *mut u32,
-            (1 << (12 + 16)) | (1 << (13 + 16)) | (0xF << 16),
-        );
-        let moder_e = (GPIOE_BASE + MODER) as *mut u32;
-        let m = core::ptr::read_volatile(moder_e) & !((0b11 << 18) | (0b11 << 22));
-        core::ptr::write_volatile(moder_e, m | (0b01 << 18) | (0b01 << 22));
-        let moder_d = (GPIOD_BASE + MODER) as *mut u32;
-        let m = core::ptr::read_volatile(moder_d) & !((0b11 << 24) | (0b11 << 26));
-        core::ptr::write_volatile(moder_d, m | (0b01 << 24) | (0b01 << 26));
+        // Levels first (BSRR), then mode, so the pin never drives the wrong level: EN
+        // high, STEP low, the lock bridge and the PLC outputs low (a crashing controller
+        // is not ready and reports nothing mated). update-layout's `safe`, as the
+        // bootloader's and this image's `__pre_init` (crash.rs).
+        for (port, levels, mask, out) in [
+            (GPIOE, E_LEVELS, E_MODE_MASK, E_MODE_OUT),
+            (GPIOD, D_LEVELS, D_MODE_MASK, D_MODE_OUT),
+        ] {
+            core::ptr::write_volatile(reg(port + BSRR), levels);
+            let m = core::ptr::read_volatile(reg(port + MODER)) & !mask;
+            core::ptr::write_volatile(reg(port + MODER), m | out);
+        }
     }
 }
 
@@ -253,7 +251,7 @@ fn estop_lock_and_mated_off() {
     // SAFETY: a fixed MMIO set/reset register of GPIOD (clocked since init).
     unsafe {
         core::ptr::write_volatile(
-            (GPIOD_BASE + BSRR) as *mut u32,
+            (update_layout::safe::GPIOD + update_layout::safe::BSRR) as *mut u32,
             (1 << (12 + 16)) | (1 << (13 + 16)) | (1 << (1 + 16)),
         );
     }

@@ -32,6 +32,8 @@
     clippy::indexing_slicing
 )]
 
+/// The shared crate itself (its `pre_init_safe_outputs!` macro).
+pub use update_layout as layout_crate;
 pub use update_layout::{layout, part};
 
 use core::cell::RefCell;

@@ -60,50 +60,9 @@ mod board {
     /// The core's clock out of reset (HSI): 1 s of `delay`.
     const ONE_SECOND: u32 = 16_000_000;
 
-    core::arch::global_asm!(
-        ".section .text.__pre_init,\"ax\",%progbits",
-        ".global __pre_init",
-        ".type __pre_init,%function",
-        ".thumb_func",
-        "__pre_init:",
-        // GPIOD/GPIOE clocks on, then levels (BSRR) before modes: EN (PE11) high, STEP
-        // (PE9) low, lock IN1/IN2 (PD12/13) and READY..MAINTENANCE (PD0-3) low,
-        // push-pull outputs. The application's __pre_init (src/board/crash.rs) does the
-        // same stores.
-        "    ldr r0, ={rcc_ahb1enr}",
-        "    ldr r1, [r0]",
-        "    orr r1, r1, #0x18",
-        "    str r1, [r0]",
-        "    dsb",
-        "    ldr r0, ={gpioe}",
-        "    ldr r1, ={e_levels}",
-        "    str r1, [r0, #0x18]",
-        "    ldr r1, [r0]",
-        "    ldr r2, ={e_mask}",
-        "    bic r1, r1, r2",
-        "    ldr r2, ={e_out}",
-        "    orr r1, r1, r2",
-        "    str r1, [r0]",
-        "    ldr r0, ={gpiod}",
-        "    ldr r1, ={d_levels}",
-        "    str r1, [r0, #0x18]",
-        "    ldr r1, [r0]",
-        "    ldr r2, ={d_mask}",
-        "    bic r1, r1, r2",
-        "    ldr r2, ={d_out}",
-        "    orr r1, r1, r2",
-        "    str r1, [r0]",
-        "    bx lr",
-        rcc_ahb1enr = const 0x4002_3830u32,
-        gpioe = const 0x4002_1000u32,
-        gpiod = const 0x4002_0C00u32,
-        e_levels = const (1u32 << 11) | (1 << (9 + 16)),
-        e_mask = const (0b11u32 << 18) | (0b11 << 22),
-        e_out = const (0b01u32 << 18) | (0b01 << 22),
-        d_levels = const (0x300Fu32) << 16,
-        d_mask = const (0b1111u32 << 24) | 0xFF,
-        d_out = const (0b0101u32 << 24) | 0x55,
-    );
+    // The outputs safe as the first instructions, before any RAM is set up: the same
+    // stores as the application's (update-layout's `safe`).
+    docking_boot::layout_crate::pre_init_safe_outputs!("    bx lr";);
 
     fn rd(r: *mut u32) -> u32 {
         // SAFETY: a fixed MMIO register of the flash interface.

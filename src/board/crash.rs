@@ -79,38 +79,11 @@ extern "C" {
 // Runs before RAM is initialised and before cortex-m-rt paints the stack: look at the
 // stack's bottom word while it still holds what the last run left there. Assembly,
 // because no Rust may run before RAM initialisation.
-core::arch::global_asm!(
-    ".section .text.__pre_init,\"ax\",%progbits",
-    ".global __pre_init",
-    ".type __pre_init,%function",
-    ".thumb_func",
-    "__pre_init:",
-    // Motor and PLC outputs to their safe levels first, before .bss/.data are set up
-    // (2-3 ms at 16 MHz): until now only the board's pull resistors held them. The same
-    // stores as `force_safe_outputs`: GPIOD/GPIOE clocks on, levels (BSRR) before modes.
-    "    ldr r0, ={rcc_ahb1enr}",
-    "    ldr r1, [r0]",
-    "    orr r1, r1, #0x18", // GPIODEN | GPIOEEN
-    "    str r1, [r0]",
-    "    dsb",
-    "    ldr r0, ={gpioe}",
-    "    ldr r1, ={e_levels}",
-    "    str r1, [r0, #0x18]", // BSRR: EN (PE11) high, STEP (PE9) low
-    "    ldr r1, [r0]",        // MODER
-    "    ldr r2, ={e_mask}",
-    "    bic r1, r1, r2",
-    "    ldr r2, ={e_out}",
-    "    orr r1, r1, r2",
-    "    str r1, [r0]",
-    "    ldr r0, ={gpiod}",
-    "    ldr r1, ={d_levels}",
-    "    str r1, [r0, #0x18]", // BSRR: lock IN1/IN2 (PD12/13), READY..MAINTENANCE (PD0-3) low
-    "    ldr r1, [r0]",
-    "    ldr r2, ={d_mask}",
-    "    bic r1, r1, r2",
-    "    ldr r2, ={d_out}",
-    "    orr r1, r1, r2",
-    "    str r1, [r0]",
+update_layout::pre_init_safe_outputs!(
+    // Motor and PLC outputs safe first (the macro, update-layout's `safe`: the same
+    // stores as the bootloader's and `force_safe_outputs`), before .bss/.data are set up
+    // (2-3 ms at 16 MHz): until now only the board's pull resistors held them. Then the
+    // stack's bottom, while it still holds what the last run left there.
     "    ldr r0, =CRASH_BLOCK",
     "    ldr r1, [r0, #52]", // painted
     "    ldr r2, ={painted}",
@@ -127,20 +100,11 @@ core::arch::global_asm!(
     "    b 1f",
     "3:  ldr r1, ={overflowed}",
     "    str r1, [r0, #56]", // overflow
-    "1:  bx lr",
+    "1:  bx lr";
     painted = const PAINTED,
     paint = const STACK_PAINT,
     overflowed = const OVERFLOWED,
     guard = const STACK_GUARD_B,
-    rcc_ahb1enr = const 0x4002_3830u32,
-    gpioe = const 0x4002_1000u32,
-    gpiod = const 0x4002_0C00u32,
-    e_levels = const (1u32 << 11) | (1 << (9 + 16)),
-    e_mask = const (0b11u32 << 18) | (0b11 << 22),
-    e_out = const (0b01u32 << 18) | (0b01 << 22),
-    d_levels = const (0x300Fu32) << 16,
-    d_mask = const (0b1111u32 << 24) | 0xFF,
-    d_out = const (0b0101u32 << 24) | 0x55,
 );
 
 /// Record `c` (from the panic or HardFault handler: no allocation, no panic).
