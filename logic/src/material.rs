@@ -21,8 +21,6 @@ impl Material {
     pub const ALL: [Self; 3] = [Self::ZQSn5_2, Self::QSn6_6_3, Self::CfPeek];
 
     /// The name used on the console and in JSON (`zqsn5-2`, `qsn6-6-3`, `cf-peek`).
-    /// Out of line (issue 20): five copies of the match inlined (-144 B).
-    #[cfg_attr(target_os = "none", inline(never))]
     pub const fn name(self) -> &'static str {
         match self {
             Self::ZQSn5_2 => "zqsn5-2",

@@ -164,9 +164,6 @@ impl<EN: OutputPin, DIR: OutputPin, P: StepPulses> Propulsion<EN, DIR, P> {
     }
 
     /// Emergency stop: pulses stop and the power stage is switched off, now.
-    // Out of line (issue 20): every stop path of the control step disables; inlined
-    // it was eight copies (-276 B).
-    #[cfg_attr(target_os = "none", inline(never))]
     pub fn disable(&mut self) -> Result<(), PropulsionError> {
         self.cruise = None;
         self.pulses.set_rate_hz(0);

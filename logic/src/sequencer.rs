@@ -511,9 +511,10 @@ impl Sequencer {
     }
 
     /// Deadline for a move of `dist_um` at `speed`: travel time ×1.5 + ramps + slack.
-    /// Out of line: nine transitions start a move, once each (inlined, each was a copy
-    /// with its two 64-bit divisions).
-    #[cfg_attr(target_os = "none", inline(never))]
+    // Out of line: nine transitions start a move, once each; inlined at each (a copy
+    // with its two 64-bit divisions), the image is 592 B larger (issue 31's
+    // measurement, which kept this hint and dropped the ones under 256 B).
+    #[inline(never)]
     fn move_deadline(&self, now_ms: u64, dist_um: i32, speed_um_per_s: u32) -> u64 {
         let speed = speed_um_per_s.max(1) as u64;
         let travel_ms = dist_um.unsigned_abs() as u64 * 1000 / speed;

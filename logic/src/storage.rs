@@ -1072,8 +1072,6 @@ impl<F: NorFlash> RecordLog<F> {
         Ok(seq)
     }
 
-    // Out of line (issue 20): three copies (-60 B).
-    #[cfg_attr(target_os = "none", inline(never))]
     fn next_sector(&self) -> u32 {
         (self.cur + 1) % self.sectors
     }

@@ -267,8 +267,6 @@ impl MaintenanceAuth {
     }
 
     /// Whether a maintenance session is open and not idle for [`SESSION_IDLE_MS`].
-    // Out of line (issue 20): four copies inlined (-116 B).
-    #[cfg_attr(target_os = "none", inline(never))]
     pub fn is_active(&self, now_ms: u64) -> bool {
         self.session_last_ms
             .is_some_and(|t| now_ms.saturating_sub(t) < SESSION_IDLE_MS)

@@ -105,8 +105,6 @@ impl RtuFramer {
     }
 
     /// The silence before a character stamped `t_us` (`None`: none received yet).
-    /// Out of line (issue 20): two copies (-16 B).
-    #[cfg_attr(target_os = "none", inline(never))]
     fn silence_before(&self, t_us: u64) -> Option<u64> {
         self.last_us
             .map(|l| t_us.saturating_sub(l).saturating_sub(self.char_us))
