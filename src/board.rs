@@ -263,7 +263,10 @@ const GPIOC_IDR: *const u32 = 0x4002_0810 as *const u32;
 /// The E-STOP interrupt's edge record, read by the control step.
 static ESTOP_EDGES: EstopEdges = EstopEdges::new();
 
-/// Set by the control task when it has events or persistence for the idle loop.
+/// Set by every interrupt that gives the idle loop work: the service after each run
+/// (events, persistence, the mailbox), the console's and the Modbus line's receive
+/// interrupts and the console's DMA. Idle's sleep check reads only this flag with
+/// interrupts masked.
 static IDLE_WORK: AtomicBool = AtomicBool::new(false);
 
 /// This boot is a trial after a field update, not confirmed yet (set at init, cleared by
@@ -629,6 +632,8 @@ mod app {
     #[task(binds = USART3, priority = 2, local = [modbus_isr])]
     fn usart3(cx: usart3::Context) {
         cx.local.modbus_isr.on_interrupt();
+        // A character in (or a reply's end): idle's work (its sleep check reads the flag).
+        IDLE_WORK.store(true, Ordering::Relaxed);
     }
 
     /// Step pulses (20 kHz while the axis moves).
@@ -641,12 +646,15 @@ mod app {
     #[task(binds = USART2, priority = 2, local = [console_isr])]
     fn usart2(cx: usart2::Context) {
         cx.local.console_isr.on_interrupt();
+        // A byte in (RXNE pends this before the DMA takes it): idle's work.
+        IDLE_WORK.store(true, Ordering::Relaxed);
     }
 
     /// The console's receive ring: DMA1 stream 5's half and full ring (`console.rs`).
     #[task(binds = DMA1_STREAM5, priority = 2)]
     fn console_rx_dma(_: console_rx_dma::Context) {
         console::on_dma_interrupt();
+        IDLE_WORK.store(true, Ordering::Relaxed);
     }
 
     /// The control step: once per sample (pended by `data_ready`) and once per sample
@@ -780,20 +788,26 @@ mod app {
         let serial = core::str::from_utf8(&serial_hex).unwrap_or("");
         let mut stack_checked_us = 0u64;
         loop {
-            // Sleep until there is work: the service signals after each run (at least
-            // once a sample period), console bytes wake us through USART2. The check
-            // runs with interrupts masked: one that arrives meanwhile stays pending and
-            // `wfi` returns at once.
-            let work = cortex_m::interrupt::free(|_| {
-                let w = IDLE_WORK.swap(false, Ordering::Relaxed)
-                    || cx.local.term.rx_pending()
-                    || cx.local.modbus_line.rx_pending()
-                    || cx.local.server.receiving();
-                if !w {
-                    cortex_m::asm::wfi();
-                }
-                w
-            });
+            // Sleep until there is work: every interrupt that gives idle work sets
+            // IDLE_WORK (the service after each run, at least once a sample period; the
+            // console's and the Modbus line's receive interrupts, and the console's
+            // DMA). What idle left itself (bytes not yet read, a Modbus frame waiting
+            // for its t3.5) is checked first, unmasked; under the mask only the flag
+            // (issue 31: that check is the longest window with every interrupt masked
+            // but the HX711's own pulse, and a DOUT edge at its start waits for all of
+            // it). An interrupt after the unmasked check sets the flag; one during the
+            // masked check stays pending and `wfi` returns at once.
+            let pending = cx.local.term.rx_pending()
+                || cx.local.modbus_line.rx_pending()
+                || cx.local.server.receiving();
+            let work = pending
+                || cortex_m::interrupt::free(|_| {
+                    let w = IDLE_WORK.swap(false, Ordering::Relaxed);
+                    if !w {
+                        cortex_m::asm::wfi();
+                    }
+                    w
+                });
             if !work {
                 continue;
             }
