@@ -10,7 +10,7 @@ use crate::periph::flash::FlashTiming;
 use crate::scene::{Options, SceneOptions, SCENES};
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--cut transfer|swap|boot] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] | estimate-cost [--readings N] [--firmware ELF]";
+pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--cut transfer|swap|boot] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] | estimate-cost [--readings N] [--firmware ELF] | swap-time [--firmware ELF] [--json]";
 
 /// The sweep's usage (`vboard sweep`).
 pub const SWEEP_USAGE: &str = "       vboard sweep [--scene NAME[,NAME...]] [--seeds 1..10|1,2,3] [--cpi X[,X...]] [--timing cpi|art[,...]] [--flood] [--cycles N] [--rate 10|80] [--lsi-hz HZ] [--flash-timing max|typical] [--firmware ELF] [--jobs N] [--json]";
@@ -54,7 +54,7 @@ fn command_help(cmd: &str) -> Option<String> {
     for piece in USAGE.trim_start_matches("usage: vboard ").split(" | ") {
         let word = piece.split_whitespace().next().unwrap_or("");
         match parts.last_mut() {
-            Some(last) if !["scene", "serve", "estimate-cost"].contains(&word) => {
+            Some(last) if !["scene", "serve", "estimate-cost", "swap-time"].contains(&word) => {
                 last.push_str(" | ");
                 last.push_str(piece);
             }
@@ -401,6 +401,30 @@ fn estimate_cost(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     Ok(())
 }
 
+/// `swap-time [--firmware ELF] [--json]`: the bootloader's swap and revert, timed
+/// (crate::swap).
+fn swap_time(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
+    let o = Opts::parse(args, &["firmware"], &["json"])?;
+    let path = match firmware(&o)? {
+        Some(f) => f,
+        None => crate::image::default_path(),
+    };
+    let img = crate::image::Image::load(&path).map_err(Failure::Run)?;
+    let app = crate::update::app_bytes(&img);
+    let rows = crate::swap::table(&crate::image::bootloader_path(), &app).map_err(Failure::Run)?;
+    if o.flag("json") {
+        for r in &rows {
+            let _ = writeln!(out, "{}", r.to_json());
+        }
+    } else {
+        let _ = writeln!(out, "{}", crate::swap::HEADER);
+        for r in &rows {
+            let _ = writeln!(out, "{}", r.to_text());
+        }
+    }
+    Ok(())
+}
+
 /// Run the command line `args` (without the program name).
 pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     let Some((cmd, rest)) = args.split_first() else {
@@ -417,6 +441,7 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
         "serve" => serve(rest, out),
         "estimate-cost" => estimate_cost(rest, out),
         "sweep" => sweep_cmd(rest, out),
+        "swap-time" => swap_time(rest, out),
         "help" | "--help" | "-h" => {
             let _ = writeln!(out, "{USAGE}\n{SWEEP_USAGE}");
             Ok(())
@@ -438,7 +463,7 @@ mod help_tests {
 
     #[test]
     fn every_command_answers_help_with_one_option_a_line() {
-        for cmd in ["scene", "serve", "estimate-cost", "sweep"] {
+        for cmd in ["scene", "serve", "estimate-cost", "sweep", "swap-time"] {
             let (r, out) = run_args(&[cmd, "--help"]);
             assert!(r.is_ok(), "{cmd}");
             assert!(out.starts_with(&format!("vboard {cmd} ")), "{cmd}: {out}");
@@ -480,7 +505,7 @@ mod help_tests {
 
     #[test]
     fn a_missing_firmware_file_is_a_usage_error() {
-        for cmd in ["scene nominal", "estimate-cost", "sweep"] {
+        for cmd in ["scene nominal", "estimate-cost", "sweep", "swap-time"] {
             let mut args: Vec<&str> = cmd.split(' ').collect();
             args.extend(["--firmware", "/no/such/image.elf"]);
             match run_args(&args).0 {

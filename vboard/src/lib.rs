@@ -25,6 +25,7 @@ pub mod rtt;
 pub mod scene;
 pub mod serve;
 pub mod soc;
+pub mod swap;
 pub mod sweep;
 pub mod time;
 pub mod update;
