@@ -344,7 +344,6 @@ mod app {
 
     #[init(local = [
         events: Queue<KernelEvent, 16> = Queue::new(),
-        mb_rx: Queue<(u16, u64), 64> = Queue::new(),
         mb_tx: Queue<u8, 257> = Queue::new(),
         tx_ring: Queue<u8, 1025> = Queue::new(),
         ctrl_slot: MaybeUninit<Controller<Board>> = MaybeUninit::uninit(),
@@ -521,6 +520,9 @@ mod app {
 
         // 12. The Modbus line on USART3 (settings as stored, else 19200 8E1 unit 1).
         let modbus_settings = docking_logic::modbus::ModbusSettings::stored(ctrl);
+        // The flash erase's responder answers the line from the first erase on (one may
+        // come at the first rest, before idle has run: `modbus.rs`).
+        modbus::configure(&modbus_settings);
         let _de = gpiob.pb14.into_push_pull_output_in_state(PinState::Low);
         let mb_serial = match dp.USART3.serial(
             (gpiob.pb10, gpiob.pb11),
@@ -535,7 +537,6 @@ mod app {
         };
         let (mb_tx, mut mb_rx) = mb_serial.split();
         mb_rx.listen();
-        let (mb_rx_in, mb_rx_out) = cx.local.mb_rx.split();
         let (mb_tx_in, mb_tx_out) = cx.local.mb_tx.split();
 
         // 13. The control tick: TIM2 every sample period (and pended after every sample).
@@ -557,13 +558,9 @@ mod app {
                 modbus_isr: modbus::ModbusIsr {
                     rx: mb_rx,
                     tx: mb_tx,
-                    rx_in: mb_rx_in,
                     tx_out: mb_tx_out,
                 },
-                modbus_line: modbus::ModbusLine {
-                    rx_out: mb_rx_out,
-                    tx_in: mb_tx_in,
-                },
+                modbus_line: modbus::ModbusLine { tx_in: mb_tx_in },
                 modbus_settings,
                 stop: BoardStop,
                 events_tx,
@@ -783,6 +780,9 @@ mod app {
                 .server
                 .set_settings(docking_logic::modbus::ModbusSettings::DEFAULT);
         }
+        // The settings in force (the default ones if the stored were refused) for the
+        // flash erase's responder too (`modbus.rs`).
+        modbus::configure(&cx.local.server.settings());
         // The unit's serial for Modbus device identification: the chip's unique ID.
         let serial_hex = unit_serial();
         let serial = core::str::from_utf8(&serial_hex).unwrap_or("");
@@ -825,24 +825,30 @@ mod app {
             // with the controller free.
             let (term, console) = (&mut *cx.local.term, &mut *cx.local.console);
             let (line, server) = (&mut *cx.local.modbus_line, &mut *cx.local.server);
-            // Modbus: the characters into the framer; a request whose t3.5 has passed
-            // is answered by one job (one PDU).
-            while let Some((c, t)) = line.next() {
-                match c {
+            // Modbus: each whole frame into the framer (a frame still being received
+            // stays in the ring: a flash erase's responder may take it, `modbus.rs`); a
+            // request whose t3.5 has passed is answered by one job (one PDU).
+            loop {
+                let took = line.take_whole_frame(clock::now_us(), |c, t| match c {
                     Ok(b) => server.on_byte(b, t),
                     Err(()) => server.on_line_error(t),
-                }
-            }
-            let t = clock::now_us();
-            if server.request_due(t) {
-                mailbox.call(&mut |ctrl| {
-                    if let Some(reply) = server.poll(t, ctrl, serial) {
-                        line.send(reply);
-                        // No flash work from now until the reply is out.
-                        ctrl.set_bus_busy(true);
-                        owner::BUS_BUSY.store(true, Ordering::Relaxed);
-                    }
                 });
+                let t = clock::now_us();
+                if server.request_due(t) {
+                    mailbox.call(&mut |ctrl| {
+                        if let Some(reply) = server.poll(t, ctrl, serial) {
+                            line.send(reply);
+                            // No flash work from now until the reply is out.
+                            ctrl.set_bus_busy(true);
+                        }
+                    });
+                }
+                // Everything taken is answered (or was no request of ours); a reply on
+                // the wire holds the flash by itself (DE).
+                modbus::set_idle_open(server.receiving() || server.request_due(clock::now_us()));
+                if !took {
+                    break;
+                }
             }
             let now_ms = now_us / 1_000;
             // A firmware update (console `update`): YMODEM has the line until it ends;
@@ -861,7 +867,6 @@ mod app {
                         update::restart(term);
                     }
                 }
-                owner::BUS_BUSY.store(line.sending(), Ordering::Relaxed);
                 continue;
             }
             // The console: a line in without the controller; the command's job; a
@@ -886,7 +891,6 @@ mod app {
             let _ = session;
             // What the service applies at its next run: the login, the line.
             owner::MAINTENANCE.store(console.maintenance_active(now_ms), Ordering::Relaxed);
-            owner::BUS_BUSY.store(line.sending(), Ordering::Relaxed);
             console.observe(owner::state_name(), now_ms);
         }
     }

@@ -11,8 +11,8 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::{Enable, Rcc, Reset};
 
-/// TIM5 counter register.
-const TIM5_CNT: *const u32 = 0x4000_0C24 as *const u32;
+/// TIM5 counter register (µs; the flash's SRAM wait reads it directly: `flash.rs`).
+pub(crate) const TIM5_CNT: *const u32 = 0x4000_0C24 as *const u32;
 
 /// The last counter value read, and the wraps seen.
 static LAST: AtomicU32 = AtomicU32::new(0);

@@ -121,16 +121,25 @@ impl NorFlashError for OdoFlashError {
 }
 
 /// Wait (inside an `unsafe` block of a function placed in SRAM) until the flash interface
-/// is no longer busy or `max_cycles` core cycles have passed, feeding the watchdog; the
-/// value is FLASH_SR at the end (BSY still set: timed out). A macro, not a function, so
-/// that nothing is ever called from flash while the flash is busy (the erase here, the
-/// option bytes in `options.rs`).
+/// is no longer busy or `max_cycles` core cycles have passed, feeding the watchdog and
+/// answering the Modbus line meanwhile (`modbus::busy_responder_step`: every request
+/// for this unit gets exception 06, server device busy, within t3.5 of its end; issue
+/// 31); the value is FLASH_SR at the end (BSY still set: timed out). A macro, not a
+/// function, so that nothing is ever called from flash while the flash is busy (the
+/// erase here, the option bytes in `options.rs`): everything it runs is inlined.
 macro_rules! wait_idle_feeding {
     ($max_cycles:expr) => {{
         use $crate::board::flash::{DWT_CYCCNT, FLASH_SR, IWDG_KR, SR_BSY};
+        // The responder's frame buffer, in `.bss` (a buffer on the stack would be
+        // zeroed by a call to flash); one user at a time: interrupts are masked.
+        let responder = &mut *core::ptr::addr_of_mut!($crate::board::modbus::RESPONDER);
         let start = core::ptr::read_volatile(DWT_CYCCNT);
         loop {
             let sr = core::ptr::read_volatile(FLASH_SR);
+            $crate::board::modbus::busy_responder_step(
+                responder,
+                core::ptr::read_volatile($crate::board::clock::TIM5_CNT),
+            );
             if sr & SR_BSY == 0
                 || core::ptr::read_volatile(DWT_CYCCNT).wrapping_sub(start) > $max_cycles
             {

@@ -37,9 +37,9 @@
 //!
 //! After each run the service publishes, with single-word atomics (no critical
 //! section: nothing may mask the E-STOP), what idle reads between jobs: the state's name
-//! (the console prompt). Idle publishes back the maintenance mode (the console's login),
-//! whether a Modbus reply is on the wire (no flash work then) and the stack's high-water
-//! mark. (The log's events are not handed over: the control step logs each one where it
+//! (the console prompt). Idle publishes back the maintenance mode (the console's login)
+//! and the stack's high-water mark; whether the Modbus line holds the flash back is read
+//! fresh at every run (`modbus::busy`). (The log's events are not handed over: the control step logs each one where it
 //! happens; idle logged them a second time up to issue 20.)
 
 use core::cell::UnsafeCell;
@@ -180,8 +180,6 @@ pub fn state_name() -> &'static str {
 
 /// The console's maintenance mode (a technician logged in).
 pub static MAINTENANCE: AtomicBool = AtomicBool::new(false);
-/// A Modbus reply is on the wire (no flash work may stall its characters).
-pub static BUS_BUSY: AtomicBool = AtomicBool::new(false);
 /// The stack's high-water mark, bytes (0: not measured yet), and its size.
 pub static STACK_USED: AtomicU32 = AtomicU32::new(0);
 /// The stack's size, bytes.
@@ -190,7 +188,9 @@ pub static STACK_SIZE: AtomicU32 = AtomicU32::new(0);
 /// The service: apply what idle published.
 pub fn apply_published(ctrl: &mut Ctrl) {
     ctrl.set_maintenance_mode(MAINTENANCE.load(Ordering::Relaxed));
-    ctrl.set_bus_busy(BUS_BUSY.load(Ordering::Relaxed));
+    // The line as it is now (a request idle took and has not answered, a reply on the
+    // wire): read at every run, never a flag published earlier (`modbus::busy`).
+    ctrl.set_bus_busy(super::modbus::busy());
     let used = STACK_USED.load(Ordering::Relaxed);
     if used != 0 {
         ctrl.set_stack_usage(used, STACK_SIZE.load(Ordering::Relaxed));

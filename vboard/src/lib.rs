@@ -20,6 +20,7 @@ pub mod cli;
 pub mod cpu;
 pub mod image;
 pub mod periph;
+pub mod poller;
 pub mod realtime;
 pub mod rtt;
 pub mod scene;

@@ -159,6 +159,9 @@ pub struct Session {
     estop_open: bool,
     /// Every edge of the E-STOP input: (time ps, opened).
     pub estop_edges: Vec<(u64, bool)>,
+    /// A PLC's master polling the Modbus line every 100 ms (`crate::poller`), in the
+    /// scenes that time the line's replies (issue 31).
+    pub poller: Option<crate::poller::Poller>,
 }
 
 /// The control task's exception: TIM2 (IRQ 28).
@@ -209,6 +212,7 @@ impl Session {
             test_cycle: false,
             estop_open: false,
             estop_edges: Vec::new(),
+            poller: None,
         })
     }
 
@@ -249,10 +253,15 @@ impl Session {
         }
     }
 
-    /// Housekeeping every millisecond: read the log, watch MATED.
+    /// Housekeeping every millisecond: read the log, watch MATED, poll the Modbus line
+    /// (when a master polls).
     fn tick(&mut self) {
         self.board.poll_rtt();
         self.observe();
+        if let Some(mut p) = self.poller.take() {
+            p.tick(self);
+            self.poller = Some(p);
+        }
         let out = self.plc_out();
         match (out.mated, self.mated_since_ps) {
             (true, None) => self.mated_since_ps = Some(self.now()),
@@ -988,6 +997,8 @@ pub struct Report {
     pub diagnostics: Vec<String>,
     /// Scene-specific checks (name, passed, detail).
     pub checks: Vec<(String, bool, String)>,
+    /// What a polling PLC master saw (the scenes that poll: `sector-move`, `update`).
+    pub modbus_poll: Option<crate::poller::PollStats>,
     /// `power-cycle`: whether anything moved after the reset before a request.
     pub motion_before_request: Option<bool>,
     /// The STEP/DIR/EN pins as a DM542-class driver sees them.
@@ -1056,7 +1067,7 @@ impl Report {
                 )
             })
             .collect();
-        format!(
+        let json = format!(
             "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"sample_entry_latency_mean_us\":{},\"sample_entry_latency_max_us\":{},\"sample_entry_max_at\":\"{}\",\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_input_lost\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"modbus_overruns\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{},\"moving_s\":{},\"control_period_max_ms\":{},\"control_entry_latency_max_us\":{},\"control_entry_latency_max_us_all\":{},\"control_late\":{},\"watchdog_feed_gap_max_ms\":{},\"watchdog_feeds_missed\":{},\"estop_edges_moving\":{},\"estop_off_max_us\":{},\"estop_edges_not_stopped\":{}}}",
             self.reset_count,
             strs(&causes),
@@ -1121,7 +1132,16 @@ impl Report {
                 .reduce(f64::max)
                 .map_or("null".into(), num),
             self.estop_reactions_us.iter().filter(|r| r.is_none()).count(),
-        )
+        );
+        // The polling master's figures, in the scenes that poll (crate::poller).
+        match self.modbus_poll {
+            Some(p) => format!(
+                "{},{}}}",
+                json.strip_suffix('}').unwrap_or(&json),
+                p.to_json_fields()
+            ),
+            None => json,
+        }
     }
 
     /// A short human summary.
@@ -1279,6 +1299,23 @@ fn latency_us(conv: &[(u64, i32, bool)], edge_ns: u64) -> Option<f64> {
     Some((edge_ns - before[first].0) as f64 / 1e3)
 }
 
+/// The check of a scene whose PLC polled the Modbus line: every request answered
+/// (the registers, or exception 06 while the flash erases) within 100 ms.
+fn poll_check(s: &Session, checks: &mut Vec<(String, bool, String)>, during: &str) {
+    let Some(p) = s.poller.as_ref() else {
+        return;
+    };
+    let st = p.stats;
+    checks.push((
+        format!("every Modbus request answered within 100 ms through {during}"),
+        st.all_answered_within(100.0),
+        format!(
+            "{} requests: {} data, {} busy (06), {} bad, {} unanswered; longest wait {:.1} ms at {:.1} s",
+            st.polls, st.data, st.busy, st.bad, st.timeouts, st.reply_max_ms, st.reply_max_at_s
+        ),
+    ));
+}
+
 /// Run scene `name`. `Err`: unknown scene, unloadable image, or a board that could not
 /// go on (an unmodelled access, an engine failure).
 pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
@@ -1355,7 +1392,9 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         }
         "sector-move" => {
             // Boot: the log is past its maintenance mark, so the firmware erases the next
-            // sector as soon as it is idle with every motor off.
+            // sector as soon as it is idle with every motor off. A PLC polls the Modbus
+            // line all along (issue 31: a reply within 100 ms, the erase included).
+            s.poller = Some(crate::poller::Poller::new(0));
             let before = prefill.unwrap_or_default();
             let deadline = s.now() + 8 * PS_PER_S;
             s.run_until(deadline, |x| {
@@ -1393,6 +1432,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
                 lost_records == 0,
                 format!("{lost_records} kind(s) lost their newest record"),
             ));
+            poll_check(&s, &mut checks, "the boot and the sector's erase");
         }
         "power-cycle" => {
             motion_before_request =
@@ -1647,6 +1687,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         modbus_de_losses: soc.modbus_de_losses,
         modbus_overruns: soc.usart3.overruns,
         checks,
+        modbus_poll: s.poller.as_ref().map(|p| p.stats),
         motion_before_request,
         step: m.axis.step_timing(),
         log: s.board.log.clone(),
