@@ -59,11 +59,16 @@ sizes() {
     END { print t + 0, d + 0, b + 0 }'
 }
 read -r text data bss < <(sizes "$elf")
-# The image without its updater (issue 20's budget): `cargo xtask size` builds it (in
+# The image without its updater (the updater's cost): `cargo xtask size` builds it (in
 # the same target directory, from cargo's cache) and copies it to target/lean; its
-# verdict on the budgets is not this page's business, its images are.
-cargo xtask size >/dev/null || true
+# verdict on the size policy is not this page's business, its images are.
+size_out=$(cargo xtask size 2>/dev/null || true)
 read -r ltext ldata lbss < <(sizes "target/lean/$TARGET/release/docking-controller")
+update_file_line=$(grep '^update file:' <<<"$size_out" || true)
+# The bootloader's swap and revert (issue 31), and a PLC polling through an odometer
+# sector move at the maximum erase time.
+swap_table=$($vb swap-time 2>/dev/null || echo "vboard swap-time failed")
+sector_json=$($vb scene sector-move --json 2>/dev/null || echo '{}')
 
 bench=$($hil bench --cycles 1000)
 ns_step=$(sed -E 's/.* ([0-9]+) ns per control step.*/\1/' <<<"$bench")
@@ -95,10 +100,12 @@ scene_row() { # model args...: one table row from `vboard scene overload --flood
     echo
     echo "## The image (\`cargo build --release --target $TARGET\`, \`size -A\`)"
     echo
-    echo "| image | flash (text + rodata + vectors + header + data) | static RAM (data + bss + uninit) | budget |"
-    echo "|---|---|---|---|"
-    echo "| with its updater (the default) | $((text + data)) B | $((data + bss)) B | 98 304 B flash (issue 21), 32 768 B RAM |"
-    echo "| without (\`--no-default-features\`) | $((ltext + ldata)) B | $((ldata + lbss)) B | 81 920 B flash (issue 20) |"
+    echo "| image | flash (text + rodata + vectors + header + data) | static RAM (data + bss + uninit) |"
+    echo "|---|---|---|"
+    echo "| with its updater (the default) | $((text + data)) B | $((data + bss)) B (at most 32 768 B) |"
+    echo "| without (\`--no-default-features\`): the updater costs $((text + data - ltext - ldata)) B | $((ltext + ldata)) B | $((ldata + lbss)) B |"
+    echo
+    echo "The size policy's figure (\`cargo xtask size\`; docs/update.md, \"Size\"): $update_file_line"
     echo
     echo "The 10 biggest functions (\`python3 tools/size-report.py -n 10 --no-groups $elf\`):"
     echo
@@ -133,6 +140,17 @@ scene_row() { # model args...: one table row from `vboard scene overload --flood
     scene_row "CPI 1" --firmware "$before_elf"
     scene_row "CPI 3" --cpi 3 --firmware "$before_elf"
     scene_row "ART cache, CPI 1" --timing art --firmware "$before_elf"
+    echo
+    echo "The bootloader's swap and revert (\`vboard swap-time\`; docs/update.md, \"Swap time\"):"
+    echo
+    echo '```'
+    echo "$swap_table"
+    echo '```'
+    echo
+    echo "A PLC's master polling input registers every 100 ms through an odometer sector move"
+    echo "at the maximum erase time (\`vboard scene sector-move --json\`; docs/modbus.md): $(field modbus_polls <<<"$sector_json") requests,"
+    echo "$(field modbus_poll_busy <<<"$sector_json") answered busy (exception 06) during the erase, $(field modbus_poll_timeouts <<<"$sector_json") unanswered, the longest"
+    echo "wait for a reply $(field modbus_reply_max_ms <<<"$sector_json") ms."
     if [ "$sweep" = 1 ]; then
         echo
         echo "The worst case over seeds 1–10 and every model (\`vboard sweep --flood\`):"
