@@ -60,4 +60,5 @@ pub mod rng;
 pub mod rtu_line;
 pub mod scene;
 pub mod serve;
+pub mod sigscene;
 pub mod update;

@@ -129,6 +129,9 @@ pub struct Observed {
     pub boots: u32,
     /// E-STOP edges the firmware logged having latched (`E-STOP: N edge(s), …`).
     pub estop_edges_logged: u32,
+    /// Each stroke's signature verdict the firmware logged (`signature: cycle N
+    /// insertion ok`, `… nok band3 figure …`).
+    pub signatures: Vec<hil_sim::sigscene::SignatureSeen>,
     /// Lines read so far.
     cursor: usize,
     /// The current insertion is over (a phase went down: extraction).
@@ -415,6 +418,25 @@ impl Session {
                 ["docking-controller", _, "booted;", ..] => self.seen.boots += 1,
                 ["E-STOP:", n, "edge(s),", ..] => {
                     self.seen.estop_edges_logged += n.parse::<u32>().unwrap_or(0);
+                }
+                ["signature:", "cycle", n, stroke @ ("insertion" | "extraction"), verdict, rest @ ..] =>
+                {
+                    let name = |w: &str| {
+                        docking_logic::signature::objects::Object::ALL
+                            .into_iter()
+                            .map(docking_logic::signature::objects::Object::name)
+                            .find(|o| *o == w)
+                    };
+                    self.seen.signatures.push(hil_sim::sigscene::SignatureSeen {
+                        cycle: n.parse().unwrap_or(0),
+                        stroke: if *stroke == "insertion" {
+                            "insertion"
+                        } else {
+                            "extraction"
+                        },
+                        ok: *verdict == "ok",
+                        failed: rest.first().and_then(|w| name(w)),
+                    });
                 }
                 _ => {}
             }
@@ -710,7 +732,7 @@ fn docking_controller_fault_name(s: &str) -> &'static str {
 }
 
 /// The scenes of `vboard scene`.
-pub const SCENES: [&str; 23] = [
+pub const SCENES: [&str; 27] = [
     "boot",
     "nominal",
     "overload",
@@ -734,6 +756,11 @@ pub const SCENES: [&str; 23] = [
     "update-bad",
     "update-cut",
     "update-rollback",
+    // The docking signature's (issue 34): hil-sim's `sigscene`.
+    "late-entry",
+    "dry-guide",
+    "debris",
+    "catch",
 ];
 
 /// What the PLC of an in-service scene saw on the pins.
@@ -1596,6 +1623,12 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
     let sim_s = s.now() as f64 / PS_PER_S as f64;
     let insns = soc.clock.insns();
     let awake = 1.0 - soc.clock.sleep_ps() as f64 / s.now().max(1) as f64;
+    // The signature's verdicts, as the firmware logged them (hil-sim's expectations).
+    if host_scene {
+        hil_sim::sigscene::check(name, &s.seen.signatures, cycles, 1, &mut |ok, what| {
+            checks.push((what, ok, String::new()))
+        });
+    }
     let scene = SceneReport {
         scene: name.to_string(),
         rate_sps: opts.session.rate_sps,
@@ -1617,6 +1650,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         watchdog_bit: s.watchdog_resets() > 0,
         plc: plc.map(|p| p.rep).or(scripted_plc),
         recovered_after_clear,
+        signatures: s.seen.signatures.clone(),
     };
     Ok(Report {
         scene,

@@ -31,6 +31,37 @@ pub mod objects;
 pub mod records;
 pub mod store;
 
+/// The signature as the controller holds it (through one handle the board places: on
+/// the STM32F407 in the CCM RAM, so that the controller's own layout, and with it the
+/// control step's code, does not change): the monitor, and its store in flash.
+pub struct Signature<F: embedded_storage::nor_flash::NorFlash, M> {
+    /// Verdicts, counts, reference, the newest capture.
+    pub monitor: monitor::Monitor<M>,
+    /// The store (`None`: its flash could not be read; nothing is kept).
+    pub store: Option<store::SigStore<F>>,
+}
+
+impl<F, M> Signature<F, M>
+where
+    F: embedded_storage::nor_flash::NorFlash,
+    M: core::ops::DerefMut<Target = monitor::SignatureMem>,
+{
+    /// Open the store over `flash` (reads only) and take the buffers `mem`.
+    pub fn new(flash: F, mem: M) -> Self {
+        let store = match store::SigStore::open(flash) {
+            Ok((st, _)) => Some(st),
+            Err(_) => {
+                error!("signature flash unreadable: curves are not kept");
+                None
+            }
+        };
+        Self {
+            monitor: monitor::Monitor::new(mem),
+            store,
+        }
+    }
+}
+
 /// Which stroke of a docking.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

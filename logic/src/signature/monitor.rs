@@ -173,9 +173,19 @@ pub struct Monitor<M> {
     verdicts: u32,
     cone: ConeCounts,
     pending: u8,
+    /// Strokes ended and not judged yet (bit 0 the insertion, bit 1 the extraction).
+    judge_due: u8,
     failures: u8,
     dropped: u32,
     write_errors: u32,
+}
+
+/// A stroke's bit in `judge_due`.
+const fn bit(s: Stroke) -> u8 {
+    match s {
+        Stroke::Insertion => 1,
+        Stroke::Extraction => 2,
+    }
 }
 
 /// `x·1000/of − 1000`, ‰, within `i16` (never `i16::MIN`, which means none).
@@ -211,6 +221,7 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
             verdicts: 0,
             cone: ConeCounts::default(),
             pending: 0,
+            judge_due: 0,
             failures: 0,
             dropped: 0,
             write_errors: 0,
@@ -218,8 +229,11 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
     }
 
     /// A sample: `t_us` its time (a sample seen before is ignored), `force_mn` at
-    /// `depth_um` of insertion depth, taken in `stroke` of `docking`. Returns a stroke's
-    /// verdict when one ended with the sample before.
+    /// `depth_um` of insertion depth, taken in `stroke` of `docking`. A stroke that ended
+    /// with the sample before is judged later, by [`Self::judge_due`] (the board runs it
+    /// in the service's window: a judgement is thousands of instructions, a sample a few
+    /// hundred); only if the same stroke starts again first is it judged here, and that
+    /// verdict returned.
     pub fn tap(
         &mut self,
         cfg: &SignatureConfig,
@@ -233,8 +247,18 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
             return None;
         }
         self.last_t_us = Some(t_us);
+        // A stroke about to start again is judged first (its bins are emptied).
+        let mut verdict = None;
+        if let Some(s) = stroke {
+            if self.judge_due & bit(s) != 0 && self.mem.capture.stroke(s).ended {
+                self.judge_due &= !bit(s);
+                verdict = self.judge(cfg, s);
+            }
+        }
         let fed = self.mem.capture.sample(depth_um, force_mn, stroke);
-        let verdict = fed.ended.and_then(|s| self.judge(cfg, s));
+        if let Some(s) = fed.ended {
+            self.judge_due |= bit(s);
+        }
         match fed.began {
             Some(Stroke::Insertion) => {
                 self.docking = docking;
@@ -250,6 +274,17 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
             None => {}
         }
         verdict
+    }
+
+    /// Judge a stroke that ended, if one waits (the insertion first); its verdict.
+    pub fn judge_due(&mut self, cfg: &SignatureConfig) -> Option<StrokeVerdict> {
+        for s in [Stroke::Insertion, Stroke::Extraction] {
+            if self.judge_due & bit(s) != 0 {
+                self.judge_due &= !bit(s);
+                return self.judge(cfg, s);
+            }
+        }
+        None
     }
 
     /// Samples stopped (a fault, a silent sensor): a stroke in progress is not judged.
