@@ -45,6 +45,7 @@ pub mod axis;
 pub mod cli;
 pub mod clock;
 pub mod console;
+pub mod curvedump;
 pub mod flash;
 pub mod hx711;
 pub mod life;

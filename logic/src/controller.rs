@@ -56,9 +56,10 @@ use crate::profile::{ContactPhase, BOUNDARY_UM, STROKE_UM};
 use crate::propulsion::Propulsion;
 use crate::safety::{EstopEvents, GuardMode, KernelConfig, KernelEvent, BACKOFF_RISE_MN};
 use crate::sequencer::{AxisCmd, FaultKind, Inputs, Request, SeqEvent, Sequencer, State, Switches};
-use crate::signature::monitor::{Docking, Monitor, SignatureMem, StrokeVerdict};
+use crate::signature::monitor::{Docking, HistoryCols, Monitor, SignatureMem, StrokeVerdict};
 use crate::signature::objects::SignatureConfig;
 use crate::signature::store::SigStore;
+use crate::signature::view::{CurveView, SignatureStatus, Which};
 use crate::signature::Signature;
 use crate::signature::Stroke;
 use crate::storage::{OpenReport, RecordLog, PAYLOAD_MAX};
@@ -1206,6 +1207,22 @@ impl<B: Bsp> Controller<B> {
     /// The docking signature's monitor (verdicts, counts, the newest capture).
     pub fn signature(&self) -> &Monitor<B::SigMem> {
         &self.sig.monitor
+    }
+
+    /// The signature's state for the PLC and `wear`.
+    pub fn signature_status(&self) -> SignatureStatus {
+        SignatureStatus::of(&self.sig.monitor, &self.cfg.signature)
+    }
+
+    /// Copy curve `which` into `out` (`curve`); `false`: there is none.
+    pub fn curve(&mut self, which: Which, out: &mut CurveView) -> bool {
+        let sig = &mut *self.sig;
+        out.fill(which, &sig.monitor, sig.store.as_mut(), &self.cfg.signature)
+    }
+
+    /// `history`'s signature columns of lifetime cycle `cycle`.
+    pub fn signature_history(&self, cycle: u32) -> Option<HistoryCols> {
+        self.sig.monitor.history_cols(cycle)
     }
 
     /// The signature's store, if its flash could be read.

@@ -30,6 +30,7 @@ pub mod monitor;
 pub mod objects;
 pub mod records;
 pub mod store;
+pub mod view;
 
 /// The signature as the controller holds it (through one handle the board places: on
 /// the STM32F407 in the CCM RAM, so that the controller's own layout, and with it the

@@ -556,6 +556,11 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
         (self.ins, self.ext)
     }
 
+    /// The docking the newest strokes belong to.
+    pub fn docking(&self) -> Docking {
+        self.docking
+    }
+
     /// The current cone's counts.
     pub fn cone(&self) -> ConeCounts {
         self.cone
