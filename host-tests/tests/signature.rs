@@ -209,16 +209,19 @@ fn a_new_cone_starts_a_new_reference_and_new_counts() {
 }
 
 /// A power cut at (a sample of) every byte the rest after a NOK docking writes to the
-/// signature's sectors: after the reboot the NOK curve and the summary are there whole
-/// or not at all — never a torn one — and the next docking's are written.
+/// signature's sectors (the NOK frame in parts, over several turns): after the reboot
+/// the NOK curve and the summary are there whole or not at all — never a torn one — and
+/// the next docking's are written.
 #[test]
 fn a_power_cut_while_a_nok_docking_is_written_loses_at_most_that_docking() {
     let opts = RigOptions::new(80);
-    // Bytes a NOK docking's rest writes: its NOK frame and its summary.
-    let span = docking_logic::framelog::frame_size(docking_logic::signature::records::NOK_LEN)
-        + docking_logic::framelog::frame_size(docking_logic::signature::records::SUMMARY_LEN);
+    // Bytes a NOK docking's rest writes: its summary, then its NOK frame (in parts,
+    // over several turns); the last cut lets both through.
+    let span = (docking_logic::framelog::frame_size(docking_logic::signature::records::NOK_LEN)
+        + docking_logic::framelog::frame_size(docking_logic::signature::records::SUMMARY_LEN))
+        as u64;
     let mut outcomes = [0u32; 2];
-    for cut in (0..span as u64 + 4).step_by(37) {
+    for cut in (0..span).step_by(37).chain([span]) {
         let mut rig = Rig::booted(opts);
         rig.devices().script.borrow_mut().bump = Some(hil_sim::sigscene::DEBRIS);
         // Arm the cut once the extraction is over (nothing is written before the rest).
@@ -263,4 +266,47 @@ fn a_power_cut_while_a_nok_docking_is_written_loses_at_most_that_docking() {
         assert!(h.contains("signature=ok"), "cut {cut}, then a docking: {h}");
     }
     assert!(outcomes[0] > 0 && outcomes[1] > 0, "{outcomes:?}");
+}
+
+/// The defect: the rest after a docking wrote its records whole in one turn (a 1.1 KiB
+/// reference, a 1.4 KiB NOK curve: 25–35 ms of word programming at the datasheet's
+/// maximum), and on the virtual board the control step waited that long at rest
+/// (`control_late` 1 in `scene nominal --cycles 2`). A turn now programs at most the
+/// store's budget (and a frame's 4-byte commit): the records go in parts, a turn each.
+#[test]
+fn a_turn_at_rest_programs_at_most_the_write_budget() {
+    use docking_logic::signature::store::WRITE_BUDGET;
+    let mut rig = Rig::booted(RigOptions::new(80));
+    let mut most = 0u64;
+    let mut turns_writing = 0;
+    let start = rig.sig_flash.with(|f| f.bytes_written());
+    for k in 0..3 {
+        if k == 2 {
+            rig.devices().script.borrow_mut().bump = Some(hil_sim::sigscene::DEBRIS);
+        }
+        let done = rig.ctrl.status().cycles_completed;
+        rig.ctrl.request(Request::StartCycle);
+        let mut rest = 0;
+        while rest < 60 {
+            let before = rig.sig_flash.with(|f| f.bytes_written());
+            rig.tick();
+            while rig.ctrl.next_event().is_some() {}
+            let n = rig.sig_flash.with(|f| f.bytes_written()) - before;
+            most = most.max(n);
+            turns_writing += usize::from(n > 0);
+            if rig.ctrl.state() == State::Idle && rig.ctrl.status().cycles_completed > done {
+                rest += 1;
+            }
+        }
+    }
+    let total = rig.sig_flash.with(|f| f.bytes_written()) - start;
+    // Two references, a NOK curve and three summaries.
+    assert!(total > 3_000, "{total} bytes written");
+    assert!(most <= WRITE_BUDGET as u64 + 4, "{most} bytes in one turn");
+    assert!(turns_writing >= 25, "{turns_writing} turns wrote");
+    assert!(rig
+        .command("curve nok 1", 400)
+        .starts_with("curve nok: cycle 3"));
+    let w = rig.command("wear", 400);
+    assert!(w.contains("reference_dockings=2 "), "{w}");
 }

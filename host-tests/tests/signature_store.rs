@@ -196,17 +196,35 @@ fn a_frame_too_large_or_a_bad_kind_is_refused_and_nothing_is_written() {
 /// one); reboot and check: every kind holds the newest frames of the appends that
 /// returned, or those with the one cut short. Then the log goes on: the rest of the
 /// script appended after the reboot reads back.
-fn cut_run(s: &[(u8, Vec<u8>)], cut: u64) -> bool {
+///
+/// With `parts`, every frame is written as the signature writes at rest: begun, then
+/// one 64-byte piece a call (`FrameLog::resume`); and every fourth is first begun, one
+/// piece written and abandoned (its data changed: a torn frame left behind).
+fn cut_run(s: &[(u8, Vec<u8>)], cut: u64, parts: bool) -> bool {
     let mut flash = Small::new();
     flash.sim.cut_after_bytes(cut);
     let (mut log, _) = open(flash);
     let mut done = 0;
     let mut hit = false;
     for (i, (k, d)) in s.iter().enumerate() {
+        let write = |log: &mut FrameLog<Small>| {
+            if parts {
+                if i % 4 == 1 {
+                    // MAX bytes: more than one piece, so one call leaves it unfinished.
+                    log.begin(*k, MAX)?;
+                    let whole = log.resume(1, &mut |_, dst| dst.fill(0x5A))?;
+                    assert!(whole.is_none());
+                    log.abandon();
+                }
+                append_in_parts(log, *k, d)
+            } else {
+                append(log, *k, d)
+            }
+        };
         let r = if i % 5 == 4 {
-            log.maintain().and_then(|_| append(&mut log, *k, d))
+            log.maintain().and_then(|_| write(&mut log))
         } else {
-            append(&mut log, *k, d)
+            write(&mut log)
         };
         match r {
             Ok(()) => done = i + 1,
@@ -241,13 +259,85 @@ fn a_power_cut_at_every_byte_loses_at_most_the_frame_being_written() {
     let s = script(40);
     let mut cut = 0;
     let mut cuts = 0;
-    while cut_run(&s, cut) {
+    while cut_run(&s, cut, false) {
         cut += 1;
         cuts += 1;
     }
     // The script's whole run: several sector moves (carried batches), pre-erases,
     // thousands of bytes.
     assert!(cuts > 2_000, "{cuts} cut points");
+}
+
+/// The same with every frame written in parts, and some abandoned half way (what the
+/// signature does at rest, a budget of bytes a turn).
+#[test]
+fn a_power_cut_at_every_byte_of_frames_written_in_parts_loses_at_most_that_frame() {
+    let s = script(40);
+    let mut cut = 0;
+    while cut_run(&s, cut, true) {
+        cut += 1;
+    }
+    assert!(cut > 2_000, "{cut} cut points");
+}
+
+/// Append `data` as the signature does at rest: begun, then a piece a call.
+fn append_in_parts(
+    log: &mut FrameLog<Small>,
+    kind: u8,
+    data: &[u8],
+) -> Result<(), FrameError<SimFlashError>> {
+    log.begin(kind, data.len())?;
+    let mut calls = 0;
+    loop {
+        calls += 1;
+        let r = log.resume(1, &mut |at, dst| {
+            dst.copy_from_slice(&data[at..at + dst.len()]);
+        })?;
+        if r.is_some() {
+            // One 64-byte piece a call: header, payload and CRC in ⌈size / 64⌉ calls.
+            assert_eq!(calls, (frame_size(data.len()) - 4).div_ceil(64));
+            assert_eq!(log.writing(), None);
+            return Ok(());
+        }
+        assert_eq!(log.writing(), Some(kind), "in parts");
+    }
+}
+
+#[test]
+fn nothing_else_is_appended_or_erased_while_a_frame_is_written_in_parts() {
+    let (mut log, _) = open(Small::new());
+    // Fill the first sector to its maintenance mark.
+    let mut i = 0;
+    while !log.needs_maintenance() {
+        append(&mut log, (i % 3) as u8, &payload(i as u16, i)).unwrap();
+        i += 1;
+    }
+    let data = payload(900, 3);
+    log.begin(1, data.len()).unwrap();
+    assert!(
+        !log.needs_maintenance(),
+        "no pre-erase under a frame in parts"
+    );
+    assert_eq!(append(&mut log, 0, b"other"), Err(FrameError::Busy));
+    assert_eq!(log.begin(0, 4), Err(FrameError::Busy));
+    while log
+        .resume(1, &mut |at, dst| {
+            dst.copy_from_slice(&data[at..at + dst.len()])
+        })
+        .unwrap()
+        .is_none()
+    {}
+    assert_eq!(newest(&mut log, 1, 1), vec![data.clone()]);
+    assert!(log.needs_maintenance(), "then the pre-erase");
+    // An abandoned frame is a torn one: skipped after a reboot, the older one read.
+    log.begin(1, MAX).unwrap();
+    assert_eq!(log.resume(1, &mut |_, dst| dst.fill(1)), Ok(None));
+    log.abandon();
+    append(&mut log, 0, b"after").unwrap();
+    let (mut log, report) = reboot(log);
+    assert_eq!(report.corrupt, 1, "the abandoned frame");
+    assert_eq!(newest(&mut log, 1, 1), vec![data]);
+    assert_eq!(newest(&mut log, 0, 1), vec![b"after".to_vec()]);
 }
 
 #[test]

@@ -1154,14 +1154,16 @@ impl<B: Bsp> Controller<B> {
         }
     }
 
-    /// The signature's turn at the flash: one frame written, or one pre-erase.
+    /// The signature's turn at the flash: a part of a record (the store's
+    /// `WRITE_BUDGET`), or one pre-erase.
     fn persist_signature(&mut self) {
         let sig = &mut *self.sig;
         let Some(st) = sig.store.as_mut() else {
             return;
         };
         if sig.monitor.persist_pending() {
-            sig.monitor.persist(st);
+            sig.monitor
+                .persist(st, crate::signature::store::WRITE_BUDGET);
         } else if st.needs_maintenance() && st.maintain().is_err() {
             error!("signature: sector pre-erase failed");
         }

@@ -126,6 +126,9 @@ pub enum FrameError<E> {
     Geometry,
     /// All 2^32 sequence numbers used.
     SeqExhausted,
+    /// A frame is being written in parts ([`FrameLog::begin`]): nothing else is
+    /// appended until it is finished or abandoned.
+    Busy,
 }
 
 impl<E: core::fmt::Debug> core::fmt::Display for FrameError<E> {
@@ -136,6 +139,7 @@ impl<E: core::fmt::Debug> core::fmt::Display for FrameError<E> {
             Self::BadKind => f.write_str("bad frame kind"),
             Self::Geometry => f.write_str("flash region unusable for the frame log"),
             Self::SeqExhausted => f.write_str("frame sequence numbers exhausted"),
+            Self::Busy => f.write_str("a frame is being written"),
         }
     }
 }
@@ -254,6 +258,17 @@ pub struct FrameLog<F: NorFlash> {
     /// The sector after `cur` is known erased (a certificate in `cur` names it).
     next_ready: bool,
     dropped: u32,
+    /// The frame being written in parts ([`Self::begin`], [`Self::resume`]).
+    writing: Option<Writing>,
+}
+
+/// A frame being written in parts: where its body has got to, and its CRC so far.
+#[derive(Clone, Copy, Debug)]
+struct Writing {
+    frame: Frame,
+    /// Body bytes (header, payload and padding, CRC) written.
+    pos: usize,
+    crc: Crc32,
 }
 
 impl<F: NorFlash> FrameLog<F> {
@@ -301,6 +316,7 @@ impl<F: NorFlash> FrameLog<F> {
             keep,
             next_ready: false,
             dropped: 0,
+            writing: None,
         };
         let report = log.scan()?;
         Ok((log, report))
@@ -644,6 +660,28 @@ impl<F: NorFlash> FrameLog<F> {
         len: usize,
         fill: &mut dyn FnMut(usize, &mut [u8]),
     ) -> Result<Frame, FrameError<F::Error>> {
+        self.begin_any(kind, len)?;
+        self.resume(usize::MAX, fill)?.ok_or(FrameError::Busy)
+    }
+
+    /// Begin a frame of `kind` with `len` payload bytes, written in parts by
+    /// [`Self::resume`] (so that no single call programs more than its budget: a word
+    /// program stalls the CPU). Its place is taken now — and moving to the next sector,
+    /// if needed, done now: call only at rest. Until it is finished or
+    /// [`Self::abandon`]ed nothing else is appended ([`FrameError::Busy`]). A power cut
+    /// before its last part leaves it torn, which `open` skips: the same guarantee as a
+    /// cut inside [`Self::append`].
+    pub fn begin(&mut self, kind: u8, len: usize) -> Result<(), FrameError<F::Error>> {
+        if usize::from(kind) >= KINDS - 1 {
+            return Err(FrameError::BadKind);
+        }
+        self.begin_any(kind, len)
+    }
+
+    fn begin_any(&mut self, kind: u8, len: usize) -> Result<(), FrameError<F::Error>> {
+        if self.writing.is_some() {
+            return Err(FrameError::Busy);
+        }
         if len > MAX_LEN {
             return Err(FrameError::TooLarge);
         }
@@ -658,16 +696,50 @@ impl<F: NorFlash> FrameLog<F> {
         let off = self.base(self.cur) + self.wp;
         // Used from its first byte on, whatever happens next.
         self.wp += size;
-        let frame = Frame {
-            offset: off,
-            seq,
-            id: seq,
-            kind,
-            len: len as u16,
+        self.writing = Some(Writing {
+            frame: Frame {
+                offset: off,
+                seq,
+                id: seq,
+                kind,
+                len: len as u16,
+            },
+            pos: 0,
+            crc: Crc32::new(),
+        });
+        Ok(())
+    }
+
+    /// Write the next part of the frame [`Self::begin`] began: body bytes in pieces of
+    /// 64 until `budget` bytes are written (at least one piece), the payload's bytes
+    /// from `fill(at, chunk)` as [`Self::append`]'s — which must give the same bytes
+    /// at every call. `Some(frame)` once it is whole (its commit written last); `None`
+    /// while parts remain, or if none is being written. A flash error abandons it.
+    pub fn resume(
+        &mut self,
+        budget: usize,
+        fill: &mut dyn FnMut(usize, &mut [u8]),
+    ) -> Result<Option<Frame>, FrameError<F::Error>> {
+        let Some(mut w) = self.writing.take() else {
+            return Ok(None);
         };
-        self.program(&frame, NOT_CARRIED, fill)?;
-        self.note(kind, off);
-        Ok(frame)
+        if !self.program(&mut w, NOT_CARRIED, budget, fill)? {
+            self.writing = Some(w);
+            return Ok(None);
+        }
+        self.note(w.frame.kind, w.frame.offset);
+        Ok(Some(w.frame))
+    }
+
+    /// The kind of the frame being written in parts, if one is.
+    pub fn writing(&self) -> Option<u8> {
+        self.writing.map(|w| w.frame.kind)
+    }
+
+    /// Give up the frame being written in parts (its data changed): its place stays
+    /// used, a torn frame `open` skips.
+    pub fn abandon(&mut self) {
+        self.writing = None;
     }
 
     /// Put a new newest frame of `kind` at the head of its list.
@@ -690,13 +762,17 @@ impl<F: NorFlash> FrameLog<F> {
         }
     }
 
-    /// Write `frame`'s header, payload and CRC, then its commit.
+    /// Write `w`'s frame's header, payload and CRC from where it got to, at least one
+    /// piece and then until `budget` bytes are written; once they are all written, its
+    /// commit. Whether the frame is whole.
     fn program(
         &mut self,
-        frame: &Frame,
+        w: &mut Writing,
         carry: u8,
+        budget: usize,
         fill: &mut dyn FnMut(usize, &mut [u8]),
-    ) -> Result<(), FrameError<F::Error>> {
+    ) -> Result<bool, FrameError<F::Error>> {
+        let frame = w.frame;
         let len = usize::from(frame.len);
         let padded = len.div_ceil(4) * 4;
         let mut h = [0u8; HEADER_LEN];
@@ -707,13 +783,15 @@ impl<F: NorFlash> FrameLog<F> {
         h[10..12].copy_from_slice(&frame.len.to_le_bytes());
         let hcrc = crate::crc::crc32(&h[..12]);
         h[12..16].copy_from_slice(&hcrc.to_le_bytes());
-        let mut crc = Crc32::new();
-        crc.update(&h);
+        if w.pos == 0 {
+            w.crc.update(&h);
+        }
         // Body: header, payload (+ padding), CRC — in chunks of CHUNK bytes.
         let body = HEADER_LEN + padded + 4;
         let mut buf = [0u8; CHUNK];
-        let mut pos = 0;
-        while pos < body {
+        let mut pos = w.pos;
+        let mut written = 0;
+        while pos < body && (written == 0 || written < budget) {
             let n = (body - pos).min(CHUNK);
             let chunk = buf.get_mut(..n).ok_or(FrameError::Geometry)?;
             // The header where it is, erased-flash padding elsewhere (no separate fill:
@@ -734,11 +812,11 @@ impl<F: NorFlash> FrameLog<F> {
             let c1 = (pos + n).min(HEADER_LEN + padded);
             if c0 < c1 {
                 if let Some(part) = chunk.get(c0 - pos..c1 - pos) {
-                    crc.update(part);
+                    w.crc.update(part);
                 }
             }
             if pos + n == body {
-                let v = crc.finalize().to_le_bytes();
+                let v = w.crc.finalize().to_le_bytes();
                 let at = n - 4;
                 if let Some(dst) = chunk.get_mut(at..) {
                     dst.copy_from_slice(&v);
@@ -748,10 +826,16 @@ impl<F: NorFlash> FrameLog<F> {
                 .write(frame.offset + pos as u32, chunk)
                 .map_err(FrameError::Flash)?;
             pos += n;
+            written += n;
+            w.pos = pos;
+        }
+        if pos < body {
+            return Ok(false);
         }
         self.flash
             .write(frame.offset + body as u32, &[0; 4])
-            .map_err(FrameError::Flash)
+            .map_err(FrameError::Flash)?;
+        Ok(true)
     }
 
     /// Move to the next sector: erase it unless certified, copy the newest frames of
@@ -918,7 +1002,10 @@ impl<F: NorFlash> FrameLog<F> {
     /// erases it, so that an append rarely has to.
     pub fn needs_maintenance(&self) -> bool {
         let free = self.free_in_sector();
-        !self.next_ready && free * 4 < self.size(self.cur) && free >= frame_size(1) as u32
+        self.writing.is_none()
+            && !self.next_ready
+            && free * 4 < self.size(self.cur)
+            && free >= frame_size(1) as u32
     }
 
     /// Erase the next sector if [`Self::needs_maintenance`] and certify it with a frame

@@ -173,6 +173,11 @@ pub struct Monitor<M> {
     verdicts: u32,
     cone: ConeCounts,
     pending: u8,
+    /// The record being written in parts (a `PENDING_*` bit; 0 none).
+    writing: u8,
+    /// Records whose data changed since their write began (`PENDING_*` bits): a frame
+    /// in parts is begun again.
+    changed: u8,
     /// Strokes ended and not judged yet (bit 0 the insertion, bit 1 the extraction).
     judge_due: u8,
     failures: u8,
@@ -221,6 +226,8 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
             verdicts: 0,
             cone: ConeCounts::default(),
             pending: 0,
+            writing: 0,
+            changed: 0,
             judge_due: 0,
             failures: 0,
             dropped: 0,
@@ -258,6 +265,10 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
         let fed = self.mem.capture.sample(depth_um, force_mn, stroke);
         if let Some(s) = fed.ended {
             self.judge_due |= bit(s);
+        }
+        if fed.began.is_some() {
+            // The capture a NOK record is written from.
+            self.changed |= PENDING_NOK;
         }
         match fed.began {
             Some(Stroke::Insertion) => {
@@ -395,6 +406,7 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
                 rf.step_sum = rf.step_sum.saturating_add(i64::from(st));
             }
             self.pending |= PENDING_REFERENCE;
+            self.changed |= PENDING_REFERENCE;
         }
         let s = Summary {
             lifetime_cycle: d.lifetime_cycle,
@@ -419,6 +431,7 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
         };
         self.last = Some(s);
         self.pending |= PENDING_SUMMARY;
+        self.changed |= PENDING_SUMMARY | PENDING_NOK;
         if nok {
             self.pending |= PENDING_NOK;
         }
@@ -454,31 +467,54 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
         self.pending != 0
     }
 
-    /// Write what waits (at rest only): the reference, the NOK curves, the summary.
-    pub fn persist<F: NorFlash>(&mut self, store: &mut SigStore<F>) {
+    /// Write what waits (at rest only), `budget` bytes of it this call (at least one
+    /// 64-byte piece): the summary first (one part: it is small), then the NOK curves,
+    /// then the reference — one record at a time, each whole before the next begins. A
+    /// record in parts whose data changes in between (a new docking's capture, summary
+    /// or reference) is left torn and begun again with the new data, or dropped if it
+    /// no longer waits (a NOK curve a new docking overwrote: counted).
+    pub fn persist<F: NorFlash>(&mut self, store: &mut SigStore<F>, budget: usize) {
+        if self.writing != 0
+            && (self.pending & self.writing == 0
+                || self.changed & self.writing != 0
+                || store.writing().is_none())
+        {
+            store.abandon();
+            self.writing = 0;
+        }
+        self.changed = 0;
         if self.pending == 0 {
             return;
         }
-        let r: Result<(), StoreError<F::Error>> = (|| {
-            if self.pending & PENDING_REFERENCE != 0 {
-                store.write_reference(&self.mem.reference)?;
-                self.pending &= !PENDING_REFERENCE;
-            }
-            if let Some(s) = self.last {
-                if self.pending & PENDING_NOK != 0 {
-                    store.write_nok(&s, &self.mem.capture)?;
-                    self.pending &= !PENDING_NOK;
-                }
-                if self.pending & PENDING_SUMMARY != 0 {
-                    store.write_summary(&s)?;
-                }
-            }
-            self.pending = 0;
-            Ok(())
-        })();
+        let next = if self.writing != 0 {
+            self.writing
+        } else if self.pending & PENDING_SUMMARY != 0 {
+            PENDING_SUMMARY
+        } else if self.pending & PENDING_NOK != 0 {
+            PENDING_NOK
+        } else {
+            PENDING_REFERENCE
+        };
+        let r: Result<bool, StoreError<F::Error>> = match (next, self.last) {
+            (PENDING_REFERENCE, _) => store.write_reference(&self.mem.reference, budget),
+            (PENDING_NOK, Some(s)) => store.write_nok(&s, &self.mem.capture, budget),
+            (PENDING_SUMMARY, Some(s)) => store.write_summary(&s, budget),
+            // Nothing to write it from.
+            _ => Ok(true),
+        };
         match r {
-            Ok(()) => self.failures = 0,
+            Ok(done) => {
+                self.failures = 0;
+                if done {
+                    self.pending &= !next;
+                    self.writing = 0;
+                } else {
+                    self.writing = next;
+                }
+            }
             Err(_) => {
+                store.abandon();
+                self.writing = 0;
                 self.write_errors = self.write_errors.saturating_add(1);
                 self.failures = self.failures.saturating_add(1);
                 error!("signature: a record was not written");

@@ -2,7 +2,10 @@
 //! frames of [`super::records`], and what the signature reads back from it.
 //!
 //! Writes happen at rest only (the controller's one rule for the flash,
-//! `Controller::at_rest`), after the odometer's own, one frame at a time; reads are
+//! `Controller::at_rest`), after the odometer's own, one frame at a time and each in
+//! parts of a budget of bytes a turn (`write_*`'s `budget`: a word program stalls the
+//! CPU, and a whole curve programmed at once held the control step for 25–35 ms on the
+//! virtual board); reads are
 //! bounded: the newest frame of a kind, or `history`'s walk back through the summaries
 //! (one frame a step, by each summary's `prev` link).
 
@@ -16,6 +19,13 @@ use super::records::{
 use super::Stroke;
 use crate::framelog::{Frame, FrameError, FrameLog, OpenReport};
 use zerocopy::FromBytes;
+
+/// Bytes of a record a turn at rest writes ([`super::monitor::Monitor::persist`]'s
+/// budget): 128 B, 32 words — at most 3.2 ms of word programming at the datasheet's
+/// maximum (100 µs a word; 0.5 ms typical), so a turn that begins after a control step
+/// ends well before the next is due, even at 80 SPS (12.5 ms). A NOK docking's curves
+/// (1.4 KiB) take 11 turns, a reference 9, a summary 1.
+pub const WRITE_BUDGET: usize = 128;
 
 /// The store.
 #[derive(Debug)]
@@ -52,27 +62,61 @@ impl<F: NorFlash> SigStore<F> {
         Ok(Summary::from_bytes(&b))
     }
 
-    /// Append a summary (its `prev` set to the newest summary's offset).
-    pub fn write_summary(&mut self, s: &Summary) -> Result<(), StoreError<F::Error>> {
-        let prev = self.log.newest(kind::SUMMARY, 0)?.map(|f| f.offset);
-        let b = Summary { prev, ..*s }.to_bytes();
-        self.log
-            .append(kind::SUMMARY, SUMMARY_LEN, &mut |at, dst| {
-                for (i, d) in dst.iter_mut().enumerate() {
-                    *d = b.get(at + i).copied().unwrap_or(0xFF);
-                }
-            })?;
-        Ok(())
+    /// Write a frame of `kind` in parts: begin it unless one of that kind is being
+    /// written, then write up to `budget` bytes of it. Whether it is whole.
+    fn write(
+        &mut self,
+        kind: u8,
+        len: usize,
+        budget: usize,
+        fill: &mut dyn FnMut(usize, &mut [u8]),
+    ) -> Result<bool, StoreError<F::Error>> {
+        if self.log.writing() != Some(kind) {
+            self.log.begin(kind, len)?;
+        }
+        Ok(self.log.resume(budget, fill)?.is_some())
     }
 
-    /// Append a NOK docking: its summary and both curves of `cap`.
-    pub fn write_nok(&mut self, s: &Summary, cap: &Capture) -> Result<(), StoreError<F::Error>> {
+    /// The kind of the frame being written in parts, if one is.
+    pub fn writing(&self) -> Option<u8> {
+        self.log.writing()
+    }
+
+    /// Give up the frame being written in parts (its data changed): a torn frame.
+    pub fn abandon(&mut self) {
+        self.log.abandon();
+    }
+
+    /// Append a summary (its `prev` set to the newest summary's offset), up to
+    /// `budget` bytes of it this call. Whether it is whole.
+    pub fn write_summary(
+        &mut self,
+        s: &Summary,
+        budget: usize,
+    ) -> Result<bool, StoreError<F::Error>> {
+        let prev = self.log.newest(kind::SUMMARY, 0)?.map(|f| f.offset);
+        let b = Summary { prev, ..*s }.to_bytes();
+        self.write(kind::SUMMARY, SUMMARY_LEN, budget, &mut |at, dst| {
+            for (i, d) in dst.iter_mut().enumerate() {
+                *d = b.get(at + i).copied().unwrap_or(0xFF);
+            }
+        })
+    }
+
+    /// Append a NOK docking: its summary and both curves of `cap`, up to `budget` bytes
+    /// this call. Whether it is whole.
+    pub fn write_nok(
+        &mut self,
+        s: &Summary,
+        cap: &Capture,
+        budget: usize,
+    ) -> Result<bool, StoreError<F::Error>> {
         let b = Summary { prev: None, ..*s }.to_bytes();
         let (ins, ext) = (
             cap.stroke(Stroke::Insertion),
             cap.stroke(Stroke::Extraction),
         );
-        self.log.append(kind::NOK, NOK_LEN, &mut |at, dst| {
+        self.write(kind::NOK, NOK_LEN, budget, &mut |at, dst| {
             for (i, d) in dst.iter_mut().enumerate() {
                 let a = at + i;
                 *d = if a < SUMMARY_LEN {
@@ -83,19 +127,20 @@ impl<F: NorFlash> SigStore<F> {
                     curve_byte(ext, a - SUMMARY_LEN - CURVE_LEN)
                 };
             }
-        })?;
-        Ok(())
+        })
     }
 
-    /// Append a cone's reference.
-    pub fn write_reference(&mut self, r: &Reference) -> Result<(), StoreError<F::Error>> {
-        self.log
-            .append(kind::REFERENCE, REFERENCE_LEN, &mut |at, dst| {
-                for (i, d) in dst.iter_mut().enumerate() {
-                    *d = r.byte(at + i);
-                }
-            })?;
-        Ok(())
+    /// Append a cone's reference, up to `budget` bytes this call. Whether it is whole.
+    pub fn write_reference(
+        &mut self,
+        r: &Reference,
+        budget: usize,
+    ) -> Result<bool, StoreError<F::Error>> {
+        self.write(kind::REFERENCE, REFERENCE_LEN, budget, &mut |at, dst| {
+            for (i, d) in dst.iter_mut().enumerate() {
+                *d = r.byte(at + i);
+            }
+        })
     }
 
     /// Read the newest reference into `r` (left as it is if there is none, or if it is
