@@ -10,7 +10,7 @@ use crate::periph::flash::FlashTiming;
 use crate::scene::{Options, SceneOptions, SCENES};
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--cut transfer|swap|boot] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] | estimate-cost [--readings N] [--firmware ELF] | swap-time [--firmware ELF] [--json]";
+pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--cut transfer|swap|boot] [--curve FILE.json] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] | estimate-cost [--readings N] [--firmware ELF] | swap-time [--firmware ELF] [--json]";
 
 /// The sweep's usage (`vboard sweep`).
 pub const SWEEP_USAGE: &str = "       vboard sweep [--scene NAME[,NAME...]] [--seeds 1..10|1,2,3] [--cpi X[,X...]] [--timing cpi|art[,...]] [--flood] [--cycles N] [--rate 10|80] [--lsi-hz HZ] [--flash-timing max|typical] [--firmware ELF] [--jobs N] [--json]";
@@ -68,7 +68,7 @@ fn command_help(cmd: &str) -> Option<String> {
 }
 
 /// What each option does, by its flag (shared by the commands that take it).
-const OPTION_HELP: [(&str, &str); 23] = [
+const OPTION_HELP: [(&str, &str); 24] = [
     ("--firmware", "the image to run (default: the release build at the root; refused if older than its sources)"),
     ("--cycles", "docking cycles to run"),
     ("--rate", "the HX711's output rate, samples a second (its RATE pin)"),
@@ -92,6 +92,7 @@ const OPTION_HELP: [(&str, &str); 23] = [
     ("NAME", "the scene"),
     ("--tcp", "the console on TCP (first stdout line: its address)"),
     ("--cut", "update-cut: the power cut during the transfer, the swap or the first boot"),
+    ("--curve", "late-entry, dry-guide, debris, catch: write the board's `curve last --json` reply there (for `hil-sim plot-curve`)"),
 ];
 
 /// A synopsis as the command's line, then its options one a line with what each does.
@@ -196,9 +197,16 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
             "flash-timing",
             "seed",
             "cut",
+            "curve",
         ],
         &["json", "flood", "log"],
     )?;
+    if o.get("curve").is_some() && !hil_sim::sigscene::SCENES.contains(&name.as_str()) {
+        return usage(format!(
+            "--curve is the signature scenes' ({})",
+            hil_sim::sigscene::SCENES.join(", ")
+        ));
+    }
     let cut = match o.get("cut") {
         None => None,
         Some(c) => match crate::update::Cut::parse(c) {
@@ -214,6 +222,9 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
         cut,
     };
     let r = crate::scene::run(name, &opts).map_err(Failure::Run)?;
+    if let (Some(path), Some(curve)) = (o.get("curve"), r.curve_json.as_ref()) {
+        std::fs::write(path, curve).map_err(|e| Failure::Run(format!("--curve {path}: {e}")))?;
+    }
     if o.flag("log") {
         for l in &r.log {
             eprintln!("{} {:<5} {}", l.timestamp, l.level, l.msg);

@@ -1042,6 +1042,10 @@ pub struct Report {
     /// For every E-STOP edge while anything moved: edge → EN high and the lock bridge
     /// off, on the pins, µs (`None`: they never went off).
     pub estop_reactions_us: Vec<Option<f64>>,
+    /// The docking signature's scenes: the board's `curve last --json` reply after the
+    /// last docking (what `vboard scene NAME --curve FILE.json` writes for `hil-sim
+    /// plot-curve`).
+    pub curve_json: Option<String>,
 }
 
 /// A name for exception `e` (STM32F407 interrupt names for those the board models).
@@ -1614,6 +1618,13 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
     // The fault records as the firmware keeps them (phase, peak force to the clear).
     let faults_json = s.console_json("faults --json").map_err(|e| e.to_string())?;
     let faults = parse_faults(&faults_json).unwrap_or_else(|| s.seen.faults.clone());
+    // The signature as the people and the PLC are shown it: the console's curve, the
+    // registers.
+    let curve_json = if hil_sim::sigscene::SCENES.contains(&name) {
+        Some(signature_shown(&mut s, name, cycles, &mut checks).map_err(|e| e.to_string())?)
+    } else {
+        None
+    };
     s.board.poll_rtt();
 
     let m = s.machine();
@@ -1731,7 +1742,86 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             .collect(),
         timing: s.control_timing(),
         estop_reactions_us: s.estop_reactions_us(),
+        curve_json,
     })
+}
+
+/// After a signature scene (issue 34): the last docking as the console's `curve last
+/// --json` shows it (its cycle, each stroke's verdict and first failed object) and as
+/// the PLC reads it (status bit 12; input registers 68–92: the verdict, the failed
+/// object's code, the cone's NOK and judged dockings, the newest stroke's verdict), each
+/// against what the scene must produce ([`hil_sim::sigscene::expected`]). The curve's
+/// line is returned.
+fn signature_shown(
+    s: &mut Session,
+    name: &str,
+    cycles: u32,
+    checks: &mut Vec<(String, bool, String)>,
+) -> Result<String, Halt> {
+    use docking_logic::modbus::{ir, status};
+    use docking_logic::signature::objects::Object;
+    let (ins, ext) = hil_sim::sigscene::expected(name, cycles, cycles);
+    let code = |o: Option<&str>| {
+        o.and_then(|n| Object::ALL.into_iter().find(|x| x.name() == n))
+            .map_or(0, |x| u16::from(x.code()))
+    };
+    let line = s.console_json("curve last --json")?;
+    let v: serde_json::Value = serde_json::from_str(line.trim()).unwrap_or_default();
+    let stroke = |k: &str| {
+        (
+            v[k]["verdict"].as_str().map(str::to_string),
+            v[k]["failed"].as_str().map(str::to_string),
+        )
+    };
+    let (si, se) = (stroke("insertion"), stroke("extraction"));
+    let verdict = |want: Option<&str>| {
+        (
+            Some(if want.is_some() { "nok" } else { "ok" }.to_string()),
+            want.map(str::to_string),
+        )
+    };
+    // The extraction after a disturbed insertion is not the scene's point (sigscene).
+    let ext_free = ins.is_some() && ext.is_none();
+    let ok = v["cycle"].as_u64() == Some(u64::from(cycles))
+        && si == verdict(ins)
+        && (ext_free || se == verdict(ext));
+    checks.push((
+        format!(
+            "the console's `curve last` shows cycle {cycles}: insertion {}, extraction {}",
+            ins.unwrap_or("ok"),
+            if ext_free { "any" } else { ext.unwrap_or("ok") }
+        ),
+        ok,
+        format!(
+            "cycle {:?}, insertion {si:?}, extraction {se:?}",
+            v["cycle"].as_u64()
+        ),
+    ));
+    let word = s.read_inputs(0, 1)?.and_then(|w| w.first().copied());
+    let regs = s.read_inputs(ir::SIG_VERDICT, ir::COUNT - ir::SIG_VERDICT)?;
+    let at = |r: &Option<Vec<u16>>, a: u16| {
+        r.as_ref()
+            .and_then(|r| r.get(usize::from(a - ir::SIG_VERDICT)).copied())
+    };
+    let u32_at =
+        |r: &Option<Vec<u16>>, a: u16| Some(u32::from(at(r, a)?) << 16 | u32::from(at(r, a + 1)?));
+    let nok_dockings = hil_sim::sigscene::disturbed(name, cycles).count() as u32;
+    let failed = code(ins.or(ext));
+    let ok = word.is_some_and(|w| w & status::SIGNATURE_NOK != 0)
+        && at(&regs, ir::SIG_VERDICT) == Some(2)
+        && at(&regs, ir::SIG_FAILED) == Some(failed)
+        && u32_at(&regs, ir::SIG_CYCLE) == Some(cycles)
+        && u32_at(&regs, ir::SIG_CONE_NOK) == Some(nok_dockings)
+        && u32_at(&regs, ir::SIG_CONE_JUDGED) == Some(cycles)
+        && at(&regs, ir::SIG_STROKE).is_some_and(|v| (1..=4).contains(&v));
+    checks.push((
+        format!(
+            "Modbus: status bit 12, verdict 2 (NOK), failed object {failed}, cycle {cycles}, {nok_dockings} NOK of {cycles} judged"
+        ),
+        ok,
+        format!("status word {word:?}, registers 68-92 {regs:?}"),
+    ));
+    Ok(line)
 }
 
 /// The `faults` of a `faults --json` reply.
