@@ -62,4 +62,5 @@ pub mod rtu_line;
 pub mod scene;
 pub mod serve;
 pub mod sigscene;
+pub mod sigstudy;
 pub mod update;

@@ -2387,3 +2387,192 @@ mod script_reply_tests {
         assert_eq!(script_reply(raw, "status"), "");
     }
 }
+
+/// One metered function: calls, instructions in all, the most of one call.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Metered {
+    /// Calls completed.
+    pub calls: u64,
+    /// Their instructions.
+    pub insns: u64,
+    /// The most instructions of one call.
+    pub max: u64,
+}
+
+impl Metered {
+    fn of(m: Option<crate::soc::FnMeter>) -> Self {
+        let m = m.unwrap_or_default();
+        Self {
+            calls: m.calls,
+            insns: m.insns,
+            max: m.max,
+        }
+    }
+
+    /// Mean instructions a call.
+    pub fn mean(&self) -> f64 {
+        self.insns as f64 / self.calls.max(1) as f64
+    }
+
+    fn json(&self) -> String {
+        format!(
+            "{{\"calls\":{},\"instructions\":{},\"mean\":{:.1},\"max\":{}}}",
+            self.calls,
+            self.insns,
+            self.mean(),
+            self.max
+        )
+    }
+}
+
+/// What the docking signature costs the image (issue 34), measured on the board:
+/// [`signature_cost`].
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SignatureCost {
+    /// The HX711's rate and the emulated core's CPI.
+    pub rate_sps: u32,
+    /// See [`Self::rate_sps`].
+    pub cpi: f64,
+    /// `Controller::capture` over one docking: one call a service turn (after each
+    /// control step), each taking the newest sample into its bin.
+    pub capture: Metered,
+    /// Samples the image read over that docking.
+    pub samples: u64,
+    /// `Monitor::judge`: one call a stroke (the objects, the figures, the summary).
+    pub judge: Metered,
+    /// `Controller::persist_signature`: a turn at rest (a part of a record, at most
+    /// `WRITE_BUDGET` bytes) after the next docking, until nothing waits.
+    pub persist: Metered,
+    /// The signature's RAM: its buffers (`SIGNATURE_MEM`) and its monitor and store
+    /// (`SIGNATURE`), both in the CCM RAM, bytes.
+    pub ccm_bytes: (u32, u32),
+    /// Flash a record takes in sectors 2–4: a NOK docking's curves, a reference, a
+    /// summary, bytes (frame headers included); and the sectors' bytes.
+    pub frame_bytes: (usize, usize, usize),
+    /// See [`Self::frame_bytes`].
+    pub store_bytes: u32,
+}
+
+impl SignatureCost {
+    /// µs of `insns` instructions at 168 MHz and this CPI.
+    fn us(&self, insns: f64) -> f64 {
+        insns * self.cpi / 168.0
+    }
+
+    /// A table for a terminal.
+    pub fn to_text(&self) -> String {
+        let row = |what: &str, m: &Metered| {
+            format!(
+                "{what:<44} | {:>5} | {:>8.1} | {:>6} | {:>7.1}\n",
+                m.calls,
+                m.mean(),
+                m.max,
+                self.us(m.max as f64)
+            )
+        };
+        let mut s = format!(
+            "# the docking signature on the Cortex-M4 (release image, {} SPS, CPI {}, 168 MHz)\nwhat                                         | calls |     mean |    max | max µs\n",
+            self.rate_sps, self.cpi
+        );
+        s += &row("capture, a service turn after each step", &self.capture);
+        s += &row("judge, a stroke", &self.judge);
+        s += &row("persist, a turn at rest (128 B a turn)", &self.persist);
+        let (nok, reference, summary) = self.frame_bytes;
+        s += &format!(
+            "# capture: {:.1} instructions a sample ({} samples in the docking)\n# RAM (CCM): {} B of buffers (SIGNATURE_MEM), {} B of monitor and store (SIGNATURE)\n# flash: a NOK docking's curves {nok} B, a reference {reference} B, a summary {summary} B; sectors 2-4 {} B (about {} dockings of summaries a 16 KiB sector)",
+            self.capture.insns as f64 / self.samples.max(1) as f64,
+            self.samples,
+            self.ccm_bytes.0,
+            self.ccm_bytes.1,
+            self.store_bytes,
+            16 * 1024 / summary.max(1)
+        );
+        s
+    }
+
+    /// One JSON object.
+    pub fn to_json(&self) -> String {
+        let (nok, reference, summary) = self.frame_bytes;
+        format!(
+            "{{\"rate_sps\":{},\"cpi\":{},\"capture\":{},\"samples\":{},\"capture_instructions_per_sample\":{:.1},\"judge\":{},\"persist\":{},\"ccm_buffers_bytes\":{},\"ccm_monitor_store_bytes\":{},\"nok_frame_bytes\":{nok},\"reference_frame_bytes\":{reference},\"summary_frame_bytes\":{summary},\"store_bytes\":{}}}",
+            self.rate_sps,
+            self.cpi,
+            self.capture.json(),
+            self.samples,
+            self.capture.insns as f64 / self.samples.max(1) as f64,
+            self.judge.json(),
+            self.persist.json(),
+            self.ccm_bytes.0,
+            self.ccm_bytes.1,
+            self.store_bytes
+        )
+    }
+}
+
+/// Meter the docking signature on a board running `opts`'s image: the capture over one
+/// docking (every service turn, every sample), then the next docking's two judgements
+/// and the turns at rest that write its records.
+pub fn signature_cost(opts: &Options) -> Result<SignatureCost, String> {
+    use docking_logic::framelog::frame_size;
+    use docking_logic::signature::records::{NOK_LEN, REFERENCE_LEN, SECTORS, SUMMARY_LEN};
+    let mut s = Session::new(opts.clone())?;
+    let halt = |e: Halt| e.to_string();
+    s.run_for(PS_PER_S).map_err(halt)?;
+    let entry = |s: &Session, part: &str| {
+        s.board
+            .image
+            .symbol_containing(part)
+            .map(|(a, _)| a)
+            .ok_or_else(|| format!("no symbol {part} in the image"))
+    };
+    let capture_at = entry(&s, "10controller19Controller$LT$B$GT$7capture17h")?;
+    let judge_at = entry(&s, "7monitor16Monitor$LT$M$GT$5judge17h")?;
+    let persist_at = entry(
+        &s,
+        "10controller19Controller$LT$B$GT$17persist_signature17h",
+    )?;
+    let size = |s: &Session, part: &str| s.board.image.symbol_containing(part).map_or(0, |x| x.1);
+    let ccm_bytes = (size(&s, "SIGNATURE_MEM"), size(&s, "9SIGNATURE17h"));
+    // Run until `done` (at most 300 s of machine time), the PLC docking when ready.
+    let run = |s: &mut Session, cycles: u32, done: &dyn Fn(&Session) -> bool| {
+        let deadline = s.now() + 300 * PS_PER_S;
+        while !done(s) {
+            if s.now() > deadline {
+                return Err("the docking did not end".to_string());
+            }
+            s.auto_dock(cycles);
+            s.run_for(5 * PS_PER_MS).map_err(halt)?;
+        }
+        Ok(())
+    };
+    s.board.meter(capture_at);
+    let samples0 = s.machine().hx.stats().samples_read;
+    run(&mut s, 1, &|s| s.seen.cycles_completed >= 1 && s.at_rest())?;
+    let capture = Metered::of(s.board.soc().meter.clone());
+    let samples = s.machine().hx.stats().samples_read - samples0;
+    s.board.meter(judge_at);
+    run(&mut s, 2, &|s| {
+        s.board.soc().meter.as_ref().is_some_and(|m| m.calls >= 2)
+    })?;
+    let judge = Metered::of(s.board.soc().meter.clone());
+    s.board.meter(persist_at);
+    run(&mut s, 2, &|s| s.seen.cycles_completed >= 2 && s.at_rest())?;
+    // The rest: 3 s, every record written (a NOK-free docking: summary and reference).
+    s.run_for(3 * PS_PER_S).map_err(halt)?;
+    let persist = Metered::of(s.board.soc().meter.clone());
+    Ok(SignatureCost {
+        rate_sps: opts.rate_sps,
+        cpi: opts.board.cpi_milli as f64 / 1000.0,
+        capture,
+        samples,
+        judge,
+        persist,
+        ccm_bytes,
+        frame_bytes: (
+            frame_size(NOK_LEN),
+            frame_size(REFERENCE_LEN),
+            frame_size(SUMMARY_LEN),
+        ),
+        store_bytes: SECTORS.iter().sum(),
+    })
+}
