@@ -182,6 +182,8 @@ pub struct FlashCtl {
     pub timing: FlashTiming,
     /// Operations started.
     pub ops_started: u64,
+    /// Sector erases started (see [`FlashCtl::erase_log`]).
+    erases: Vec<(u64, u64, u32)>,
     /// The ART accelerator's caches and buffers (`ACR`'s enables, resets and wait
     /// states); the board times reads through it under [`crate::cpu::Timing::Art`].
     pub art: Art,
@@ -203,6 +205,7 @@ impl FlashCtl {
             done: None,
             timing,
             ops_started: 0,
+            erases: Vec::new(),
             art: Art::new(),
         };
         f.reset_regs();
@@ -300,6 +303,15 @@ impl FlashCtl {
         };
         self.busy = Some((op, now, now + d));
         self.ops_started += 1;
+        if let Op::Erase { sector } = op {
+            self.erases.push((now, now + d, sector));
+        }
+    }
+
+    /// Every sector erase started since power-on: (start, end as timed, sector), ps (an
+    /// erase a reset cut ends at the cut).
+    pub fn erase_log(&self) -> &[(u64, u64, u32)] {
+        &self.erases
     }
 
     /// Write-protected sector? (nWRP bit clear)
