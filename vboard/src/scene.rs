@@ -1397,16 +1397,41 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             s.poller = Some(crate::poller::Poller::new(0));
             let before = prefill.unwrap_or_default();
             let deadline = s.now() + 8 * PS_PER_S;
-            s.run_until(deadline, |x| {
+            let erased = |x: &Session| {
                 x.board
                     .soc()
                     .world
                     .flash
                     .with(|f| f.erase_counts().iter().sum::<u32>())
                     > before.erases
+            };
+            // A technician types a line while the sector erases (the master's first
+            // "busy" reply says the erase is on): the console is received by DMA
+            // meanwhile and the line answered after it (issue 31).
+            s.run_until(deadline, |x| {
+                erased(x) || x.poller.as_ref().is_some_and(|p| p.stats.busy > 0)
             })
             .map_err(|e| e.to_string())?;
+            let typed_in_erase = !erased(&s);
+            let console_from = s.board.soc().console_out.len();
+            if typed_in_erase {
+                let _ = s.board.soc_mut().console_send(b"echo\r\n");
+            }
+            s.run_until(deadline, erased).map_err(|e| e.to_string())?;
             s.run_for(PS_PER_S).map_err(|e| e.to_string())?;
+            let answer: Vec<u8> = s.board.soc().console_out[console_from..]
+                .iter()
+                .map(|&(_, b)| b)
+                .collect();
+            let answer = String::from_utf8_lossy(&answer).into_owned();
+            checks.push((
+                "a console line typed during the erase answered after it".into(),
+                typed_in_erase && answer.contains("echo=on"),
+                format!(
+                    "typed during the erase {typed_in_erase}; answer {:?}",
+                    answer.trim()
+                ),
+            ));
             let erases: u32 = flash.with(|f| f.erase_counts().iter().sum());
             checks.push((
                 "sector erased".into(),
