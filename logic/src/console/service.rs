@@ -1320,6 +1320,10 @@ impl Console {
             kv_fixed(o, "estimate_high_mm", est.high_nm as i64, 6)?;
             kv(o, "remaining_estimate_cycles")?;
             write_u64(o, u64::from(est.remaining_cycles))?;
+            kv(o, "remaining_estimate_low_cycles")?;
+            write_u64(o, u64::from(est.remaining_low_cycles))?;
+            kv(o, "remaining_estimate_high_cycles")?;
+            write_u64(o, u64::from(est.remaining_high_cycles))?;
             kv_fixed(o, "baseline_bore_mm", base as i64, 3)?;
             if assumed {
                 o.write_str(
