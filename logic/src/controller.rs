@@ -417,9 +417,9 @@ pub struct Controller<B: Bsp> {
     /// The wear estimate's fit to them.
     fit: Fit,
     /// [`Controller::wear_level`] and [`Controller::wear_estimate`] as of `level_key`
-    /// ([`Controller::wear_key`]): the estimate costs ~22 k instructions (27–52 k on
-    /// the board), too much for every `status` or Modbus read while the console or the
-    /// PLC holds the controller.
+    /// ([`Controller::wear_key`]): the estimate costs ~53 k instructions on the M4
+    /// (`vboard estimate-cost`, since issue 36), too much for every `status` or Modbus
+    /// read while the console or the PLC holds the controller.
     level: WearLevel,
     estimate: Estimate,
     level_key: Option<WearKey>,
@@ -1092,7 +1092,14 @@ impl<B: Bsp> Controller<B> {
     /// erase stalls the CPU for up to 2 s. The board runs it at its lowest priority; the
     /// rig after each step.
     pub fn background(&mut self) {
+        // The wear level the handshake reports, when what it depends on changed at rest
+        // (a cycle's unfinished load-distance counted, a reading, a baseline): here,
+        // not in the control step (the estimate's evaluation costs ~53 k instructions on
+        // the M4, `vboard estimate-cost`). A cycle's end refreshes it in its step (the
+        // cycle's record carries the level), and a start's gate refreshes it before it
+        // decides, so no docking starts on a level older than its step.
         if self.at_rest() {
+            self.refresh_level();
             self.write_queued_records();
             // A cycle that ended in a fault (or a recovery that touched the cone) left
             // load–distance no completed cycle will count: it is the cone's now.
@@ -1530,7 +1537,7 @@ impl<B: Bsp> Controller<B> {
         if starting && self.plc.estop_open {
             request = None;
         }
-        if starting && request.is_some() && self.wear_level() == WearLevel::Limit {
+        if starting && request.is_some() && self.refresh_level() == WearLevel::Limit {
             // Worn out: no new docking until the cone is replaced.
             request = None;
             error!(
@@ -1648,14 +1655,21 @@ impl<B: Bsp> Controller<B> {
         }
     }
 
-    /// Stage 8, **watchdog** (fed by a loop that keeps its period) and the wear level
-    /// the handshake reports.
+    /// Stage 8, **watchdog** (fed by a loop that keeps its period). (The wear level the
+    /// handshake reports is refreshed at the cycle's end and in the service's window at
+    /// rest: [`Self::background`].)
     fn stage_watchdog(&mut self, dt_us: u64) {
         if dt_us <= 3 * self.period_us {
             self.wdg.feed();
         }
-        // 7. The wear level the handshake reports, when what it depends on changed (the
-        // estimate's evaluation costs ~22 k instructions: once per cycle, not per step).
+    }
+
+    /// The wear level, the estimate computed again first when what it depends on
+    /// changed, and both kept ([`Self::wear_key`]): the cycle's end and a start's gate in
+    /// the step, the service's window at rest ([`Self::background`]); each evaluates the
+    /// estimate only when the key moved.
+    #[inline(always)]
+    fn refresh_level(&mut self) -> WearLevel {
         let key = self.wear_key();
         if self.level_key != Some(key) {
             let est = self.compute_estimate();
@@ -1663,6 +1677,7 @@ impl<B: Bsp> Controller<B> {
             self.estimate = est;
             self.level_key = Some(key);
         }
+        self.level
     }
 
     /// What the wear estimate and level depend on: the cone, its equivalent cycles,
@@ -1821,8 +1836,10 @@ impl<B: Bsp> Controller<B> {
             }
             SeqEvent::CycleCompleted(n) => {
                 let mut c = self.odo.complete_cycle();
-                // The level the machine acts on (the estimate's band, once measured).
-                c.level = self.wear_level();
+                // The level the machine acts on (the estimate's band, once measured),
+                // kept for the handshake (one evaluation of the estimate, at the cycle's
+                // end).
+                c.level = self.refresh_level();
                 info!(
                     "cycle {=u32} completed: cone cycle {=u32}, wear {=u32} nm, remaining {=u32} cycles",
                     n, c.cone_cycle, c.wear_nm, c.remaining_cycles
