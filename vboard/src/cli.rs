@@ -149,7 +149,7 @@ fn session(o: &Opts) -> Result<Options, Failure> {
         ));
     }
     s.seed = o.num("seed", 1u64, 0, u64::MAX)?;
-    let cpi = o.num("cpi", 1.0f64, 0.5, 10.0)?;
+    let cpi = o.num("cpi", 1.0f64, 1.0, 3.0)?;
     let lsi = o.num("lsi-hz", 32_000u64, 17_000, 47_000)?;
     let timing = match o.get("flash-timing") {
         None | Some("max") => FlashTiming::Max,
@@ -170,6 +170,7 @@ fn session(o: &Opts) -> Result<Options, Failure> {
         timing: timing_model,
         lsi_hz: lsi,
         flash_timing: timing,
+        skip: !o.flag("no-skip"),
     };
     Ok(s)
 }
@@ -197,7 +198,7 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
             "seed",
             "cut",
         ],
-        &["json", "flood", "log"],
+        &["json", "flood", "log", "no-skip"],
     )?;
     let cut = match o.get("cut") {
         None => None,
@@ -244,7 +245,7 @@ fn serve(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
             "seed",
             "modbus-tcp",
         ],
-        &["pty", "modbus-pty", "plc"],
+        &["pty", "modbus-pty", "plc", "no-skip"],
     )?;
     let link = match (o.flag("pty"), o.get("tcp")) {
         (true, Some(_)) => return usage("give --pty or --tcp, not both"),
@@ -291,7 +292,7 @@ fn sweep_cmd(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     let own = ["scene", "seeds", "cpi", "timing", "jobs"];
     let common = ["firmware", "cycles", "rate", "lsi-hz", "flash-timing"];
     let valued: Vec<&str> = own.iter().chain(&common).copied().collect();
-    let o = Opts::parse(args, &valued, &["json", "flood"])?;
+    let o = Opts::parse(args, &valued, &["json", "flood", "no-skip"])?;
     let scenes: Vec<String> = o
         .get("scene")
         .unwrap_or("overload,estop")
@@ -334,13 +335,16 @@ fn sweep_cmd(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     let mut base = None;
     for (t, c) in plan {
         let mut a = base_args.clone();
+        if o.flag("no-skip") {
+            a.push("--no-skip".to_string());
+        }
         a.extend(["--cpi".to_string(), c.to_string()]);
         if let Some(t) = t {
             a.extend(["--timing".to_string(), t.to_string()]);
         }
         let mut keys = vec!["cpi", "timing"];
         keys.extend(common);
-        let s = session(&Opts::parse(&a, &keys, &[])?)?;
+        let s = session(&Opts::parse(&a, &keys, &["no-skip"])?)?;
         models.push(crate::sweep::Model {
             label: format!("{} {c}", t.unwrap_or("cpi")),
             board: s.board,

@@ -549,7 +549,7 @@ impl Session {
         ControlTiming::measure(
             &soc.entry_log.times(CONTROL_EXCEPTION),
             &soc.entry_log.pend_times(CONTROL_EXCEPTION),
-            &soc.iwdg.reload_times,
+            &soc.feeds.bursts,
             &resets,
             end,
             &moving_windows(&soc.edges, end),
@@ -978,8 +978,16 @@ pub struct Report {
     pub instructions: u64,
     /// Emulation speed, million instructions per wall second.
     pub mips: f64,
-    /// Virtual seconds per wall second.
+    /// Virtual seconds per wall second, over the whole run.
     pub realtime_factor: f64,
+    /// The same over the slowest window of at least 100 ms of wall time (the mean when
+    /// the run was shorter): where a client in real time would have waited.
+    pub realtime_factor_min: f64,
+    /// Instructions charged without being emulated: the polling loops skipped
+    /// ([`crate::loops`]; 0 with `--no-skip`).
+    pub skipped_instructions: u64,
+    /// [`crate::cpu::Board::trace_digest`] at the end: equal digests, equal runs.
+    pub trace_digest: u64,
     /// Flash erases per odometer sector.
     pub erase_counts: Vec<u32>,
     /// Faults the core took (HardFault, lockup).
@@ -1057,7 +1065,7 @@ impl Report {
             })
             .collect();
         format!(
-            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"sample_entry_latency_mean_us\":{},\"sample_entry_latency_max_us\":{},\"sample_entry_max_at\":\"{}\",\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_input_lost\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"modbus_overruns\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{},\"moving_s\":{},\"control_period_max_ms\":{},\"control_entry_latency_max_us\":{},\"control_entry_latency_max_us_all\":{},\"control_late\":{},\"watchdog_feed_gap_max_ms\":{},\"watchdog_feeds_missed\":{},\"estop_edges_moving\":{},\"estop_off_max_us\":{},\"estop_edges_not_stopped\":{}}}",
+            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"sample_entry_latency_mean_us\":{},\"sample_entry_latency_max_us\":{},\"sample_entry_max_at\":\"{}\",\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_input_lost\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"modbus_overruns\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"realtime_factor_min\":{},\"skipped_instructions\":{},\"trace_digest\":\"{:016x}\",\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{},\"moving_s\":{},\"control_period_max_ms\":{},\"control_entry_latency_max_us\":{},\"control_entry_latency_max_us_all\":{},\"control_late\":{},\"watchdog_feed_gap_max_ms\":{},\"watchdog_feeds_missed\":{},\"estop_edges_moving\":{},\"estop_off_max_us\":{},\"estop_edges_not_stopped\":{}}}",
             self.reset_count,
             strs(&causes),
             num(self.instructions_per_control_step),
@@ -1093,6 +1101,9 @@ impl Report {
             self.instructions,
             num(self.mips),
             num(self.realtime_factor),
+            num(self.realtime_factor_min),
+            self.skipped_instructions,
+            self.trace_digest,
             self.erase_counts,
             strs(&self.core_faults),
             strs(&self.diagnostics),
@@ -1195,8 +1206,8 @@ impl Report {
             );
         }
         s += &format!(
-            "\n  emulation: {} instructions at CPI {}, {:.1} MIPS, {:.3}× real time (LSI {} Hz, flash timing {})",
-            self.instructions, self.cpi, self.mips, self.realtime_factor, self.lsi_hz, self.flash_timing
+            "\n  emulation: {} instructions at CPI {}, {:.1} MIPS, {:.3}× real time ({:.3}× in the slowest 100 ms; {} instructions in polling loops skipped) (LSI {} Hz, flash timing {})",
+            self.instructions, self.cpi, self.mips, self.realtime_factor, self.realtime_factor_min, self.skipped_instructions, self.lsi_hz, self.flash_timing
         );
         let st = &self.step;
         if st.pulses_pos + st.pulses_neg + st.pulses_disabled > 0 {
@@ -1626,6 +1637,9 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         instructions: insns,
         mips: insns as f64 / wall.max(1e-9) / 1e6,
         realtime_factor: sim_s / wall.max(1e-9),
+        realtime_factor_min: s.board.speed.min_factor.unwrap_or(sim_s / wall.max(1e-9)),
+        skipped_instructions: soc.loops.stats.insns,
+        trace_digest: s.board.trace_digest(),
         erase_counts: soc.world.flash.with(|f| f.erase_counts().to_vec()),
         core_faults: s
             .board
