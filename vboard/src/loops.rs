@@ -75,8 +75,20 @@ struct Plan {
     blocks: Vec<(u32, u32)>,
     bytes: Vec<u8>,
     decoded: Option<Vec<Block>>,
+}
+
+/// Holds on loops recently looked at, by head (a small direct-mapped table).
+const HOLDS: usize = 16;
+
+/// A loop's head not looked at again before `until` (milli-cycles): after `rejects`
+/// refusals in a row (not a polling loop: seldom), or `not_now` checks that found it
+/// not the time (an event close, its cost settling: soon).
+#[derive(Clone, Copy, Debug, Default)]
+struct Hold {
+    head: u32,
+    until: u64,
     rejects: u32,
-    retry_mc: u64,
+    not_now: u32,
 }
 
 /// What the skipping did, for reports.
@@ -103,7 +115,7 @@ pub struct Loops {
     len: usize,
     watch: Option<Watch>,
     plans: HashMap<u32, Plan>,
-    quick_reject: (u32, u64),
+    holds: [Hold; HOLDS],
     /// Addresses of instructions a debugging hook counts (`Board::watch_pc`): a loop
     /// that holds one is never skipped.
     pub watched_pcs: Vec<u32>,
@@ -117,6 +129,17 @@ impl Loops {
     pub fn restart(&mut self) {
         self.len = 0;
         self.watch = None;
+    }
+
+    fn hold(&mut self, head: u32) -> &mut Hold {
+        let h = &mut self.holds[(head as usize >> 1) % HOLDS];
+        if h.head != head {
+            *h = Hold {
+                head,
+                ..Hold::default()
+            };
+        }
+        h
     }
 
     fn push(&mut self, s: Seen) {
@@ -348,16 +371,6 @@ fn max_gap_ps(base: (u64, u64, u64), m0: u64, d_mc: u64, count: u64) -> u64 {
     q
 }
 
-fn reject(s: &mut Soc, head: u32, mc: u64) {
-    if let Some(p) = s.loops.plans.get_mut(&head) {
-        p.rejects = (p.rejects + 1).min(24);
-        // 1 µs of cycles at 168 MHz, doubling: a loop that is never worth it is
-        // looked at seldom.
-        p.retry_mc = mc + (168_000u64 << p.rejects.min(20));
-        s.loops.quick_reject = (head, p.retry_mc);
-    }
-}
-
 /// The block at `addr` (`size` bytes, `insns` instructions) is about to run: note it,
 /// and skip the loop it closes if it is a polling loop. `true`: skipped (the engine is
 /// stopped; the block is not to be charged).
@@ -377,23 +390,40 @@ pub fn on_block(uc: &mut Unicorn<'_, Soc>, addr: u32, size: u32, insns: u64) -> 
         s.loops.watch = None;
         return false;
     };
-    if s.loops.quick_reject.0 == addr && mc < s.loops.quick_reject.1 {
+    let h = s.loops.holds[(addr as usize >> 1) % HOLDS];
+    if h.head == addr && mc < h.until {
         return false;
     }
     match &s.loops.watch {
         Some(w) if w.head == addr && w.period == p => match attempt(uc, p) {
-            Ok(true) => return true,
+            Ok(true) => {
+                let h = uc.get_data_mut().loops.hold(addr);
+                (h.rejects, h.not_now, h.until) = (0, 0, 0);
+                return true;
+            }
             Ok(false) => {
                 if debug() {
                     eprintln!("loop at {addr:#010x} (period {p}): not now");
                 }
+                // Not yet (the cost settling, an event close): look again soon, later
+                // each time in a row (up to about 0.4 ms of cycles).
+                let s = uc.get_data_mut();
+                let h = s.loops.hold(addr);
+                h.not_now += 1;
+                h.until = h.until.max(mc + (1_000u64 << h.not_now.min(16)));
+                s.loops.watch = None;
+                return false;
             }
             Err(why) => {
                 if debug() {
                     eprintln!("loop at {addr:#010x} (period {p}): {}", why.0);
                 }
+                // Not a polling loop (or not one worth skipping): looked at again
+                // after 1 µs of cycles, doubling to about a second.
                 let s = uc.get_data_mut();
-                reject(s, addr, mc);
+                let h = s.loops.hold(addr);
+                h.rejects = (h.rejects + 1).min(20);
+                h.until = mc + (168_000u64 << h.rejects);
                 s.loops.watch = None;
                 return false;
             }
@@ -488,20 +518,11 @@ fn attempt(uc: &mut Unicorn<'_, Soc>, p: usize) -> Result<bool, Abort> {
                 blocks: spans,
                 bytes,
                 decoded,
-                rejects: 0,
-                retry_mc: 0,
             },
         );
     }
     let s = uc.get_data();
     let plan = s.loops.plans.get(&head).ok_or(Abort("no plan"))?;
-    if plan.retry_mc > mc_b {
-        let retry = plan.retry_mc;
-        let s = uc.get_data_mut();
-        s.loops.quick_reject = (head, retry);
-        s.loops.watch = None;
-        return Ok(false);
-    }
     let blocks = plan.decoded.clone().ok_or(Abort("undecodable"))?;
     let regs_b = regs(uc);
     let (nzcv_b, in_it) = flags(uc);
@@ -651,7 +672,7 @@ fn apply(
         .ok_or(Abort("a register depends on an unknown read"))?;
     let s = uc.get_data_mut();
     if s.art_timing {
-        s.flash.art.advance_loop(art_a, art_b, d, k);
+        s.flash.art.advance_loop(art_a, art_b, k);
     }
     s.accesses.0 += k * bus_reads;
     let cur = s.current_exc;

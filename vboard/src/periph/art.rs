@@ -340,8 +340,12 @@ impl Art {
     /// as far ahead in time.
     pub fn loop_repeats(a: &LoopMark, b: &LoopMark, d_mc: u64) -> bool {
         let d = b.stats.sub(&a.stats);
+        // The buffer moves on with the fetches of a loop in flash, and stands still for
+        // one in SRAM.
         let prefetch_same = a.prefetch.0 == b.prefetch.0
-            && (a.prefetch.0 == NONE || b.prefetch.1 == a.prefetch.1 + d_mc);
+            && (a.prefetch.0 == NONE
+                || b.prefetch.1 == a.prefetch.1 + d_mc
+                || b.prefetch.1 == a.prefetch.1);
         d.i_misses == 0
             && d.d_lines == d.d_hits
             && d.i_resets == 0
@@ -354,15 +358,15 @@ impl Art {
             && prefetch_same
     }
 
-    /// `k` more iterations like the one from `a` to `b` (`d_mc` milli-cycles each), as
-    /// they would have left the caches, the buffer and the counters.
-    pub fn advance_loop(&mut self, a: &LoopMark, b: &LoopMark, d_mc: u64, k: u64) {
+    /// `k` more iterations like the one from `a` to `b`, as they would have left the
+    /// caches, the buffer and the counters.
+    pub fn advance_loop(&mut self, a: &LoopMark, b: &LoopMark, k: u64) {
         let d = b.stats.sub(&a.stats);
         self.stats.add_times(&d, k);
         self.icache.advance(a.i_now, b.i_now - a.i_now, k);
         self.dcache.advance(a.d_now, b.d_now - a.d_now, k);
         if self.prefetch.0 != NONE {
-            self.prefetch.1 += k * d_mc;
+            self.prefetch.1 += k * (b.prefetch.1 - a.prefetch.1);
         }
     }
 
