@@ -10,10 +10,10 @@ use crate::periph::flash::FlashTiming;
 use crate::scene::{Options, SceneOptions, SCENES};
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--cut transfer|swap|boot] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] | estimate-cost [--readings N] [--firmware ELF]";
+pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--cut transfer|swap|boot] [--flood] [--log] [--json] [--no-skip] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] [--no-skip] | estimate-cost [--readings N] [--firmware ELF]";
 
 /// The sweep's usage (`vboard sweep`).
-pub const SWEEP_USAGE: &str = "       vboard sweep [--scene NAME[,NAME...]] [--seeds 1..10|1,2,3] [--cpi X[,X...]] [--timing cpi|art[,...]] [--flood] [--cycles N] [--rate 10|80] [--lsi-hz HZ] [--flash-timing max|typical] [--firmware ELF] [--jobs N] [--json]";
+pub const SWEEP_USAGE: &str = "       vboard sweep [--scene NAME[,NAME...]] [--seeds 1..10|1,2,3] [--cpi X[,X...]] [--timing cpi|art[,...]] [--flood] [--cycles N] [--rate 10|80] [--lsi-hz HZ] [--flash-timing max|typical] [--firmware ELF] [--jobs N] [--json] [--no-skip]";
 
 /// How the command failed.
 #[derive(Debug)]
@@ -68,7 +68,8 @@ fn command_help(cmd: &str) -> Option<String> {
 }
 
 /// What each option does, by its flag (shared by the commands that take it).
-const OPTION_HELP: [(&str, &str); 23] = [
+const OPTION_HELP: [(&str, &str); 24] = [
+    ("--no-skip", "emulate every iteration of the polling loops (the same results, slower: the proof that skipping changes nothing)"),
     ("--firmware", "the image to run (default: the release build at the root; refused if older than its sources)"),
     ("--cycles", "docking cycles to run"),
     ("--rate", "the HX711's output rate, samples a second (its RATE pin)"),
@@ -133,6 +134,22 @@ fn one_option_a_line(synopsis: &str) -> String {
         out += &format!("\n  {g:<44} {what}");
     }
     out
+}
+
+/// The commands, one a line (`vboard --help`, and after a usage error).
+fn overview() -> String {
+    let mut s = String::from("usage: vboard COMMAND [OPTIONS]   (vboard COMMAND --help: its options, one a line)");
+    for (cmd, what) in [
+        ("scene", "a scene on the virtual board"),
+        ("serve", "the image in real time, its console (and Modbus) on a pty or TCP"),
+        ("estimate-cost", "the wear estimate's cost on the M4"),
+        ("sweep", "scenes over seeds and timing models, the worst figures"),
+    ] {
+        let first = command_help(cmd).unwrap_or_default();
+        let first = first.lines().next().unwrap_or(cmd);
+        s += &format!("\n  {:<40} {what}", first.trim_start_matches("vboard "));
+    }
+    s
 }
 
 /// Session options from the common flags.
@@ -408,7 +425,7 @@ fn estimate_cost(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
 /// Run the command line `args` (without the program name).
 pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     let Some((cmd, rest)) = args.split_first() else {
-        return usage(USAGE);
+        return usage(overview());
     };
     if rest.iter().any(|a| a == "--help" || a == "-h") {
         if let Some(h) = command_help(cmd) {
@@ -422,10 +439,10 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
         "estimate-cost" => estimate_cost(rest, out),
         "sweep" => sweep_cmd(rest, out),
         "help" | "--help" | "-h" => {
-            let _ = writeln!(out, "{USAGE}\n{SWEEP_USAGE}");
+            let _ = writeln!(out, "{}", overview());
             Ok(())
         }
-        other => usage(format!("unknown command '{other}'; {USAGE}")),
+        other => usage(format!("unknown command '{other}'\n{}", overview())),
     }
 }
 
@@ -466,6 +483,29 @@ mod help_tests {
             out.contains("\n  --modbus-pty | --modbus-tcp 127.0.0.1:PORT "),
             "{out}"
         );
+    }
+
+    /// `vboard --help` printed one line of 1,200 characters; `--cpi 9` was run.
+    #[test]
+    fn help_is_a_command_a_line_and_cpi_is_one_to_three() {
+        let (r, out) = run_args(&["--help"]);
+        assert!(r.is_ok());
+        let lines: Vec<&str> = out.lines().collect();
+        assert_eq!(lines.len(), 5, "{out}");
+        assert!(lines.iter().all(|l| l.len() < 120), "{out}");
+        for cmd in ["scene", "serve", "estimate-cost", "sweep"] {
+            assert!(lines.iter().any(|l| l.trim_start().starts_with(cmd)), "{cmd}: {out}");
+        }
+        match run_args(&[]).0 {
+            Err(Failure::Usage(e)) => assert_eq!(e.lines().count(), 5, "{e}"),
+            _ => panic!("no command is a usage error"),
+        }
+        for cpi in ["9", "0.5", "3.5"] {
+            match run_args(&["scene", "boot", "--cpi", cpi]).0 {
+                Err(Failure::Usage(e)) => assert!(e.contains("cpi"), "{e}"),
+                _ => panic!("--cpi {cpi} accepted"),
+            }
+        }
     }
 
     #[test]

@@ -365,6 +365,36 @@ impl Session {
         }
     }
 
+    /// Forget what happened before `t_ps` that only reports read back (pin edges but
+    /// the last of each signal before it, the control task's entries and pends, the
+    /// watchdog's reloads, the console's output, log lines already read): a `serve`
+    /// that runs for days keeps its memory bounded. Reports over a run that forgot are
+    /// reports of what it kept.
+    pub fn forget_before(&mut self, t_ps: u64) {
+        self.observe();
+        let log = std::mem::take(&mut self.board.log);
+        self.board.log = log.into_iter().skip(self.seen.cursor).collect();
+        self.seen.cursor = 0;
+        let soc = self.board.soc_mut();
+        let mut last: Vec<(crate::world::Signal, usize)> = Vec::new();
+        for (i, e) in soc.edges.iter().enumerate().take_while(|(_, e)| e.t_ps < t_ps) {
+            match last.iter_mut().find(|(s, _)| *s == e.signal) {
+                Some(l) => l.1 = i,
+                None => last.push((e.signal, i)),
+            }
+        }
+        let mut i = 0;
+        soc.edges.retain(|e| {
+            let keep = e.t_ps >= t_ps || last.iter().any(|&(_, j)| j == i);
+            i += 1;
+            keep
+        });
+        soc.entry_log.entries.retain(|&(_, t)| t >= t_ps);
+        soc.entry_log.pends.retain(|&(_, t)| t >= t_ps);
+        soc.feeds.forget_before(t_ps);
+        soc.console_out.retain(|&(t, _)| t >= t_ps);
+    }
+
     /// Interpret new log lines.
     fn observe(&mut self) {
         let lines: Vec<LogLine> = self.board.log[self.seen.cursor..].to_vec();
