@@ -138,12 +138,20 @@ fn one_option_a_line(synopsis: &str) -> String {
 
 /// The commands, one a line (`vboard --help`, and after a usage error).
 fn overview() -> String {
-    let mut s = String::from("usage: vboard COMMAND [OPTIONS]   (vboard COMMAND --help: its options, one a line)");
+    let mut s = String::from(
+        "usage: vboard COMMAND [OPTIONS]   (vboard COMMAND --help: its options, one a line)",
+    );
     for (cmd, what) in [
         ("scene", "a scene on the virtual board"),
-        ("serve", "the image in real time, its console (and Modbus) on a pty or TCP"),
+        (
+            "serve",
+            "the image in real time, its console (and Modbus) on a pty or TCP",
+        ),
         ("estimate-cost", "the wear estimate's cost on the M4"),
-        ("sweep", "scenes over seeds and timing models, the worst figures"),
+        (
+            "sweep",
+            "scenes over seeds and timing models, the worst figures",
+        ),
     ] {
         let first = command_help(cmd).unwrap_or_default();
         let first = first.lines().next().unwrap_or(cmd);
@@ -494,7 +502,10 @@ mod help_tests {
         assert_eq!(lines.len(), 5, "{out}");
         assert!(lines.iter().all(|l| l.len() < 120), "{out}");
         for cmd in ["scene", "serve", "estimate-cost", "sweep"] {
-            assert!(lines.iter().any(|l| l.trim_start().starts_with(cmd)), "{cmd}: {out}");
+            assert!(
+                lines.iter().any(|l| l.trim_start().starts_with(cmd)),
+                "{cmd}: {out}"
+            );
         }
         match run_args(&[]).0 {
             Err(Failure::Usage(e)) => assert_eq!(e.lines().count(), 5, "{e}"),

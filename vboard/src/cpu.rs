@@ -27,9 +27,7 @@
 //! * **Reset**: peripherals to reset values (RCC keeps the reset flags), SRAM kept,
 //!   `SP` and `PC` from the vector table.
 
-use unicorn_engine::{
-    Arch, ArmCpuModel, HookType, MemType, Mode, Prot, RegisterARM, RegisterARMCP, Unicorn,
-};
+use unicorn_engine::{Arch, ArmCpuModel, HookType, MemType, Mode, Prot, RegisterARM, Unicorn};
 
 use crate::image::Image;
 use crate::periph::flash::{FlashTiming, FLASH_BASE, ODOMETER_BASE};
@@ -202,20 +200,12 @@ fn set(uc: &mut Unicorn<'_, Soc>, r: RegisterARM, v: u32) {
 }
 
 /// Rebuild the engine's cached mode flags after a change of IPSR/CONTROL from outside.
+/// A write of the flags does that in unicorn 2.1 (`APSR_NZCV`: `arm_rebuild_hflags`);
+/// the flags are written back as they are. (A failing coprocessor-register write did it
+/// too, but each failure costs the engine a `getenv` for its warning: 1 % of a run.)
 fn rebuild_hflags(uc: &mut Unicorn<'_, Soc>) {
-    let cp = RegisterARMCP {
-        cp: 15,
-        is64: 0,
-        sec: 0,
-        crn: 15,
-        crm: 15,
-        opc1: 7,
-        opc2: 7,
-        val: 0,
-    };
-    // No such register on an M profile: the write fails, but unicorn rebuilds the flags
-    // after any coprocessor-register write.
-    let _ = uc.reg_write_arm_coproc(&cp);
+    let nzcv = uc.reg_read(RegisterARM::APSR_NZCV).unwrap_or(0);
+    let _ = uc.reg_write(RegisterARM::APSR_NZCV, nzcv);
 }
 
 fn masks(uc: &Unicorn<'_, Soc>) -> Masks {

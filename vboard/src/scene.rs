@@ -377,7 +377,12 @@ impl Session {
         self.seen.cursor = 0;
         let soc = self.board.soc_mut();
         let mut last: Vec<(crate::world::Signal, usize)> = Vec::new();
-        for (i, e) in soc.edges.iter().enumerate().take_while(|(_, e)| e.t_ps < t_ps) {
+        for (i, e) in soc
+            .edges
+            .iter()
+            .enumerate()
+            .take_while(|(_, e)| e.t_ps < t_ps)
+        {
             match last.iter_mut().find(|(s, _)| *s == e.signal) {
                 Some(l) => l.1 = i,
                 None => last.push((e.signal, i)),

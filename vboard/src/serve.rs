@@ -276,9 +276,7 @@ impl Pace {
                     );
                     self.behind = None;
                 } else if wall_s - self.said_at >= 1.0 {
-                    eprintln!(
-                        "vboard serve: behind real time by {lag_s:.2} s since {since:.1} s"
-                    );
+                    eprintln!("vboard serve: behind real time by {lag_s:.2} s since {since:.1} s");
                     self.said_at = wall_s;
                 }
             }
@@ -383,9 +381,7 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
         bridge.write(&outb);
         // A client that closed its side is let go once the console is quiet: the next
         // one gets the console (it was told `busy` for the rest of the run).
-        bridge.reap(
-            bytes.is_empty() && outb.is_empty() && s.board.soc().usart2.far_pending() == 0,
-        );
+        bridge.reap(bytes.is_empty() && outb.is_empty() && s.board.soc().usart2.far_pending() == 0);
         let _ = bridge.departed();
         if let Some(m) = modbus.as_mut() {
             m.service(&mut s);

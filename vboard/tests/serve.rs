@@ -118,7 +118,8 @@ fn a_terminal_reads_wear_as_json_over_a_pty() {
 fn a_terminal_that_closed_cleanly_left_the_console_busy_for_the_rest_of_the_run() {
     let (mut child, addr) = start(&["--tcp", "127.0.0.1:0"]);
     let greeting = |s: &mut std::net::TcpStream| {
-        s.set_read_timeout(Some(Duration::from_millis(200))).unwrap();
+        s.set_read_timeout(Some(Duration::from_millis(200)))
+            .unwrap();
         let deadline = Instant::now() + Duration::from_secs(30);
         let mut got = Vec::new();
         while !got.ends_with(b"> ") && !got.ends_with(b"\n") && Instant::now() < deadline {
@@ -162,7 +163,15 @@ fn a_terminal_that_closed_cleanly_left_the_console_busy_for_the_rest_of_the_run(
 #[test]
 fn a_technician_could_not_commission_the_live_board_between_demo_cycles() {
     let mut child = Command::new(env!("CARGO_BIN_EXE_vboard"))
-        .args(["serve", "--for", "300", "--tcp", "127.0.0.1:0", "--speed", "10"])
+        .args([
+            "serve",
+            "--for",
+            "300",
+            "--tcp",
+            "127.0.0.1:0",
+            "--speed",
+            "10",
+        ])
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
         .spawn()
@@ -172,7 +181,8 @@ fn a_technician_could_not_commission_the_live_board_between_demo_cycles() {
         .read_line(&mut line)
         .expect("first line: the address");
     let mut s = std::net::TcpStream::connect(line.trim()).expect("connect");
-    s.set_read_timeout(Some(Duration::from_millis(200))).unwrap();
+    s.set_read_timeout(Some(Duration::from_millis(200)))
+        .unwrap();
     // Wait for the demo to start a cycle (the machine moves), then commission.
     let deadline = Instant::now() + Duration::from_secs(120);
     let mut got = String::new();
