@@ -690,6 +690,9 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
             let _ = write!(out, "{}", overview());
             Ok(())
         }
-        other => err(format!("unknown command '{other}'\n{}", overview().trim_end())),
+        other => err(format!(
+            "unknown command '{other}'\n{}",
+            overview().trim_end()
+        )),
     }
 }

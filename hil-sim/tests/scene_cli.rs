@@ -53,7 +53,10 @@ fn no_command_or_an_unknown_one_prints_the_commands_one_a_line() {
         let lines: Vec<&str> = err.lines().collect();
         assert!(lines.len() >= 9, "{err}");
         assert!(lines.iter().all(|l| l.len() < 160), "{err}");
-        assert!(lines.iter().any(|l| l.trim_start().starts_with("serve ")), "{err}");
+        assert!(
+            lines.iter().any(|l| l.trim_start().starts_with("serve ")),
+            "{err}"
+        );
     }
 }
 

@@ -254,33 +254,39 @@ struct Pace {
 }
 
 impl Pace {
-    /// The board stands `lag_s` of wall time behind the clock at `wall_s`.
-    fn observe(&mut self, wall_s: f64, lag_s: f64) {
+    /// The board stands `lag_s` of wall time behind the clock at `wall_s`: what to say
+    /// on stderr, if anything.
+    fn observe(&mut self, wall_s: f64, lag_s: f64) -> Option<String> {
         if lag_s > self.worst.0 {
             self.worst = (lag_s, wall_s);
         }
         let warn = LAG_WARN.as_secs_f64();
         match self.behind.as_mut() {
             None if lag_s > warn => {
-                eprintln!(
-                    "vboard serve: behind real time by {lag_s:.2} s at {wall_s:.1} s (the emulation is slower than the board here)"
-                );
                 self.behind = Some((wall_s, lag_s));
                 self.said_at = wall_s;
+                Some(format!(
+                    "vboard serve: behind real time by {lag_s:.2} s at {wall_s:.1} s (the emulation is slower than the board here)"
+                ))
             }
             Some((since, most)) => {
                 *most = most.max(lag_s);
+                let (since, most) = (*since, *most);
                 if lag_s < warn / 2.0 {
-                    eprintln!(
-                        "vboard serve: caught up with real time at {wall_s:.1} s (behind since {since:.1} s, by {most:.2} s at most)"
-                    );
                     self.behind = None;
+                    Some(format!(
+                        "vboard serve: caught up with real time at {wall_s:.1} s (behind since {since:.1} s, by {most:.2} s at most)"
+                    ))
                 } else if wall_s - self.said_at >= 1.0 {
-                    eprintln!("vboard serve: behind real time by {lag_s:.2} s since {since:.1} s");
                     self.said_at = wall_s;
+                    Some(format!(
+                        "vboard serve: behind real time by {lag_s:.2} s since {since:.1} s"
+                    ))
+                } else {
+                    None
                 }
             }
-            None => {}
+            None => None,
         }
     }
 }
@@ -368,7 +374,9 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
             }
         }
         let lag_s = target.saturating_sub(s.now()) as f64 / PS_PER_S as f64 / opts.speed;
-        pace.observe(start.elapsed().as_secs_f64(), lag_s);
+        if let Some(m) = pace.observe(start.elapsed().as_secs_f64(), lag_s) {
+            eprintln!("{m}");
+        }
         let bytes = bridge.read(256);
         if !bytes.is_empty() {
             typed_at = Some(s.now());
@@ -395,5 +403,27 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
             let nap_ms = if modbus.is_some() { 1 } else { 2 };
             std::thread::sleep(Duration::from_millis(nap_ms));
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Pace;
+
+    #[test]
+    fn falling_behind_is_said_once_a_second_with_since_when_and_the_worst_is_kept() {
+        let mut p = Pace::default();
+        assert_eq!(p.observe(1.0, 0.05), None, "within 100 ms: nothing");
+        let m = p.observe(2.0, 0.3).unwrap();
+        assert!(m.contains("behind real time by 0.30 s at 2.0 s"), "{m}");
+        assert_eq!(p.observe(2.5, 0.8), None, "not again within a second");
+        let m = p.observe(3.1, 1.2).unwrap();
+        assert!(m.contains("by 1.20 s since 2.0 s"), "{m}");
+        let m = p.observe(4.0, 0.01).unwrap();
+        assert!(
+            m.contains("caught up") && m.contains("by 1.20 s at most"),
+            "{m}"
+        );
+        assert_eq!(p.worst, (1.2, 3.1));
     }
 }
