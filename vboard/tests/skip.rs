@@ -100,28 +100,15 @@ fn flooded(rate_sps: u32) -> SceneOptions {
 
 /// Every scene the test suite runs, with its options.
 fn suite() -> Vec<(&'static str, SceneOptions)> {
+    // The scenes with the most polling first (erases, the brown-out level's program),
+    // the long flooded ones last.
     let mut v = vec![
         ("boot", default()),
-        ("nominal", default()),
-        ("nominal", flooded(80)),
-        ("overload", default()),
-        ("overload", flooded(80)),
-        ("overload", flooded(10)),
-        ("estop", flooded(80)),
-        ("disconnect", default()),
-        ("power-cut-write", default()),
-        ("power-cycle", default()),
         ("sector-move", {
             let mut o = default();
             o.session.board.lsi_hz = 47_000;
             o
         }),
-        ("dock-hold", default()),
-        ("vehicle-pull", default()),
-        ("estop", default()),
-        ("estop-bounce", default()),
-        ("heavy-default", default()),
-        ("maintenance-lockout", default()),
         ("update", typical()),
         ("update-bad", typical()),
         ("update-rollback", typical()),
@@ -134,6 +121,23 @@ fn suite() -> Vec<(&'static str, SceneOptions)> {
             v.push(("update-cut", o));
         }
     }
+    v.extend([
+        ("power-cut-write", default()),
+        ("power-cycle", default()),
+        ("maintenance-lockout", default()),
+        ("nominal", default()),
+        ("overload", default()),
+        ("disconnect", default()),
+        ("estop", default()),
+        ("estop-bounce", default()),
+        ("vehicle-pull", default()),
+        ("heavy-default", default()),
+        ("dock-hold", default()),
+        ("nominal", flooded(80)),
+        ("overload", flooded(80)),
+        ("overload", flooded(10)),
+        ("estop", flooded(80)),
+    ]);
     v
 }
 
