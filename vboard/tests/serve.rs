@@ -183,7 +183,10 @@ fn a_technician_could_not_commission_the_live_board_between_demo_cycles() {
     let mut s = std::net::TcpStream::connect(line.trim()).expect("connect");
     s.set_read_timeout(Some(Duration::from_millis(200)))
         .unwrap();
-    // Wait for the demo to start a cycle (the machine moves), then commission.
+    // Let the demo start a cycle (10 s of rest after the boot, then it docks: 3 s of
+    // wall time at speed 10 is 30 s of machine time where the machine keeps up), then
+    // commission: refused while it moves, through once the cycle has ended.
+    std::thread::sleep(Duration::from_secs(3));
     let deadline = Instant::now() + Duration::from_secs(120);
     let mut got = String::new();
     let mut tries = 0;
