@@ -78,7 +78,7 @@ struct Plan {
 }
 
 /// Holds on loops recently looked at, by head (a small direct-mapped table).
-const HOLDS: usize = 16;
+const HOLDS: usize = 256;
 
 /// A loop's head not looked at again before `until` (milli-cycles): after `rejects`
 /// refusals in a row (not a polling loop: seldom), or `not_now` checks that found it
@@ -115,7 +115,7 @@ pub struct Loops {
     len: usize,
     watch: Option<Watch>,
     plans: HashMap<u32, Plan>,
-    holds: [Hold; HOLDS],
+    holds: Vec<Hold>,
     /// Addresses of instructions a debugging hook counts (`Board::watch_pc`): a loop
     /// that holds one is never skipped.
     pub watched_pcs: Vec<u32>,
@@ -132,6 +132,9 @@ impl Loops {
     }
 
     fn hold(&mut self, head: u32) -> &mut Hold {
+        if self.holds.is_empty() {
+            self.holds = vec![Hold::default(); HOLDS];
+        }
         let h = &mut self.holds[(head as usize >> 1) % HOLDS];
         if h.head != head {
             *h = Hold {
@@ -390,9 +393,10 @@ pub fn on_block(uc: &mut Unicorn<'_, Soc>, addr: u32, size: u32, insns: u64) -> 
         s.loops.watch = None;
         return false;
     };
-    let h = s.loops.holds[(addr as usize >> 1) % HOLDS];
-    if h.head == addr && mc < h.until {
-        return false;
+    if let Some(h) = s.loops.holds.get((addr as usize >> 1) % HOLDS) {
+        if h.head == addr && mc < h.until {
+            return false;
+        }
     }
     match &s.loops.watch {
         Some(w) if w.head == addr && w.period == p => match attempt(uc, p) {
