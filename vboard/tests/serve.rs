@@ -58,7 +58,7 @@ fn a_terminal_reads_the_version_over_tcp() {
     let reply = ask(&mut s, "version", "docking-controller ");
     assert_eq!(
         reply.trim(),
-        "docking-controller 0.1.0 (test key) previous=none rolled_back=no"
+        "docking-controller 0.1.0 (test key) previous=none rolled_back=no trial=no"
     );
     let _ = child.kill();
     let _ = child.wait();
