@@ -1477,12 +1477,10 @@ impl<B: Bsp> Controller<B> {
                 },
             );
         }
-        if (new_edges != 0 || self.plc.estop_open)
-            && st.state
-                != (State::Faulted {
-                    fault: FaultKind::EmergencyStop,
-                })
-        {
+        // Whatever the state, a latched E-STOP included: the sequencer keeps it latched
+        // and refuses a clear in a step that detects a fault (a clear accepted before
+        // these edges must not run past them: `Sequencer::step`).
+        if new_edges != 0 || self.plc.estop_open {
             st.fault = st.fault.or(Some(FaultKind::EmergencyStop));
         }
         // Mated: the force must stay in the hold envelope.
@@ -1545,19 +1543,14 @@ impl<B: Bsp> Controller<B> {
             match self.take_tare() {
                 TareResult::Ready => {}
                 TareResult::NotYet => {
-                    self.pending = request.take(); // wait for more zero-load samples
+                    // Wait for more zero-load samples (from the same source: its gate
+                    // is checked again at the next step).
+                    self.pending = request.take();
                 }
                 TareResult::Implausible => st.fault = st.fault.or(Some(FaultKind::ImplausibleTare)),
             }
         }
-        if request == Some(Request::ClearFault) && matches!(st.state, State::Faulted { .. }) {
-            // The kernel forgets its sample history and restarts its timeout.
-            self.clear_epoch = self.clear_epoch.wrapping_add(1);
-            // The flash gets another STORAGE_ATTEMPTS tries.
-            self.store.storage_blocked = false;
-            self.store.storage_failures = 0;
-            self.store.storage_fault_due = false;
-        } else if self.store.storage_fault_due && !matches!(st.state, State::Faulted { .. }) {
+        if self.store.storage_fault_due && !matches!(st.state, State::Faulted { .. }) {
             self.store.storage_fault_due = false;
             st.fault = st.fault.or(Some(FaultKind::Storage));
         }
@@ -1573,6 +1566,15 @@ impl<B: Bsp> Controller<B> {
             request,
         };
         let out = self.seq.step(&inputs);
+        if out.event == Some(SeqEvent::FaultCleared) {
+            // The clear ran (not one the sequencer refused for a fault this step
+            // detected): the kernel forgets its sample history and restarts its
+            // timeout, and the flash gets another STORAGE_ATTEMPTS tries.
+            self.clear_epoch = self.clear_epoch.wrapping_add(1);
+            self.store.storage_blocked = false;
+            self.store.storage_failures = 0;
+            self.store.storage_fault_due = false;
+        }
         if let Some(ev) = out.event {
             self.on_seq_event(st.now_ms, ev);
         }

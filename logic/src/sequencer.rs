@@ -599,7 +599,18 @@ impl Sequencer {
                 } if f != FaultKind::HoldForce => {
                     Some((State::Faulted { fault: f }, Some(SeqEvent::Fault(f))))
                 }
-                State::Faulted { .. } => None, // latched: only a clear gets out
+                // An E-STOP replaces any other latched fault (it is the one a clear
+                // must wait for: the input closed again).
+                State::Faulted { fault } if f == FaultKind::EmergencyStop && fault != f => {
+                    Some((State::Faulted { fault: f }, Some(SeqEvent::Fault(f))))
+                }
+                // Latched: only a clear gets out, and **not in a step that detects a
+                // fault**. A clear accepted before an E-STOP edge (or any other fault)
+                // that reaches the step with it is refused here, never run past the
+                // fault it has not seen (issue 32: the pulse's edges were consumed by
+                // the step that ran the clear, and the machine moved). The state is
+                // written back unchanged so that `transition` does not run.
+                State::Faulted { .. } => Some((self.state, None)),
                 // Any fault (a stop included) ends the controlled retreat of an overload.
                 State::BackingOff { .. } => {
                     Some((State::Faulted { fault: f }, Some(SeqEvent::Fault(f))))
