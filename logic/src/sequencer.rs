@@ -481,6 +481,12 @@ pub struct Sequencer {
     cycle_in_progress: u32,
     /// The cycle under way is a service docking (hold until undock), not a test cycle.
     service: bool,
+    /// The cycle under way reached the cone (its compliant insertion began): only such a
+    /// cycle counts as one when its return ends ([`State::Returning`]'s `ends_cycle`).
+    /// A docking stopped before the cone (an undock, a fault and its clear in the
+    /// pre-alignment or the release) counts nothing (issue 32; docs/board.md, "What
+    /// holds between the steps").
+    reached_cone: bool,
 }
 
 impl Sequencer {
@@ -492,6 +498,7 @@ impl Sequencer {
             cycles_completed: 0,
             cycle_in_progress: 0,
             service: false,
+            reached_cone: false,
         }
     }
 
@@ -796,7 +803,7 @@ impl Sequencer {
                             self.start_return(
                                 now,
                                 inp.pos_um,
-                                self.cycle_in_progress > self.cycles_completed,
+                                self.reached_cone && self.cycle_in_progress > self.cycles_completed,
                             ),
                             None,
                             false,
@@ -811,6 +818,7 @@ impl Sequencer {
             State::Idle => match inp.request {
                 Some(r @ (Request::StartCycle | Request::Dock)) if sw.home && sw.locked => {
                     self.service = r == Request::Dock;
+                    self.reached_cone = false;
                     self.cycle_in_progress = self.cycles_completed.saturating_add(1);
                     let deadline_ms = self.move_deadline(
                         now,
@@ -875,6 +883,8 @@ impl Sequencer {
                         cfg.mated_um() - inp.pos_um,
                         cfg.dock_speed_um_per_s,
                     );
+                    // From here the rod goes into the cone: the cycle counts.
+                    self.reached_cone = true;
                     Some((State::Inserting { deadline_ms }, None, false))
                 } else if past(deadline_ms) {
                     fault(FaultKind::LockNotReleased)
