@@ -1087,7 +1087,9 @@ impl<B: Bsp> Controller<B> {
     /// rig after each step.
     pub fn background(&mut self) {
         if self.at_rest() {
-            self.write_queued_records();
+            // One failed write per rest at most: the snapshot waits while a queued
+            // record ahead of it fails (both go to the same flash).
+            let queue_written = self.write_queued_records();
             // A cycle that ended in a fault (or a recovery that touched the cone) left
             // load–distance no completed cycle will count: it is the cone's now.
             let w = self.odo.fold_pending();
@@ -1098,7 +1100,9 @@ impl<B: Bsp> Controller<B> {
                 );
                 self.store.persist_pending = true;
             }
-            self.persist();
+            if queue_written {
+                self.persist();
+            }
         }
     }
 
@@ -1114,6 +1118,9 @@ impl<B: Bsp> Controller<B> {
             return;
         };
         let mut failed = false;
+        // Only a write that happened clears the failures in a row (a rest with nothing to
+        // write must not forget a queued record's failed tries).
+        let mut wrote = false;
         if self.store.persist_pending {
             let st = StateRecord::of(&self.odo, self.store.persist_cycle_end);
             let rec = st.to_bytes();
@@ -1127,6 +1134,7 @@ impl<B: Bsp> Controller<B> {
                     }
                     self.store.persist_pending = false;
                     self.store.persist_cycle_end = false;
+                    wrote = true;
                 }
                 Err(_) => {
                     // Kept pending (the counters stay in RAM and in the RAM journal).
@@ -1135,13 +1143,16 @@ impl<B: Bsp> Controller<B> {
                 }
             }
         }
-        if !self.store.persist_pending && !failed && l.needs_maintenance() && l.maintain().is_err()
-        {
-            failed = true;
-            error!("odometer: sector pre-erase failed");
+        if !self.store.persist_pending && !failed && l.needs_maintenance() {
+            if l.maintain().is_err() {
+                failed = true;
+                error!("odometer: sector pre-erase failed");
+            } else {
+                wrote = true;
+            }
         }
         if !failed {
-            if !self.store.persist_pending {
+            if wrote {
                 self.store.storage_failures = 0;
             }
             return;
@@ -2142,30 +2153,57 @@ impl<B: Bsp> Controller<B> {
         self.store.bus_busy = busy;
     }
 
-    /// Write the records queued for a rest, oldest first (call only at rest).
-    fn write_queued_records(&mut self) {
-        while let Some(r) = self.store.record_queue.pop_front() {
-            let ok = self
-                .store
-                .log
-                .as_mut()
-                .is_some_and(|l| l.append(r.kind, &r.data).is_ok());
-            if ok {
-                self.cache_record(r.kind, &r.data);
-            } else {
+    /// Write the records queued for a rest, oldest first (call only at rest); whether the
+    /// queue is empty now.
+    ///
+    /// **A queued record leaves the queue only when it is written, or counted as
+    /// dropped** ([`Self::records_dropped`], reported by `faults`; docs/board.md, "What
+    /// holds between the steps"). A write that fails leaves it at the head of the queue,
+    /// tried again at the next rest under the counter snapshot's rule: one failure more
+    /// in a row, [`STORAGE_ATTEMPTS`] of them latch the `storage` fault and nothing is
+    /// tried until a clear. Only a log that could not even be opened (no flash to write
+    /// to) drops what waits, counted.
+    fn write_queued_records(&mut self) -> bool {
+        while let Some(r) = self.store.record_queue.front() {
+            if self.store.storage_blocked {
+                return false;
+            }
+            let Some(l) = self.store.log.as_mut() else {
+                // Nowhere to write it, ever: dropped, and counted.
+                let n = self.store.record_queue.len() as u32;
+                self.store.record_queue.clear();
+                self.store.records_dropped = self.store.records_dropped.saturating_add(n);
+                error!("odometer: {=u32} queued record(s) dropped: no log", n);
+                return true;
+            };
+            if l.append(r.kind, &r.data).is_err() {
+                error!("odometer: a queued record was not written; kept for the next rest");
                 self.store.storage_errors = self.store.storage_errors.saturating_add(1);
-                error!("odometer: a queued record was not written");
+                self.store.storage_failures = self.store.storage_failures.saturating_add(1);
+                if self.store.storage_failures >= STORAGE_ATTEMPTS {
+                    error!(
+                        "odometer: flash failed {=u8} times in a row; storage fault",
+                        STORAGE_ATTEMPTS
+                    );
+                    self.store.storage_blocked = true;
+                    self.store.storage_fault_due = true;
+                }
+                return false;
+            }
+            self.store.storage_failures = 0;
+            if let Some(r) = self.store.record_queue.pop_front() {
+                self.cache_record(r.kind, &r.data);
             }
         }
+        true
     }
 
     /// A record that may wait (an audit record): written now if the machine is at rest
-    /// (after any that wait, so the log keeps their order), else queued for the next
-    /// rest ([`Self::at_rest`]; [`Self::background`] writes it). `false`: not written
-    /// and not queued (the flash refused it, or the queue was full: counted).
+    /// and nothing waits before it (so the log keeps their order), else queued for the
+    /// next rest ([`Self::at_rest`]; [`Self::background`] writes it). `false`: not
+    /// written and not queued (the flash refused it, or the queue was full: counted).
     pub fn write_or_queue_record(&mut self, kind: u8, data: &[u8]) -> bool {
-        if self.at_rest() {
-            self.write_queued_records();
+        if self.at_rest() && self.write_queued_records() {
             return self.store_record(kind, data).is_ok();
         }
         self.queue_record(kind, data)
