@@ -258,7 +258,8 @@ pub enum Event {
     UncalibratedRefusal,
     /// A fault clear refused: the E-STOP input is open.
     EstopClearRefusal,
-    /// A DOCK pin request refused (why: the same reasons as a command's).
+    /// A DOCK pin request refused (why: the same reasons as a command's), or a request
+    /// accepted before a mode that refuses it was granted, refused at its step.
     RemoteRefused(Refusal),
     /// E-STOP edges the control step had not seen (each stopped the machine in its
     /// interrupt): how many, and how long the input was open if it has closed again
@@ -409,8 +410,13 @@ pub struct Controller<B: Bsp> {
     /// ([`Switches::bits`]: the filter works on all four at once.)
     switch_raw: u8,
     switches: u8,
+    /// When the input filters (the switches, DOCK) last took a reading ([`FILTER_GAP`]).
+    filtered_at_us: Option<u64>,
     last_step_us: Option<u64>,
     pending: Option<Request>,
+    /// Who asked for `pending`: its gate ([`Controller::gate`]) is checked again at the
+    /// step that runs it.
+    pending_source: Source,
     odo: Odometer,
     /// The current cone's micrometer readings (not its baseline), oldest first.
     readings: heapless::Vec<Measurement, { odometer::READINGS_KEPT }>,
@@ -576,7 +582,19 @@ struct Step {
     fault: Option<FaultKind>,
     /// The guard tripped (overload or tension) in this step.
     tripped: bool,
+    /// This step's readings of the switches and of DOCK advance their two-reading
+    /// filters ([`FILTER_GAP`]).
+    filter: bool,
 }
+
+/// The two-reading input filters (the switches, DOCK: "a change counts once two control
+/// steps read it alike") take a reading only at a step at least this fraction of the
+/// sample period (numerator, denominator) after the one they last took: two steps run
+/// back to back (the control task catching up on samples queued behind a long job at
+/// rest, with the PLC's pins read once for all of them) are one reading, not two, so a
+/// glitch shorter than a period is still filtered (issue 32; docs/board.md, "What holds
+/// between the steps").
+const FILTER_GAP: (u64, u64) = (3, 4);
 
 /// Why a command ([`Controller::command`]) was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -972,8 +990,10 @@ impl<B: Bsp> Controller<B> {
             clear_epoch: 0,
             switch_raw: 0,
             switches: 0,
+            filtered_at_us: None,
             last_step_us: None,
             pending: None,
+            pending_source: Source::Console,
             odo,
             readings: heapless::Vec::new(),
             fit: Fit::prior(),
@@ -1248,13 +1268,15 @@ impl<B: Bsp> Controller<B> {
     ///
     /// A pending [`Request::Stop`] is never replaced by another request.
     pub fn request(&mut self, r: Request) {
-        self.queue(r);
+        self.queue(Source::Console, r);
     }
 
-    /// Queue `r` for the next step, unless a stop waits there: a stop always wins.
-    fn queue(&mut self, r: Request) {
+    /// Queue `r` from `source` for the next step, unless a stop waits there: a stop
+    /// always wins.
+    fn queue(&mut self, source: Source, r: Request) {
         if self.pending != Some(Request::Stop) {
             self.pending = Some(r);
+            self.pending_source = source;
         }
     }
 
@@ -1318,6 +1340,12 @@ impl<B: Bsp> Controller<B> {
             .last_step_us
             .map_or(self.period_us, |t| now_us.saturating_sub(t));
         self.last_step_us = Some(now_us);
+        let filter = self.filtered_at_us.is_none_or(|t| {
+            now_us.saturating_sub(t) * FILTER_GAP.1 >= self.period_us * FILTER_GAP.0
+        });
+        if filter {
+            self.filtered_at_us = Some(now_us);
+        }
         self.prop.sync();
         let mut fault = match ev {
             Some(KernelEvent::Io { .. }) => Some(FaultKind::Io),
@@ -1330,12 +1358,15 @@ impl<B: Bsp> Controller<B> {
             closed(&mut self.locked),
             closed(&mut self.released),
         ) {
-            (Ok(home), Ok(end), Ok(locked), Ok(released)) => self.filter_switches(Switches {
-                home,
-                end,
-                locked,
-                released,
-            }),
+            (Ok(home), Ok(end), Ok(locked), Ok(released)) if filter => {
+                self.filter_switches(Switches {
+                    home,
+                    end,
+                    locked,
+                    released,
+                })
+            }
+            (Ok(_), Ok(_), Ok(_), Ok(_)) => Switches::from_bits(self.switches),
             _ => {
                 fault = Some(FaultKind::Io);
                 Switches::default()
@@ -1350,6 +1381,7 @@ impl<B: Bsp> Controller<B> {
             switches,
             fault,
             tripped: false,
+            filter,
         };
         (st, dt_us)
     }
@@ -1450,8 +1482,12 @@ impl<B: Bsp> Controller<B> {
     /// mode), E-STOP edges and level latch the fault, and a mated force outside the
     /// hold envelope latches `hold_force`.
     fn stage_plc(&mut self, st: &mut Step) {
-        // The PLC: DOCK counts once two steps read it alike, and acts at its edges.
-        if self.plc.dock_raw == self.plc.dock_seen && self.plc.dock_raw != self.plc.dock {
+        // The PLC: DOCK counts once two steps read it alike (steps a period apart:
+        // `FILTER_GAP`), and acts at its edges.
+        if st.filter
+            && self.plc.dock_raw == self.plc.dock_seen
+            && self.plc.dock_raw != self.plc.dock
+        {
             self.plc.dock = self.plc.dock_raw;
             let r = match (self.plc.dock, st.state) {
                 (true, State::PowerUp) => Some(Request::Home),
@@ -1469,7 +1505,9 @@ impl<B: Bsp> Controller<B> {
                 }
             }
         }
-        self.plc.dock_seen = self.plc.dock_raw;
+        if st.filter {
+            self.plc.dock_seen = self.plc.dock_raw;
+        }
         // E-STOP: every edge its interrupt counted (each one stopped the machine
         // there) latches the fault, however short the pulse; so does the input open.
         let es = self.plc.estop_events;
@@ -1523,6 +1561,14 @@ impl<B: Bsp> Controller<B> {
     /// limit, calibration, tare), the faults of this step, the sequencer's decision.
     fn stage_sequencer(&mut self, st: &mut Step) -> crate::sequencer::Outputs {
         let mut request = self.pending.take();
+        if let Some(r) = request {
+            if let Err(why) = self.gate(self.pending_source, r) {
+                // Accepted before a mode that now refuses it was granted.
+                request = None;
+                warn!("{} refused at its step ({})", r, why);
+                self.push_event(st.now_ms, Event::RemoteRefused(why));
+            }
+        }
         let starting =
             matches!(request, Some(Request::StartCycle | Request::Dock)) && st.state == State::Idle;
         if request == Some(Request::ClearFault) && self.plc.estop_open {
@@ -1911,12 +1957,7 @@ impl<B: Bsp> Controller<B> {
     /// maintenance mode, everything but `Stop` from the PLC is refused
     /// ([`Refusal::MaintenanceMode`]).
     pub fn command_from(&mut self, source: Source, r: Request) -> Result<(), Refusal> {
-        if self.plc.updating && r != Request::Stop {
-            return Err(Refusal::Updating);
-        }
-        if source == Source::Plc && self.plc.maintenance_mode && r != Request::Stop {
-            return Err(Refusal::MaintenanceMode);
-        }
+        self.gate(source, r)?;
         let state = self.seq.state();
         let estop = |me: &Self| {
             if me.plc.estop_open {
@@ -1961,7 +2002,22 @@ impl<B: Bsp> Controller<B> {
                 }
             }
         }
-        self.queue(r);
+        self.queue(source, r);
+        Ok(())
+    }
+
+    /// The modes' gate of [`Self::command_from`], checked when a request is accepted
+    /// **and again at the step that runs it** ([`Self::stage_sequencer`]): a mode
+    /// granted in between (maintenance mode to the console, an update begun) is in force
+    /// from its grant, not from the next request (issue 32; docs/board.md, "What holds
+    /// between the steps").
+    fn gate(&self, source: Source, r: Request) -> Result<(), Refusal> {
+        if self.plc.updating && r != Request::Stop {
+            return Err(Refusal::Updating);
+        }
+        if source == Source::Plc && self.plc.maintenance_mode && r != Request::Stop {
+            return Err(Refusal::MaintenanceMode);
+        }
         Ok(())
     }
 
