@@ -846,8 +846,12 @@ mod app {
                     console.run_line(ctrl, &cmd_line, now_ms);
                 });
                 console.finish(now_ms);
+                // A login that checked out: published first (only the mode's end goes
+                // through the flag, `owner.rs`), then granted by its own job before the
+                // console says so.
+                owner::MAINTENANCE.store(console.maintenance_active(now_ms), Ordering::Relaxed);
                 if console.store_due() {
-                    // A record the hash just made (`pin set`).
+                    // A login's grant, a record the hash just made (`pin set`).
                     mailbox.call(&mut |ctrl| console.store(ctrl, now_ms));
                 }
             }
@@ -858,7 +862,7 @@ mod app {
             }
             #[cfg(not(feature = "updater"))]
             let _ = session;
-            // What the service applies at its next run: the login, the line.
+            // What the service applies at its next run: the login's end, the line.
             owner::MAINTENANCE.store(console.maintenance_active(now_ms), Ordering::Relaxed);
             owner::BUS_BUSY.store(line.sending(), Ordering::Relaxed);
             console.observe(owner::state_name(), now_ms);

@@ -37,9 +37,9 @@
 //!
 //! After each run the service publishes, with single-word atomics (no critical
 //! section: nothing may mask the E-STOP), what idle reads between jobs: the state's name
-//! (the console prompt). Idle publishes back the maintenance mode (the console's login),
-//! whether a Modbus reply is on the wire (no flash work then) and the stack's high-water
-//! mark. (The log's events are not handed over: the control step logs each one where it
+//! (the console prompt). Idle publishes back the end of the maintenance mode (its idle
+//! timeout: a grant is a job, in force before the console says so), whether a Modbus
+//! reply is on the wire (no flash work then) and the stack's high-water mark. (The log's events are not handed over: the control step logs each one where it
 //! happens; idle logged them a second time up to issue 20.)
 
 use core::cell::UnsafeCell;
@@ -178,7 +178,11 @@ pub fn state_name() -> &'static str {
 
 // --- Published by idle, applied by the service -----------------------------------------
 
-/// The console's maintenance mode (a technician logged in).
+/// The console's maintenance mode (a technician logged in) as idle last saw it. Only
+/// its **end** goes this way (the session's idle timeout): a grant is a job of its own
+/// (the console's `store`, which replies only once the controller has it), and `maint
+/// exit` ends it in its own job; idle publishes `true` before the grant's job, so that a
+/// window between the job and the next publish never reads an older `false`.
 pub static MAINTENANCE: AtomicBool = AtomicBool::new(false);
 /// A Modbus reply is on the wire (no flash work may stall its characters).
 pub static BUS_BUSY: AtomicBool = AtomicBool::new(false);
@@ -189,7 +193,9 @@ pub static STACK_SIZE: AtomicU32 = AtomicU32::new(0);
 
 /// The service: apply what idle published.
 pub fn apply_published(ctrl: &mut Ctrl) {
-    ctrl.set_maintenance_mode(MAINTENANCE.load(Ordering::Relaxed));
+    if !MAINTENANCE.load(Ordering::Relaxed) {
+        ctrl.set_maintenance_mode(false);
+    }
     ctrl.set_bus_busy(BUS_BUSY.load(Ordering::Relaxed));
     let used = STACK_USED.load(Ordering::Relaxed);
     if used != 0 {
