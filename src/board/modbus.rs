@@ -99,6 +99,13 @@ impl ModbusIsr {
     }
 }
 
+/// [`ModbusLine::sending`], from anywhere (the pin is the truth: the update's flash
+/// jobs read it at each try, `update.rs`).
+pub fn line_driven() -> bool {
+    // SAFETY: read of GPIOB's ODR, a fixed MMIO address.
+    unsafe { core::ptr::read_volatile(GPIOB_ODR) & DE_HIGH != 0 }
+}
+
 /// The idle loop's side.
 pub struct ModbusLine {
     /// Received characters.
@@ -124,8 +131,7 @@ impl ModbusLine {
     /// Whether a reply is on the line: the RS-485 driver is enabled (DE high from
     /// [`Self::send`] until the last stop bit is out). The flash waits meanwhile.
     pub fn sending(&self) -> bool {
-        // SAFETY: read of GPIOB's ODR, a fixed MMIO address.
-        unsafe { core::ptr::read_volatile(GPIOB_ODR) & DE_HIGH != 0 }
+        line_driven()
     }
 
     /// Send `reply`: DE high, the bytes queued, TXE interrupts on. A reply that does not

@@ -62,24 +62,56 @@ pub const RESERVE_US: u32 = 2_000;
 
 /// When the last control step began (TIM5's low word, µs).
 static STEP_BEGAN_US: AtomicU32 = AtomicU32::new(0);
-/// Whether any step has run yet (before it, no window).
+/// Whether any step has run yet.
 static STEPPED: AtomicBool = AtomicBool::new(false);
+/// Control runs that stepped so far (wraps): a new window opened when it changed.
+static STEPS: AtomicU32 = AtomicU32::new(0);
 
 /// The control task, as a step begins: the window opens.
 pub fn step_began(now_us_low: u32) {
     STEP_BEGAN_US.store(now_us_low, Ordering::Relaxed);
     STEPPED.store(true, Ordering::Release);
+    STEPS.fetch_add(1, Ordering::Release);
 }
 
 /// Whether a job may start now: inside the window after the step that began last, with
 /// `RESERVE_US` left before the next one and before TIM2's update (`tim2_left_us`: how
-/// long until it; TIM2 counts µs).
+/// long until it; TIM2 counts µs). Before the first step (boot: nothing moves, and at
+/// 10 SPS the first step is 100 ms away), whenever TIM2's update is more than
+/// `RESERVE_US` away: idle's first request (the greeting) used to wait for that step,
+/// reading no console byte meanwhile, and a flooded console lapped its 44 ms ring
+/// (issue 32, item 7).
 pub fn in_window(now_us_low: u32, period_us: u32, tim2_left_us: u32) -> bool {
     if !STEPPED.load(Ordering::Acquire) {
-        return false;
+        return tim2_left_us > RESERVE_US;
     }
     let since = now_us_low.wrapping_sub(STEP_BEGAN_US.load(Ordering::Relaxed));
     since < period_us.saturating_sub(RESERVE_US) && tim2_left_us > RESERVE_US
+}
+
+/// Idle: sleep until a control step has begun after `steps` ([`steps`]): the next
+/// service window, with the inputs the step read (a retry that must wait for the world
+/// to change waits here, not in a loop of jobs within one window: `update.rs`).
+pub fn sleep_until_step_after(steps: u32) {
+    loop {
+        // As `Mailbox::call`: checked with interrupts masked, so a step that begins
+        // between the check and `wfi` leaves TIM2 pending and `wfi` returns at once.
+        let stepped = cortex_m::interrupt::free(|_| {
+            let s = STEPS.load(Ordering::Acquire) != steps;
+            if !s {
+                cortex_m::asm::wfi();
+            }
+            s
+        });
+        if stepped {
+            return;
+        }
+    }
+}
+
+/// Control runs that stepped so far (see [`sleep_until_step_after`]).
+pub fn steps() -> u32 {
+    STEPS.load(Ordering::Acquire)
 }
 
 const EMPTY: u8 = 0;

@@ -121,19 +121,30 @@ pub struct UpdateFlash;
 
 #[cfg(feature = "updater")]
 /// Tries a flash job gets when the machine is not at rest just then (a Modbus reply on
-/// the line): one per service window, about 5 s at 80 SPS.
+/// the line): one per service window, 5 s at 80 SPS (50 s at 10 SPS).
 const OWNER_TRIES: u32 = 400;
 
 #[cfg(feature = "updater")]
 /// Run `op` in the owner's window at rest; retried while a Modbus reply holds the flash.
+///
+/// Each try sees the line as it is at that try (RS-485 DE on the pin: idle, which
+/// publishes it, waits here), and a try that finds the machine not at rest waits for
+/// the next service window before the next: the 400 tries used to run back to back
+/// in one window re-applying a bus-busy flag idle could not refresh, so a PLC polling
+/// once a second failed the update (issue 32, item 3).
 fn with_owner(op: &mut dyn FnMut() -> Result<(), OdoFlashError>) -> Result<(), FlashError> {
     for _ in 0..OWNER_TRIES {
         let mut r = None;
+        let steps = super::owner::steps();
         MAILBOX.call(&mut |ctrl: &mut Ctrl| {
+            ctrl.set_bus_busy(super::modbus::line_driven());
             if ctrl.updating() && ctrl.at_rest() {
                 r = Some(op());
             }
         });
+        if r.is_none() {
+            super::owner::sleep_until_step_after(steps);
+        }
         match r {
             Some(Ok(())) => return Ok(()),
             Some(Err(OdoFlashError::Status(sr))) => return Err(FlashError::Status(sr)),
