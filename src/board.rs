@@ -32,7 +32,9 @@ use docking_logic::diag::{file_tail, Crash, CrashKind, ResetCause};
 use docking_logic::hal::StopLatch;
 use docking_logic::hal::Watchdog;
 use docking_logic::hx711::{Calibration, Gain, Hx711};
-use docking_logic::safety::{EstopEdges, GatedEn, GatedHigh, KernelEvent, SafetyKernel};
+use docking_logic::safety::{
+    EstopEdges, GatedEn, GatedHigh, GatedPulses, KernelEvent, SafetyKernel,
+};
 use stm32f4xx_hal::gpio::{
     Input, Output, PinState, PB0, PB1, PC0, PC1, PC2, PC3, PC4, PC5, PD0, PD1, PD12, PD13, PD2,
     PD3, PE10, PE11,
@@ -207,7 +209,7 @@ pub struct Board;
 impl Bsp for Board {
     type EnN = GatedEn<PE11<Output>, BoardStop>;
     type Dir = PE10<Output>;
-    type Pulses = BoardStepPulses;
+    type Pulses = GatedPulses<BoardStepPulses, BoardStop>;
     type LockIn1 = GatedHigh<PD12<Output>, BoardStop>;
     type LockIn2 = GatedHigh<PD13<Output>, BoardStop>;
     type Home = PC0<Input>;
@@ -430,7 +432,7 @@ mod app {
             flash: OdometerFlash::new(dp.FLASH),
             en_n: GatedEn::new(en_n, BoardStop),
             dir,
-            pulses: BoardStepPulses,
+            pulses: GatedPulses::new(BoardStepPulses, BoardStop),
             lock_in1: GatedHigh::new(lock_in1, BoardStop),
             lock_in2: GatedHigh::new(lock_in2, BoardStop),
             home,

@@ -9,7 +9,7 @@ use docking_logic::controller::{Bsp, Controller, ControllerConfig, Parts};
 use docking_logic::hal::{LoadCellAdc, StepPulses, StopLatch, Watchdog};
 use docking_logic::hx711::{Calibration, Gain, Hx711};
 use docking_logic::profile::STROKE_UM;
-use docking_logic::safety::{GatedEn, GatedHigh, SafetyKernel};
+use docking_logic::safety::{GatedEn, GatedHigh, GatedPulses, SafetyKernel};
 
 use crate::axis::{AxisPin, AxisPulses, EndSwitch, HomeSwitch, SimAxis};
 use crate::clock::SimClock;
@@ -166,7 +166,7 @@ impl StopLatch for SimStop {
 impl Bsp for SimBsp {
     type EnN = GatedEn<AxisPin, SimStop>;
     type Dir = AxisPin;
-    type Pulses = AxisPulses;
+    type Pulses = GatedPulses<AxisPulses, SimStop>;
     type LockIn1 = GatedHigh<LockPin, SimStop>;
     type LockIn2 = GatedHigh<LockPin, SimStop>;
     type Home = HomeSwitch;
@@ -745,7 +745,7 @@ impl Rig {
         let parts = Parts::<SimBsp> {
             en_n: GatedEn::new(axis.enable_n(), stop.clone()),
             dir: axis.dir(),
-            pulses: axis.pulses(),
+            pulses: GatedPulses::new(axis.pulses(), stop.clone()),
             lock_in1: GatedHigh::new(lock.in1(), stop.clone()),
             lock_in2: GatedHigh::new(lock.in2(), stop.clone()),
             home: axis.home_switch_line(),
