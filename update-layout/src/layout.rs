@@ -33,7 +33,7 @@ pub const ACTIVE_BASE: u32 = 0x0800_8000;
 /// [`ACTIVE_BASE`] and [`ACTIVE_LEN`]: an image over ACTIVE fails to link) and the
 /// virtual board's tests all follow it. A board must be flashed anew with a probe
 /// (bootloader and application, `bash tools/flash-board.sh`) when it changes.
-pub const BUDGET_LAYOUT: bool = true;
+pub const BUDGET_LAYOUT: bool = false;
 
 /// ACTIVE's length: 224 KiB (sectors 2-5) in the development layout, 96 KiB (sectors
 /// 2-4) in the budget layout.
