@@ -159,6 +159,13 @@ pub struct Session {
     estop_open: bool,
     /// Every edge of the E-STOP input: (time ps, opened).
     pub estop_edges: Vec<(u64, bool)>,
+    /// A PLC that polls the Modbus line: this frame every `period_ps` (the replies are
+    /// not waited for), from the next millisecond on (`None`: no polling).
+    pub modbus_poll: Option<(u64, Vec<u8>)>,
+    /// When the polling PLC sends next, ps.
+    modbus_poll_next_ps: u64,
+    /// Polls sent.
+    pub modbus_polls: u64,
 }
 
 /// The control task's exception: TIM2 (IRQ 28).
@@ -209,6 +216,9 @@ impl Session {
             test_cycle: false,
             estop_open: false,
             estop_edges: Vec::new(),
+            modbus_poll: None,
+            modbus_poll_next_ps: 0,
+            modbus_polls: 0,
         })
     }
 
@@ -249,10 +259,20 @@ impl Session {
         }
     }
 
-    /// Housekeeping every millisecond: read the log, watch MATED.
+    /// Housekeeping every millisecond: read the log, watch MATED, the polling PLC.
     fn tick(&mut self) {
         self.board.poll_rtt();
         self.observe();
+        if let Some((period, frame)) = &self.modbus_poll {
+            let now = self.now();
+            if now >= self.modbus_poll_next_ps && self.board.soc().usart3.far_pending() == 0 {
+                self.modbus_poll_next_ps = now + *period;
+                let frame = frame.clone();
+                if self.board.soc_mut().modbus_send(&frame) {
+                    self.modbus_polls += 1;
+                }
+            }
+        }
         let out = self.plc_out();
         match (out.mated, self.mated_since_ps) {
             (true, None) => self.mated_since_ps = Some(self.now()),
