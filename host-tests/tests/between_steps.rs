@@ -272,3 +272,84 @@ fn a_dock_held_across_a_catch_up_run_is_taken_a_period_later() {
     assert_eq!(r.ctrl.state(), State::Idle, "one reading only so far");
     assert!(run_until(&mut r, 3, |r| r.ctrl.state().is_docking()));
 }
+
+/// Found by the interleaving checker (issue 32): the PLC asserted DOCK as READY rose at
+/// the end of a cycle; the dock was accepted and waited for the tare's zero-load samples
+/// (about 100 ms at 80 SPS); the PLC released DOCK meanwhile ("be undocked") — and the
+/// machine docked anyway, with DOCK released, and held (the release had been consumed
+/// while idle). A release of DOCK withdraws a docking of the PLC's not yet started, as
+/// it aborts one under way.
+#[test]
+fn a_dock_released_while_its_docking_waited_for_the_tare_docked_anyway() {
+    for rate in [80, 10] {
+        let mut r = rig(rate);
+        // A cycle: at its end the tare's samples start again from none.
+        r.ctrl.command(Request::StartCycle).unwrap();
+        assert!(run_until(&mut r, 20_000, |r| r
+            .ctrl
+            .odometer()
+            .lifetime()
+            .cycles
+            == 1
+            && r.ctrl.state() == State::Idle));
+        assert!(r.ctrl.handshake().ready);
+        // DOCK asserted at once, read twice, accepted: the docking waits for the tare.
+        r.dock_line.set(false);
+        r.tick();
+        r.tick();
+        r.tick();
+        assert_eq!(r.ctrl.state(), State::Idle, "waiting for the tare");
+        // The PLC releases it.
+        r.dock_line.set(true);
+        for _ in 0..40 {
+            r.tick();
+            assert_eq!(
+                r.ctrl.state(),
+                State::Idle,
+                "{rate} SPS: docked after the PLC released DOCK"
+            );
+        }
+        // Asserted again, it docks.
+        r.dock_line.set(false);
+        assert!(run_until(&mut r, 40, |r| r.ctrl.state().is_docking()));
+    }
+}
+
+/// Found by the interleaving checker (issue 32): an E-STOP edge and an overload trip in
+/// the same step — the step kept the first fault it found, the overload, and the
+/// sequencer answered it with the controlled back-off: the axis drove 2 mm after the
+/// E-STOP (for one step with the input held open, to the end with a pulse). The E-STOP
+/// is the fault of any step that sees its edges or its input open.
+#[test]
+fn an_estop_edge_in_the_step_of_an_overload_trip_backed_off_anyway() {
+    for hold in [false, true] {
+        let mut r = rig(80);
+        r.ctrl.command(Request::Dock).unwrap();
+        let engage = r.ctrl.config().machine.engage_um as f64;
+        reach(&mut r, 8_000, |r| {
+            matches!(r.ctrl.state(), State::Inserting { .. }) && r.axis.pos_um() > engage + 5_000.0
+        });
+        // A load over every limit from the next sample: held one sample (a jump), then
+        // the trip.
+        r.script.borrow_mut().offset_n = 250.0;
+        r.tick();
+        assert!(matches!(r.ctrl.state(), State::Inserting { .. }));
+        // The E-STOP before the step that trips.
+        if hold {
+            r.estop_input(true);
+        } else {
+            r.estop_pulse(50);
+        }
+        let travel = r.axis.travel_um();
+        for i in 0..200 {
+            r.tick();
+            assert!(
+                !r.axis.enabled() && r.axis.travel_um() == travel,
+                "held {hold}: the axis drove {} ticks after the E-STOP ({:?})",
+                i,
+                r.ctrl.state()
+            );
+        }
+        assert_eq!(faulted(&r), Some(FaultKind::EmergencyStop), "held {hold}");
+    }
+}

@@ -1493,7 +1493,16 @@ impl<B: Bsp> Controller<B> {
                 (true, State::PowerUp) => Some(Request::Home),
                 (true, _) => Some(Request::Dock),
                 (false, s) if s.is_docking() => Some(Request::Undock),
-                (false, _) => None,
+                (false, _) => {
+                    // "Be undocked" withdraws a docking of the PLC's not started yet (it
+                    // waits for the tare's zero-load samples): as it aborts one under
+                    // way, the level is the request (issue 32, found by the checker).
+                    if self.pending == Some(Request::Dock) && self.pending_source == Source::Plc {
+                        self.pending = None;
+                        warn!("DOCK released: the docking not started yet is withdrawn");
+                    }
+                    None
+                }
             };
             // Through the same gate as the console's and Modbus's commands. A refused
             // edge is consumed, not deferred: the PLC asks again (after maintenance,
@@ -1528,9 +1537,11 @@ impl<B: Bsp> Controller<B> {
         }
         // Whatever the state, a latched E-STOP included: the sequencer keeps it latched
         // and refuses a clear in a step that detects a fault (a clear accepted before
-        // these edges must not run past them: `Sequencer::step`).
+        // these edges must not run past them: `Sequencer::step`). And whatever else
+        // this step found: an overload found with it would be answered by the
+        // controlled back-off, a motion (issue 32, found by the interleaving checker).
         if new_edges != 0 || self.plc.estop_open {
-            st.fault = st.fault.or(Some(FaultKind::EmergencyStop));
+            st.fault = Some(FaultKind::EmergencyStop);
         }
         // Mated: the force must stay in the hold envelope.
         if let (
