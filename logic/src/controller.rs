@@ -2266,12 +2266,18 @@ impl<B: Bsp> Controller<B> {
     }
 
     /// A record that may wait (an audit record): written now if the machine is at rest
-    /// and nothing waits before it (so the log keeps their order), else queued for the
-    /// next rest ([`Self::at_rest`]; [`Self::background`] writes it). `false`: not
-    /// written and not queued (the flash refused it, or the queue was full: counted).
+    /// and nothing waits before it (so the log keeps their order), else — or if the
+    /// flash refuses it now — queued for the next rest ([`Self::at_rest`];
+    /// [`Self::background`] writes it). `false`: not written and not queued (the queue
+    /// was full, or the record too long: counted in [`Self::records_dropped`]).
     pub fn write_or_queue_record(&mut self, kind: u8, data: &[u8]) -> bool {
         if self.at_rest() && self.write_queued_records() {
-            return self.store_record(kind, data).is_ok();
+            if self.store_record(kind, data).is_ok() {
+                return true;
+            }
+            // The flash refused it: one failure more in a row, and the record waits
+            // for the next rest like one made out of turn.
+            self.store.storage_failures = self.store.storage_failures.saturating_add(1);
         }
         self.queue_record(kind, data)
     }
