@@ -702,7 +702,14 @@ mod app {
                 return; // `control` pends us again after its next step
             }
             owner::apply_published(ctrl);
+            let modes = (ctrl.maintenance_mode(), ctrl.updating());
             owner::MAILBOX.serve(ctrl);
+            if modes != (ctrl.maintenance_mode(), ctrl.updating()) {
+                // A mode granted by the job (a login, an update begun): the control task
+                // writes the PLC outputs now, READY low before the console says so, not
+                // at the next step (it steps only when one is due).
+                rtic::pend(pac::Interrupt::TIM2);
+            }
             // The flash's turn (at rest only: `Controller::at_rest`).
             ctrl.background();
             // A trial boot's last check, the load cell answering: two live samples of

@@ -1968,6 +1968,15 @@ impl<B: Bsp> Controller<B> {
     /// maintenance mode, everything but `Stop` from the PLC is refused
     /// ([`Refusal::MaintenanceMode`]).
     pub fn command_from(&mut self, source: Source, r: Request) -> Result<(), Refusal> {
+        self.check_command(source, r)?;
+        self.queue(source, r);
+        Ok(())
+    }
+
+    /// Whether [`Self::command_from`] would accept `r` from `source` now, and why not:
+    /// its rules, without queueing anything. READY is high only when this accepts a dock
+    /// from the PLC (docs/board.md, "What holds between the steps").
+    pub fn check_command(&self, source: Source, r: Request) -> Result<(), Refusal> {
         self.gate(source, r)?;
         let state = self.seq.state();
         let estop = |me: &Self| {
@@ -2013,7 +2022,6 @@ impl<B: Bsp> Controller<B> {
                 }
             }
         }
-        self.queue(source, r);
         Ok(())
     }
 
