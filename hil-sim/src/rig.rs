@@ -133,8 +133,9 @@ pub struct SimStop {
 
 /// An action run **inside** a control step: at the `n`-th look at the stop latch from
 /// now (the step's gate check, each gated pin's checks before and after its write, the
-/// step rate's), the instants where a stop from an interrupt would land between a check
-/// and a write on the board. The rig has no interrupts; this is how a host test puts an
+/// step rate's) or write of a motor pin (EN, DIR, the lock's bridge: [`Watched`]), the
+/// instants where a stop from an interrupt would land between a check and a write on
+/// the board. The rig has no interrupts; this is how a host test puts an
 /// event there (`host-tests/tests/interleavings.rs`: an E-STOP pulse inside a step).
 #[derive(Clone, Default)]
 pub struct LatchHook(Rc<LatchHookState>);
@@ -175,6 +176,32 @@ impl LatchHook {
                 f();
             }
         }
+    }
+}
+
+/// A motor output whose every write is first a look for the stop latch's [`LatchHook`]:
+/// an interrupt just before the write.
+pub struct Watched<P>(P, LatchHook);
+
+impl<P> Watched<P> {
+    /// `pin`, watched by `stop`'s hook.
+    pub fn new(pin: P, stop: &SimStop) -> Self {
+        Self(pin, stop.hook.clone())
+    }
+}
+
+impl<P: embedded_hal::digital::ErrorType> embedded_hal::digital::ErrorType for Watched<P> {
+    type Error = P::Error;
+}
+
+impl<P: embedded_hal::digital::OutputPin> embedded_hal::digital::OutputPin for Watched<P> {
+    fn set_low(&mut self) -> Result<(), Self::Error> {
+        self.1.look();
+        self.0.set_low()
+    }
+    fn set_high(&mut self) -> Result<(), Self::Error> {
+        self.1.look();
+        self.0.set_high()
     }
 }
 
@@ -220,11 +247,11 @@ impl StopLatch for SimStop {
 }
 
 impl Bsp for SimBsp {
-    type EnN = GatedEn<AxisPin, SimStop>;
-    type Dir = AxisPin;
+    type EnN = GatedEn<Watched<AxisPin>, SimStop>;
+    type Dir = Watched<AxisPin>;
     type Pulses = GatedPulses<AxisPulses, SimStop>;
-    type LockIn1 = GatedHigh<LockPin, SimStop>;
-    type LockIn2 = GatedHigh<LockPin, SimStop>;
+    type LockIn1 = GatedHigh<Watched<LockPin>, SimStop>;
+    type LockIn2 = GatedHigh<Watched<LockPin>, SimStop>;
     type Home = HomeSwitch;
     type End = EndSwitch;
     type Locked = LockedSwitch;
@@ -892,11 +919,11 @@ impl Mcu {
         };
         let options = SimOptions::default();
         let parts = Parts::<SimBsp> {
-            en_n: GatedEn::new(axis.enable_n(), stop.clone()),
-            dir: axis.dir(),
+            en_n: GatedEn::new(Watched::new(axis.enable_n(), &stop), stop.clone()),
+            dir: Watched::new(axis.dir(), &stop),
             pulses: GatedPulses::new(axis.pulses(), stop.clone()),
-            lock_in1: GatedHigh::new(lock.in1(), stop.clone()),
-            lock_in2: GatedHigh::new(lock.in2(), stop.clone()),
+            lock_in1: GatedHigh::new(Watched::new(lock.in1(), &stop), stop.clone()),
+            lock_in2: GatedHigh::new(Watched::new(lock.in2(), &stop), stop.clone()),
             home: axis.home_switch_line(),
             end: axis.end_switch_line(),
             locked: lock.locked_switch_line(),
