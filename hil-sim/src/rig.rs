@@ -909,7 +909,7 @@ impl Mcu {
         let (clock, axis, lock, hx, hx_cfg, flash) = (clock, axis, lock, hx, *hx_cfg, flash);
         let now_us = clock.now_ns() / 1_000;
         let wdg = SimWatchdog::new(clock.clone());
-        let stop = SimStop::new(&axis);
+        let stop = SimStop::new(axis);
         let adc = match opts.adc {
             AdcMode::Word => SimAdc::Word(hx.clone()),
             AdcMode::Pins => match Hx711::new(hx.dout(), hx.pd_sck(), clock.clone(), Gain::A128) {

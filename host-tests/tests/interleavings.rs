@@ -677,8 +677,8 @@ impl Board {
         self.seen.state = Some(state);
     }
 
-    /// 3. Every record accepted is written or counted as dropped (or still waits), at
-    /// the end of a sequence.
+    /// Invariant 3: every record accepted is written or counted as dropped (or still
+    /// waits), at the end of a sequence.
     fn check_records(&mut self, base: u64) {
         let written = self.audits_in_flash() - base;
         let queued = self.r.ctrl.records_queued() as u64;
