@@ -707,7 +707,8 @@ mod app {
             if modes != (ctrl.maintenance_mode(), ctrl.updating()) {
                 // A mode granted by the job (a login, an update begun): the control task
                 // writes the PLC outputs now, READY low before the console says so, not
-                // at the next step (it steps only when one is due).
+                // at the next step (it steps only when one is due; docs/board.md, "What
+                // holds between the steps", rule 3).
                 rtic::pend(pac::Interrupt::TIM2);
             }
             // The flash's turn (at rest only: `Controller::at_rest`).

@@ -1496,7 +1496,8 @@ impl<B: Bsp> Controller<B> {
                 (false, _) => {
                     // "Be undocked" withdraws a docking of the PLC's not started yet (it
                     // waits for the tare's zero-load samples): as it aborts one under
-                    // way, the level is the request (issue 32, found by the checker).
+                    // way, the level is the request (issue 32, found by the checker;
+                    // docs/board.md, "What holds between the steps", rule 6).
                     if self.pending == Some(Request::Dock) && self.pending_source == Source::Plc {
                         self.pending = None;
                         warn!("DOCK released: the docking not started yet is withdrawn");
@@ -1539,7 +1540,8 @@ impl<B: Bsp> Controller<B> {
         // and refuses a clear in a step that detects a fault (a clear accepted before
         // these edges must not run past them: `Sequencer::step`). And whatever else
         // this step found: an overload found with it would be answered by the
-        // controlled back-off, a motion (issue 32, found by the interleaving checker).
+        // controlled back-off, a motion (issue 32, found by the interleaving checker;
+        // docs/board.md, "What holds between the steps", rule 1).
         if new_edges != 0 || self.plc.estop_open {
             st.fault = Some(FaultKind::EmergencyStop);
         }

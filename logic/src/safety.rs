@@ -391,7 +391,8 @@ impl<P: OutputPin, L: StopLatch> OutputPin for GatedEn<P, L> {
 /// virtual board, `an_estop_edge_between_the_gate_and_the_rate_left_pulses_running`).
 /// A stop that lands between this write and the second check sets the rate to zero
 /// itself and is seen by that check; the board's step tick emits no pulse while the
-/// latch is set either (`src/board/step.rs`).
+/// latch is set either (`src/board/step.rs`). Docs/board.md, "What holds between the
+/// steps", rule 7.
 pub struct GatedPulses<P, L> {
     pulses: P,
     latch: L,

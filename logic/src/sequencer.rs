@@ -615,8 +615,9 @@ impl Sequencer {
                 // fault**. A clear accepted before an E-STOP edge (or any other fault)
                 // that reaches the step with it is refused here, never run past the
                 // fault it has not seen (issue 32: the pulse's edges were consumed by
-                // the step that ran the clear, and the machine moved). The state is
-                // written back unchanged so that `transition` does not run.
+                // the step that ran the clear, and the machine moved; docs/board.md,
+                // "What holds between the steps", rule 1). The state is written back
+                // unchanged so that `transition` does not run.
                 State::Faulted { .. } => Some((self.state, None)),
                 // Any fault (a stop included) ends the controlled retreat of an overload.
                 State::BackingOff { .. } => {

@@ -24,7 +24,11 @@
 //! * TIM2 (the control tick's timeout) is more than `RESERVE_US` from its update.
 //!
 //! Outside it, the service returns at once and the control task pends it again after
-//! its next step, so a job waits at most one sample period (12.5 ms at 80 SPS). A job
+//! its next step, so a job waits at most one sample period (12.5 ms at 80 SPS). Before
+//! the first step the window is open while TIM2's update is more than `RESERVE_US`
+//! away. A client whose job found the machine not ready for it (the update's flash
+//! work while a Modbus reply is on the line) waits for the next window
+//! ([`sleep_until_step_after`]) rather than posting the job again in the same one. A job
 //! that fits in the reserve therefore ends before the next step is due: what a
 //! technician or the PLC does cannot delay the control step. Every job that runs while
 //! anything moves is short (a console command's gather, one Modbus PDU: tens of µs);
@@ -214,7 +218,8 @@ pub fn state_name() -> &'static str {
 /// its **end** goes this way (the session's idle timeout): a grant is a job of its own
 /// (the console's `store`, which replies only once the controller has it), and `maint
 /// exit` ends it in its own job; idle publishes `true` before the grant's job, so that a
-/// window between the job and the next publish never reads an older `false`.
+/// window between the job and the next publish never reads an older `false`
+/// (docs/board.md, "What holds between the steps", rule 2).
 pub static MAINTENANCE: AtomicBool = AtomicBool::new(false);
 /// A Modbus reply is on the wire (no flash work may stall its characters).
 pub static BUS_BUSY: AtomicBool = AtomicBool::new(false);

@@ -74,7 +74,8 @@ impl StepGen {
         self.last_dir_en = dir_en;
         // No pulse while a stop is latched, whatever rate was set (a rate written after
         // a stop the control step had not seen yet: issue 32, item 6; the driver's
-        // `GatedPulses` refuses those too).
+        // `GatedPulses` refuses those too; docs/board.md, "What holds between the
+        // steps", rule 7).
         let inc = if LATCHED.load(Ordering::Relaxed) {
             0
         } else {

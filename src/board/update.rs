@@ -131,7 +131,8 @@ const OWNER_TRIES: u32 = 400;
 /// publishes it, waits here), and a try that finds the machine not at rest waits for
 /// the next service window before the next: the 400 tries used to run back to back
 /// in one window re-applying a bus-busy flag idle could not refresh, so a PLC polling
-/// once a second failed the update (issue 32, item 3).
+/// once a second failed the update (issue 32, item 3; docs/board.md, "What holds
+/// between the steps", rule 8).
 fn with_owner(op: &mut dyn FnMut() -> Result<(), OdoFlashError>) -> Result<(), FlashError> {
     for _ in 0..OWNER_TRIES {
         let mut r = None;

@@ -688,8 +688,8 @@ impl Console {
     /// Phase 4, with the controller again: what [`Self::finish`] prepared — a login's
     /// grant of maintenance mode (in force in the controller before the reply says so:
     /// a DOCK edge or a Modbus command from then on is refused, and the prompt shows
-    /// the state the grant found), a new PIN record (written at rest only, else
-    /// refused) — then the prompt.
+    /// the state the grant found: docs/board.md, "What holds between the steps", rule
+    /// 2), a new PIN record (written at rest only, else refused) — then the prompt.
     #[inline(never)]
     pub fn store(&mut self, ctrl: &mut dyn Machine, now_ms: u64) {
         if core::mem::take(&mut self.deferred.grant) {
