@@ -96,6 +96,7 @@ pub fn in_window(now_us_low: u32, period_us: u32, tim2_left_us: u32) -> bool {
 /// Idle: sleep until a control step has begun after `steps` ([`steps`]): the next
 /// service window, with the inputs the step read (a retry that must wait for the world
 /// to change waits here, not in a loop of jobs within one window: `update.rs`).
+#[cfg(feature = "updater")]
 pub fn sleep_until_step_after(steps: u32) {
     loop {
         // As `Mailbox::call`: checked with interrupts masked, so a step that begins
@@ -114,6 +115,7 @@ pub fn sleep_until_step_after(steps: u32) {
 }
 
 /// Control runs that stepped so far (see [`sleep_until_step_after`]).
+#[cfg(feature = "updater")]
 pub fn steps() -> u32 {
     STEPS.load(Ordering::Acquire)
 }
