@@ -136,8 +136,10 @@ const OWNER_TRIES: u32 = 400;
 fn with_owner(op: &mut dyn FnMut() -> Result<(), OdoFlashError>) -> Result<(), FlashError> {
     for _ in 0..OWNER_TRIES {
         let mut r = None;
-        let steps = super::owner::steps();
+        // The window the try ran in (read in it: the job may wait for the next).
+        let mut steps = 0;
         MAILBOX.call(&mut |ctrl: &mut Ctrl| {
+            steps = super::owner::steps();
             ctrl.set_bus_busy(super::modbus::line_driven());
             if ctrl.updating() && ctrl.at_rest() {
                 r = Some(op());
