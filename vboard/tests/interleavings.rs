@@ -558,11 +558,18 @@ fn judge(s: &mut Session, run: &Run) -> Vec<String> {
             .filter(|&x| x > g)
             .min()
             .unwrap_or(u64::MAX);
-        if let Some(&(t, _)) = motors.iter().find(|&&(t, on)| {
-            on && t > g
-                && t < end
-                && !level_at(&motors, t.saturating_sub(1))
-                && !run.console_motion.iter().any(|&c| c > g && c < t)
+        // A console line that moves (clear-fault, dock) runs only in maintenance: one
+        // sent before a start and after the start before it (typed ahead of the login's
+        // reply, say) is the console's own request.
+        let starts: Vec<u64> = motors
+            .iter()
+            .filter(|&&(_, on)| on)
+            .map(|&(t, _)| t)
+            .collect();
+        if let Some(&t) = starts.iter().enumerate().find_map(|(i, t)| {
+            let before = if i == 0 { 0 } else { starts[i - 1] };
+            (*t > g && *t < end && !run.console_motion.iter().any(|&c| c > before && c < *t))
+                .then_some(t)
         }) {
             broken.push(format!(
                 "a motion started at {:.6} s while the console had been granted maintenance \
