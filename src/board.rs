@@ -819,8 +819,14 @@ mod app {
             }
             let t = clock::now_us();
             if server.request_due(t) {
+                // Issued when its first character began (a clear refused if an E-STOP
+                // edge came after that: docs/board.md, "What holds between the steps").
+                let issued = server.request_start_us() as u32;
                 mailbox.call(&mut |ctrl| {
-                    if let Some(reply) = server.poll(t, ctrl, serial) {
+                    ctrl.issued_at(Some(issued));
+                    let reply = server.poll(t, ctrl, serial);
+                    ctrl.issued_at(None);
+                    if let Some(reply) = reply {
                         line.send(reply);
                         // No flash work from now until the reply is out.
                         ctrl.set_bus_busy(true);
@@ -852,8 +858,13 @@ mod app {
             // login's PIN hash and the reply's formatting and sending without it.
             let (cmd_line, _) = console.read_line(term);
             if let Some(cmd_line) = cmd_line {
+                // Issued as its first byte came: read now, less its time on the line at
+                // 115 200 Bd (87 µs a byte, its CR LF included).
+                let issued = clock::now_us_low().wrapping_sub((cmd_line.len() as u32 + 2) * 87);
                 mailbox.call(&mut |ctrl| {
+                    ctrl.issued_at(Some(issued));
                     console.run_line(ctrl, &cmd_line, now_ms);
+                    ctrl.issued_at(None);
                 });
                 console.finish(now_ms);
                 // A login that checked out: published first (only the mode's end goes

@@ -7,6 +7,7 @@
 //! The board halves (the same defects on the release image, at µs instants the rig
 //! cannot place) are in `vboard/tests/between_steps.rs`.
 
+use docking_logic::controller::Source;
 use docking_logic::odometer::kind::AUDIT;
 use docking_logic::sequencer::{FaultKind, Request, State};
 use hil_sim::rig::{Rig, RigOptions};
@@ -352,4 +353,41 @@ fn an_estop_edge_in_the_step_of_an_overload_trip_backed_off_anyway() {
         }
         assert_eq!(faulted(&r), Some(FaultKind::EmergencyStop), "held {hold}");
     }
+}
+
+/// Found by the virtual board's campaign (issue 32): a clear on its way (a Modbus frame
+/// takes 4.6 ms at 19 200 Bd) as a 50 µs E-STOP pulse came; the step after the pulse
+/// consumed its edges (the machine latched already), the clear arrived and was accepted
+/// after that step, and its own step ran it: the machine moved 18 ms after the pulse on
+/// a clear its PLC had sent before it. A request says when it was issued
+/// (`Controller::issued_at`: the frame's first character, a console line's); a clear
+/// issued before an E-STOP edge is refused at its step.
+#[test]
+fn a_clear_on_its_way_as_an_estop_pulse_came_ran_after_it() {
+    let mut r = rig(80);
+    r.estop_pulse(300);
+    r.tick();
+    r.tick();
+    assert_eq!(faulted(&r), Some(FaultKind::EmergencyStop));
+    // The PLC starts sending its clear…
+    let issued = (r.clock.now_ns() / 1_000) as u32;
+    r.clock.advance_ns(1_000_000);
+    // …a pulse 1 ms into the frame, and a step that consumes its edges…
+    r.estop_pulse(50);
+    r.tick();
+    assert_eq!(faulted(&r), Some(FaultKind::EmergencyStop));
+    // …then the frame's end: the clear accepted, issued before the pulse.
+    r.ctrl.issued_at(Some(issued));
+    r.ctrl
+        .command_from(Source::Plc, Request::ClearFault)
+        .unwrap();
+    r.ctrl.issued_at(None);
+    stays_latched(&mut r, 240, "a clear issued before the pulse");
+    // One issued after it recovers.
+    r.ctrl.issued_at(Some((r.clock.now_ns() / 1_000) as u32));
+    r.ctrl
+        .command_from(Source::Plc, Request::ClearFault)
+        .unwrap();
+    r.ctrl.issued_at(None);
+    assert!(run_until(&mut r, 6_000, |r| r.ctrl.state() == State::Idle));
 }

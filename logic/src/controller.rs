@@ -417,6 +417,12 @@ pub struct Controller<B: Bsp> {
     /// Who asked for `pending`: its gate ([`Controller::gate`]) is checked again at the
     /// step that runs it.
     pending_source: Source,
+    /// When `pending` was issued, if its client said ([`Controller::issued_at`]): the
+    /// first character of a Modbus frame, a console line's (µs since boot, low 32 bits,
+    /// the E-STOP interrupt's clock).
+    pending_issued_us: Option<u32>,
+    /// What the next request's client says of its issue ([`Controller::issued_at`]).
+    issued_hint: Option<u32>,
     odo: Odometer,
     /// The current cone's micrometer readings (not its baseline), oldest first.
     readings: heapless::Vec<Measurement, { odometer::READINGS_KEPT }>,
@@ -994,6 +1000,8 @@ impl<B: Bsp> Controller<B> {
             last_step_us: None,
             pending: None,
             pending_source: Source::Console,
+            pending_issued_us: None,
+            issued_hint: None,
             odo,
             readings: heapless::Vec::new(),
             fit: Fit::prior(),
@@ -1277,6 +1285,7 @@ impl<B: Bsp> Controller<B> {
         if self.pending != Some(Request::Stop) {
             self.pending = Some(r);
             self.pending_source = source;
+            self.pending_issued_us = self.issued_hint;
         }
     }
 
@@ -1584,9 +1593,13 @@ impl<B: Bsp> Controller<B> {
         }
         let starting =
             matches!(request, Some(Request::StartCycle | Request::Dock)) && st.state == State::Idle;
-        if request == Some(Request::ClearFault) && self.plc.estop_open {
+        if request == Some(Request::ClearFault)
+            && (self.plc.estop_open || self.estop_edge_since_issue(st.now_us))
+        {
             request = None;
-            error!("clear refused: the E-STOP input is open");
+            error!(
+                "clear refused: the E-STOP input is open, or changed since the clear was issued"
+            );
             self.push_event(st.now_ms, Event::EstopClearRefusal);
         }
         if starting && self.plc.estop_open {
@@ -2025,6 +2038,32 @@ impl<B: Bsp> Controller<B> {
             }
         }
         Ok(())
+    }
+
+    /// The client of the next request says when it was issued: `issued_us` (µs since
+    /// boot, low 32 bits: the E-STOP interrupt's clock), the first character of its
+    /// Modbus frame or console line; `None` after the job (a request without it counts
+    /// from its acceptance). A clear issued before an E-STOP edge is refused at its
+    /// step even when a step before it, or before its acceptance, consumed that edge: the
+    /// PLC that sent it, or the technician who typed it, had not seen that edge
+    /// (docs/board.md, "What holds between the steps", rule 1; found by the virtual
+    /// board's campaign: a clear in flight on the Modbus line as a 50 µs pulse came).
+    pub fn issued_at(&mut self, issued_us: Option<u32>) {
+        self.issued_hint = issued_us;
+    }
+
+    /// Whether an E-STOP edge came after the pending request was issued (and before
+    /// `now_us`), by the interrupt's time stamps of the last opening and closing.
+    fn estop_edge_since_issue(&self, now_us: u64) -> bool {
+        let Some(t) = self.pending_issued_us else {
+            return false;
+        };
+        let es = self.plc.estop_events;
+        let window = (now_us as u32).wrapping_sub(t);
+        es.edges != 0
+            && [es.opened_us, es.closed_us]
+                .iter()
+                .any(|&e| e != t && e.wrapping_sub(t) <= window)
     }
 
     /// The modes' gate of [`Self::command_from`], checked when a request is accepted

@@ -478,3 +478,48 @@ fn a_console_line_was_lost_at_boot_at_10_sps_with_the_console_flooded() {
     );
     assert_eq!(s.board.soc().usart2.overruns, 0);
 }
+
+/// Found by the campaign (`interleavings.rs`, seed 1059) on this branch's image before
+/// its fix: a clear on the Modbus line (4.6 ms at 19 200 Bd) as a 50 µs E-STOP pulse
+/// came; the step after the pulse consumed its edges, the clear was accepted after it,
+/// and the machine moved 18 ms after the pulse on a clear the PLC had sent before it.
+/// The clear is issued at its frame's first character (`Controller::issued_at`) and
+/// refused at its step after an edge since.
+#[test]
+fn an_estop_pulse_while_a_clear_was_on_the_line_was_swallowed() {
+    for (rate, into_frame_ps) in [(80, PS_PER_MS), (80, 4 * PS_PER_MS), (10, 2 * PS_PER_MS)] {
+        let what = format!(
+            "{rate} SPS, a pulse {} µs into the frame",
+            into_frame_ps / PS_PER_US
+        );
+        let mut s = ready(Session::new(options(rate)).unwrap());
+        s.estop_pulse(2 * PS_PER_MS).unwrap();
+        s.run_for(300 * PS_PER_MS).unwrap();
+        assert!(s.plc_out().fault, "{what}");
+        let n = s.board.soc().modbus_out.len();
+        assert!(s
+            .board
+            .soc_mut()
+            .modbus_send(&rtu(1, &[0x05, 0, 2, 0xFF, 0])));
+        s.run_exact(into_frame_ps).unwrap();
+        let pulse_at = s.now();
+        s.estop_pulse(50 * PS_PER_US).unwrap();
+        // The reply: the clear was accepted (it was, when it came).
+        assert!(run_fine(&mut s, 10 * PS_PER_US, 200 * PS_PER_MS, |x| {
+            x.board.soc().modbus_out.len() > n
+        }));
+        s.run_for(500 * PS_PER_MS).unwrap();
+        assert_eq!(
+            driven_since(&s, pulse_at),
+            None,
+            "{what}: a motor driven after the pulse, on a clear sent before it"
+        );
+        assert_eq!(s.coil(2).unwrap(), Ok(()), "{what}");
+        let deadline = s.now() + 30 * PS_PER_S;
+        assert!(
+            s.run_until(deadline, |x| x.at_rest() && x.plc_out().ready)
+                .unwrap(),
+            "{what}: a clear sent after the pulse recovers"
+        );
+    }
+}

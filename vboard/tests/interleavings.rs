@@ -382,6 +382,25 @@ fn run(sc: &Script) -> Result<Vec<String>, String> {
     s.set_estop(false);
     s.run_for(300 * PS_PER_MS).map_err(halt)?;
     let broken = judge(&mut s, &run);
+    if !broken.is_empty() && std::env::var_os("VBOARD_CAMPAIGN_TRACE").is_some() {
+        for l in &s.board.log {
+            eprintln!("  log {:.6} {}", l.t_ps as f64 * 1e-12, l.msg);
+        }
+        for e in &s.board.soc().edges {
+            if matches!(
+                e.signal,
+                Signal::EnN | Signal::LockIn1 | Signal::LockIn2 | Signal::Estop | Signal::Dock
+            ) {
+                eprintln!(
+                    "  pin {:.6} {:?} {}",
+                    e.t_ps as f64 * 1e-12,
+                    e.signal,
+                    e.high
+                );
+            }
+        }
+        eprintln!("  clears {:?}", run.clears);
+    }
     if std::env::var_os("VBOARD_CAMPAIGN_VERBOSE").is_some() {
         let starts = motor_timeline(&s).iter().filter(|&&(_, on)| on).count();
         let faults: Vec<&str> = s.seen.faults.iter().map(|f| f.kind).collect();
