@@ -516,8 +516,10 @@ impl Board {
             }),
             Op::FlashFail(on) => self.r.flash.with(|f| f.write_protect(on)),
             Op::Reset => {
-                // What waits in RAM is lost: the records queued, the login.
-                let lost = self.r.ctrl.records_queued() as u64;
+                // What waits in RAM is lost: the records queued, the count of those
+                // dropped (reported until now), the login.
+                let lost = self.r.ctrl.records_queued() as u64
+                    + u64::from(self.r.ctrl.records_dropped());
                 self.seen.audits_expected = self.seen.audits_expected.saturating_sub(lost);
                 self.r.reset(ResetCause::Pin);
                 self.r.console.set_interactive(false);
@@ -748,4 +750,27 @@ prop_state_machine! {
     #[test]
     #[ignore]
     fn a_million_interleavings_keep_the_invariants(sequential 1..60 => Checker);
+}
+
+/// The ignored batch's first finding (after 433 353 sequences), a bug of the checker's
+/// own: a reset loses the count of dropped records with the RAM, and the checker
+/// forgot only the queued ones. Kept as a regression of the checker.
+#[test]
+fn records_dropped_before_a_reset_are_accounted_for() {
+    let mut sut = Checker::init_test(&80);
+    for op in [
+        Op::FlashFail(true),
+        Op::EstopPulse,
+        Op::Tick,
+        Op::Console(Line::Login),
+        Op::Console(Line::ClearFault),
+        Op::Console(Line::ClearFault),
+        Op::Console(Line::ClearFault),
+        Op::Console(Line::ClearFault),
+        Op::Console(Line::ClearFault),
+        Op::Reset,
+    ] {
+        sut = Checker::apply(sut, &80, op);
+    }
+    Checker::teardown(sut, 80);
 }
