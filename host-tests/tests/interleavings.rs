@@ -518,8 +518,8 @@ impl Board {
             Op::Reset => {
                 // What waits in RAM is lost: the records queued, the count of those
                 // dropped (reported until now), the login.
-                let lost = self.r.ctrl.records_queued() as u64
-                    + u64::from(self.r.ctrl.records_dropped());
+                let lost =
+                    self.r.ctrl.records_queued() as u64 + u64::from(self.r.ctrl.records_dropped());
                 self.seen.audits_expected = self.seen.audits_expected.saturating_sub(lost);
                 self.r.reset(ResetCause::Pin);
                 self.r.console.set_interactive(false);
