@@ -22,7 +22,8 @@
 //! with its seed and script. CI runs a sample (`a_sample_of_random_interleavings_keeps_the_invariants`,
 //! 12 runs); the campaign is ignored: `cd vboard && cargo test --release --test
 //! interleavings -- --ignored` (1 000 runs; `VBOARD_CAMPAIGN_RUNS` sets another count,
-//! `VBOARD_CAMPAIGN_FIRST` the first seed). `VBOARD_FIRMWARE=ELF` runs another image.
+//! `VBOARD_CAMPAIGN_FIRST` the first seed; `VBOARD_CAMPAIGN_SURVEY` runs them all and
+//! lists what each broke, unshrunk). `VBOARD_FIRMWARE=ELF` runs another image.
 
 use std::cell::RefCell;
 use std::rc::Rc;
@@ -725,9 +726,26 @@ fn campaign(first: u64, runs: u64) {
         .and_then(|v| v.parse().ok())
         .unwrap_or(runs);
     let t = std::time::Instant::now();
+    // `VBOARD_CAMPAIGN_SURVEY`: every run, each broken invariant listed, no shrinking
+    // (how the campaign was run on 7c11783's image).
+    let survey = std::env::var_os("VBOARD_CAMPAIGN_SURVEY").is_some();
+    let mut failed = 0;
     for seed in first..first + runs {
-        check(&script(seed));
+        let sc = script(seed);
+        if survey {
+            match run(&sc) {
+                Ok(b) if b.is_empty() => {}
+                Ok(b) => {
+                    failed += 1;
+                    eprintln!("SURVEY seed {seed} ({} SPS): {b:?}", sc.rate_sps);
+                }
+                Err(e) => eprintln!("SURVEY seed {seed}: could not run: {e}"),
+            }
+        } else {
+            check(&sc);
+        }
     }
+    assert_eq!(failed, 0, "{failed} of {runs} runs broke an invariant");
     eprintln!(
         "{runs} runs from seed {first}: every invariant held ({:.0} s)",
         t.elapsed().as_secs_f64()
