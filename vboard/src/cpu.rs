@@ -1301,6 +1301,25 @@ impl Board {
         hits
     }
 
+    /// Run `f` with the board's peripherals and world each time the core is about to
+    /// execute the instruction at `addr`; when it returns `true`, the engine stops there,
+    /// so an interrupt `f` made pending (a line it changed, [`Soc::sample_exti`]) is
+    /// taken before the next instruction runs, as on the part at that instant. For
+    /// placing an event at a sub-step instant (`tests/between_steps.rs`: an E-STOP edge
+    /// between the control step's gate check and its step rate).
+    pub fn at_pc(&mut self, addr: u32, mut f: impl FnMut(&mut Soc) -> bool + 'static) {
+        let _ = self
+            .uc
+            .add_code_hook(addr as u64, addr as u64, move |uc, _, _| {
+                let s = uc.get_data_mut();
+                if f(s) {
+                    s.stop = true;
+                    s.irq_waiting = true;
+                    let _ = uc.emu_stop();
+                }
+            });
+    }
+
     /// An imprecise bus error now (a write buffered to a peripheral that errs, a glitch
     /// on the bus): asynchronous, so it is taken at the current instruction as the core
     /// would, escalated to HardFault (no configurable fault is enabled). Wakes a

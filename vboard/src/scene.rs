@@ -162,6 +162,13 @@ pub struct Session {
     /// A PLC's master polling the Modbus line every 100 ms (`crate::poller`), in the
     /// scenes that time the line's replies (issue 31).
     pub poller: Option<crate::poller::Poller>,
+    /// A PLC that polls the Modbus line: this frame every `period_ps` (the replies are
+    /// not waited for), from the next millisecond on (`None`: no polling).
+    pub modbus_poll: Option<(u64, Vec<u8>)>,
+    /// When the polling PLC sends next, ps.
+    modbus_poll_next_ps: u64,
+    /// Polls sent.
+    pub modbus_polls: u64,
 }
 
 /// The control task's exception: TIM2 (IRQ 28).
@@ -213,6 +220,9 @@ impl Session {
             estop_open: false,
             estop_edges: Vec::new(),
             poller: None,
+            modbus_poll: None,
+            modbus_poll_next_ps: 0,
+            modbus_polls: 0,
         })
     }
 
@@ -262,13 +272,23 @@ impl Session {
     }
 
     /// Housekeeping every millisecond: read the log, watch MATED, poll the Modbus line
-    /// (when a master polls).
+    /// (when a master polls: `poller`, or the frame of `modbus_poll`).
     fn tick(&mut self) {
         self.board.poll_rtt();
         self.observe();
         if let Some(mut p) = self.poller.take() {
             p.tick(self);
             self.poller = Some(p);
+        }
+        if let Some((period, frame)) = &self.modbus_poll {
+            let now = self.now();
+            if now >= self.modbus_poll_next_ps && self.board.soc().usart3.far_pending() == 0 {
+                self.modbus_poll_next_ps = now + *period;
+                let frame = frame.clone();
+                if self.board.soc_mut().modbus_send(&frame) {
+                    self.modbus_polls += 1;
+                }
+            }
         }
         let out = self.plc_out();
         match (out.mated, self.mated_since_ps) {
