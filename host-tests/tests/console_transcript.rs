@@ -8,6 +8,11 @@
 //! record the transcript again (only for an intended change of a reply, with the change
 //! in docs/console.md): `TRANSCRIPT_RECORD=1 cargo test -p host-tests --test
 //! console_transcript`.
+//!
+//! Recorded again for issue 35's intended changes (docs/console.md): `status` with echo
+//! on (a person's terminal, the `<keys …>` lines) in topics, a line each; an unset cone
+//! serial `serial=none` / `"serial":null` (it was empty). A script's replies are as
+//! they were otherwise.
 
 use std::fmt::Write as _;
 
