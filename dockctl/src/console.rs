@@ -47,6 +47,13 @@ pub struct Session {
     pub notes: Vec<String>,
 }
 
+/// What the board's refusal of an update says, if `line` holds one (after whatever
+/// the receiver sent before it on the same line).
+pub fn refusal(line: &str) -> Option<&str> {
+    const AT: &str = "error: update refused: ";
+    line.find(AT).map(|i| line[i + AT.len()..].trim_end())
+}
+
 /// Bytes of a reply line that say the board restarted (its boot banner).
 pub const BANNER: &str = "# docking-controller ";
 
@@ -81,11 +88,23 @@ impl Session {
         let mut heard = 0usize;
         let mut sample: Vec<u8> = Vec::new();
         let mut ymodem_cancelled = false;
-        for _ in 0..ATTEMPTS {
+        let started = Instant::now();
+        for attempt in 0..ATTEMPTS {
             // Ctrl-C abandons a half-typed line (echo on) or spoils it (echo off: its
-            // Enter then gets an error, never a command run); `echo` says which.
-            self.send_raw(b"\x03\r\necho\r\n")?;
-            let deadline = Instant::now() + self.timeout.min(Duration::from_secs(3));
+            // Enter then gets an error, never a command run); `echo` says which. The
+            // second attempt after silence only listens: an update receiver cut off in
+            // the middle of a block takes what comes as the block's bytes, and says
+            // something ('C' or NAK) only after 3 s of quiet.
+            let listen = attempt == 1 && heard == 0;
+            if !listen {
+                self.send_raw(b"\x03\r\necho\r\n")?;
+            }
+            let wait = if listen {
+                Duration::from_millis(3_500)
+            } else {
+                self.timeout.min(Duration::from_secs(3))
+            };
+            let deadline = Instant::now() + wait;
             let mut echo = None;
             let mut got: Vec<u8> = Vec::new();
             while echo.is_none() {
@@ -160,8 +179,9 @@ impl Session {
             return Ok(());
         }
         let tried = format!(
-            "sent Ctrl-C, Enter and `echo` {ATTEMPTS} times over {} s",
-            ATTEMPTS as u64 * self.timeout.min(Duration::from_secs(3)).as_secs()
+            "sent Ctrl-C, Enter and `echo` {} times over {:.0} s",
+            if heard == 0 { ATTEMPTS - 1 } else { ATTEMPTS },
+            started.elapsed().as_secs_f64()
         );
         let what = self.link_name();
         Err(Error::NoAnswer(if heard == 0 {
@@ -185,11 +205,20 @@ impl Session {
             let deadline = Instant::now() + Duration::from_secs(4);
             let mut got = Vec::new();
             while let Some(line) = self.line_until(deadline, &mut got)? {
-                if let Some(why) = line.trim().strip_prefix("error: update refused: ") {
+                // The receiver's last ACK or NAK may come first, on the same line.
+                if let Some(why) = refusal(&line) {
                     return Ok(Some(why.to_string()));
                 }
             }
         }
+        // Not seen: if the receiver had ended after all, the CANs are control
+        // characters in a line of the console's; Enter ends it (an error line).
+        self.send_raw(b"\r\n")?;
+        let mut got = Vec::new();
+        while self
+            .line_until(Instant::now() + Duration::from_millis(500), &mut got)?
+            .is_some()
+        {}
         Ok(None)
     }
 
@@ -252,7 +281,9 @@ impl Session {
     pub fn reply_until(&mut self, deadline: Instant) -> Result<Option<String>, Error> {
         let mut seen = Vec::new();
         while let Some(line) = self.line_until(deadline, &mut seen)? {
-            let l = line.trim_start_matches('\0');
+            // A console line never starts with a control character: one there is the
+            // update receiver's (its last ACK, a NAK) or the line's noise.
+            let l = line.trim_start_matches(|c: char| c.is_ascii_control());
             if l.trim().is_empty() {
                 continue;
             }

@@ -59,7 +59,13 @@ enum Inner {
 pub struct Link {
     inner: Inner,
     target: Target,
+    /// `DOCKCTL_TRACE=FILE`: every byte in and out, with the time, appended to FILE (to
+    /// see what went over the line when something went wrong).
+    trace: Option<(std::fs::File, std::time::Instant)>,
 }
+
+/// The environment variable naming the trace file.
+pub const TRACE_ENV: &str = "DOCKCTL_TRACE";
 
 /// How long one read waits at most (the caller's loops check Ctrl-C between reads).
 pub const READ_SLICE: Duration = Duration::from_millis(50);
@@ -71,10 +77,45 @@ impl Link {
             Target::Serial { path, baud } => Inner::Serial(open_serial(path, *baud)?),
             Target::Tcp(addr) => Inner::Tcp(open_tcp(addr)?),
         };
-        Ok(Link {
+        let trace = std::env::var_os(TRACE_ENV).and_then(|p| {
+            std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(p)
+                .ok()
+                .map(|f| (f, std::time::Instant::now()))
+        });
+        let mut l = Link {
             inner,
             target: target.clone(),
-        })
+            trace,
+        };
+        l.log("open", target.describe().as_bytes());
+        Ok(l)
+    }
+
+    /// A trace line: the time, the direction, the bytes in hex (and as text).
+    fn log(&mut self, dir: &str, bytes: &[u8]) {
+        if let Some((f, t0)) = &mut self.trace {
+            let hex: Vec<String> = bytes.iter().map(|b| format!("{b:02x}")).collect();
+            let text: String = bytes
+                .iter()
+                .map(|&b| {
+                    if (0x20..0x7f).contains(&b) {
+                        b as char
+                    } else {
+                        '.'
+                    }
+                })
+                .collect();
+            let _ = writeln!(
+                f,
+                "{:10.6} {dir} {} [{}] {text}",
+                t0.elapsed().as_secs_f64(),
+                bytes.len(),
+                hex.join(" ")
+            );
+        }
     }
 
     /// What the line is.
@@ -104,7 +145,13 @@ impl Link {
             },
         };
         match r {
-            Ok(n) => Ok(n),
+            Ok(n) => {
+                if n > 0 && self.trace.is_some() {
+                    let b = buf[..n].to_vec();
+                    self.log("<", &b);
+                }
+                Ok(n)
+            }
             Err(e)
                 if matches!(
                     e.kind(),
@@ -121,6 +168,7 @@ impl Link {
 
     /// Write all of `bytes`.
     pub fn write_all(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
+        self.log(">", bytes);
         let r = match &mut self.inner {
             Inner::Serial(p) => write_retrying(p.as_mut(), bytes),
             Inner::Tcp(s) => write_retrying(s, bytes),

@@ -55,14 +55,23 @@ pub struct UpdateArgs {
     pub restart_timeout: f64,
 }
 
-/// What the sender waits for an answer before it sends a packet again (`sb`'s 10 s;
-/// the board holds an ACK up to 2 s while a DFU page erases).
-const PACKET_TIMEOUT: Duration = Duration::from_secs(10);
-/// Packets sent again in a row before the transfer is given up.
-const RETRIES_MAX: u32 = 5;
+/// What the sender waits for an answer before it sends a packet again. The board's
+/// receiver asks again by itself (NAK) after 3 s of silence, so this only matters when
+/// that NAK is lost; it is long so that no block goes twice while the board holds an
+/// ACK for a DFU page's erase (2 s at most on the board; 26 s of wall time was seen on
+/// the virtual board on a loaded machine, where `sb`'s 10 s had a block sent three
+/// times, the copies overrunning the board's receive ring).
+const PACKET_TIMEOUT: Duration = Duration::from_secs(30);
+/// Packets sent again in a row (time-outs) before the transfer is given up.
+const RETRIES_MAX: u32 = 3;
+/// Packets sent again in all before the transfer is given up.
+const RETRIES_TOTAL: u32 = 30;
 /// The board's verdict after the last block: the pages the file did not reach erased
 /// (one 128 KiB page: 2 s at most), the SHA-512 and the signature (about a second).
 const VERDICT_TIMEOUT: Duration = Duration::from_secs(60);
+/// A second NAK of a block is answered only after the sender has been this quiet (the
+/// receiver's NAK after its 3 s of silence, when it has dropped a torn packet).
+const RESYNC_QUIET: Duration = Duration::from_millis(2_500);
 /// How long the new image may take to confirm itself once it answers (it confirms at
 /// rest once the load cell has answered twice: about 0.6 s).
 const CONFIRM_TIMEOUT: Duration = Duration::from_secs(30);
@@ -88,7 +97,7 @@ impl Transfer {
 /// What happened, for the last line and `--json`.
 struct Report<'a> {
     args: &'a UpdateArgs,
-    file: Option<&'a FileInfo>,
+    file: Option<FileInfo>,
     from: Option<String>,
     transfer: Option<Transfer>,
     restart_s: Option<f64>,
@@ -104,7 +113,7 @@ impl Report<'_> {
             quote(result),
             quote(detail),
             quote(&self.args.file.display().to_string()),
-            opt(self.file.map(|f| version_text(f.version)).as_deref()),
+            opt(self.file.as_ref().map(|f| version_text(f.version)).as_deref()),
             opt(self.from.as_deref()),
             opt(to),
             self.transfer.map_or("null".into(), |t| t.bytes.to_string()),
@@ -161,6 +170,7 @@ fn update(
     let info =
         check_file(&bytes).map_err(|e| Error::File(format!("{}: {e}", args.file.display())))?;
     let file_version = version_text(info.version);
+    rep.file = Some(info.clone());
     say(
         ctx,
         "file",
@@ -304,7 +314,7 @@ fn update(
         }
         Err(e) => return Err(e),
     };
-    if let Some(why) = verdict.strip_prefix("error: update refused: ") {
+    if let Some(why) = crate::console::refusal(&verdict) {
         return Err(Error::Refused(format!(
             "the board says: {why}; it keeps running {running}"
         )));
@@ -329,7 +339,7 @@ fn update(
     let back_s = t0.elapsed().as_secs_f64();
     say(ctx, "back", &format!("after {back_s:.1} s: {banner}"));
     s.after_restart()?;
-    let (now, confirmed) = confirmation(&mut s, ctx, t0 + limit + CONFIRM_TIMEOUT)?;
+    let (now, confirmed) = confirmation(&mut s, ctx, Instant::now() + CONFIRM_TIMEOUT.min(limit))?;
     rep.restart_s = Some(t0.elapsed().as_secs_f64());
     let now_running = now.text("version").to_string();
     // 7. What happened.
@@ -353,12 +363,14 @@ fn update(
     let changed = counters_changed(&before, &after);
     s.close();
     let counters = if changed.is_empty() {
+        let f = |k: &str| format!("{k}={}", before.get(k).map_or("?".into(), J::plain));
         format!(
-            "the counters as before ({} cycles, cone {} at {} cycles, wear {} mm)",
-            before.get("lifetime_cycles").map_or("?".into(), J::plain),
-            before.get("cone").map_or("?".into(), J::plain),
-            before.get("cycles").map_or("?".into(), J::plain),
-            before.get("wear_mm").map_or("?".into(), J::plain),
+            "the counters as before ({} {} {} {} {})",
+            f("lifetime_cycles"),
+            f("cone"),
+            f("cycles"),
+            f("wear_mm"),
+            f("readings"),
         )
     } else {
         format!("counters that changed meanwhile: {}", changed.join(", "))
@@ -518,6 +530,12 @@ pub fn send(s: &mut Session, ctx: &mut Ctx, file: &[u8], name: &str) -> Result<T
     let mut heard = Instant::now();
     let mut started: Option<Instant> = None;
     let mut in_a_row = 0u32;
+    // NAKs of one block in a row: the second and later wait for the receiver to have
+    // been quiet (its own NAK after 3 s of silence, when it has thrown away what it
+    // held): a packet it took a byte too many or too few of would otherwise be misread
+    // the same way at every repeat, its tail starting another packet.
+    let mut naks = 0u32;
+    let mut sent_at = Instant::now();
     let result = loop {
         if cancelled(&s.cancel) {
             break Err(cancel_sending(s, &mut tx, ctx, &mut progress));
@@ -538,9 +556,23 @@ pub fn send(s: &mut Session, ctx: &mut Ctx, file: &[u8], name: &str) -> Result<T
             Err(e) => break Err(e),
         };
         let n = match b {
+            Some(docking_logic::ymodem::NAK)
+                if naks >= 1
+                    && matches!(tx.state(), SendState::Block(_))
+                    && sent_at.elapsed() < RESYNC_QUIET =>
+            {
+                heard = Instant::now();
+                naks += 1;
+                0 // not answered: the receiver's own NAK after a quiet line is
+            }
             Some(b) => {
                 heard = Instant::now();
                 in_a_row = 0;
+                naks = if b == docking_logic::ymodem::NAK {
+                    naks + 1
+                } else {
+                    0
+                };
                 tx.on_byte(b, file, &mut out)
             }
             None if heard.elapsed() >= PACKET_TIMEOUT && tx.state() != SendState::Start => {
@@ -568,11 +600,22 @@ pub fn send(s: &mut Session, ctx: &mut Ctx, file: &[u8], name: &str) -> Result<T
             }
             None => 0,
         };
+        if tx.retries() > RETRIES_TOTAL {
+            let _ = s.cancel_transfer();
+            progress.finish();
+            break Err(Error::NoAnswer(format!(
+                "the board asked for blocks again {} times (CRC errors: a noisy line, or one that loses bytes): cancelled at {} of {} B; check the cable and run it again",
+                tx.retries(),
+                tx.acknowledged(),
+                file.len()
+            )));
+        }
         if n > 0 {
             if started.is_none() && matches!(tx.state(), SendState::Block(_)) {
                 started = Some(Instant::now());
             }
             s.send_raw(&out[..n])?;
+            sent_at = Instant::now();
         }
         progress.set(ctx, u64::from(tx.acknowledged()));
         match tx.state() {
@@ -588,10 +631,7 @@ pub fn send(s: &mut Session, ctx: &mut Ctx, file: &[u8], name: &str) -> Result<T
                 progress.finish();
                 // The board cancelled: its reason follows once the line is quiet.
                 let why = match s.reply_until(Instant::now() + Duration::from_secs(15)) {
-                    Ok(Some(l)) => l
-                        .strip_prefix("error: update refused: ")
-                        .unwrap_or(&l)
-                        .to_string(),
+                    Ok(Some(l)) => crate::console::refusal(&l).unwrap_or(&l).to_string(),
                     _ => "it cancelled the transfer".into(),
                 };
                 break Err(Error::Refused(format!(

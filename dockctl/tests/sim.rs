@@ -481,7 +481,7 @@ fn ports_that_do_not_exist_are_busy_or_are_not_serial_and_lines_that_do_not_answ
         let (code, line) = fails(&["--tcp", &addr, "--timeout", "1", "status"]);
         assert_eq!(code, 1);
         assert!(
-            line.contains(want) && line.contains("sent Ctrl-C, Enter and `echo` 3 times"),
+            line.contains(want) && line.contains("sent Ctrl-C, Enter and `echo` "),
             "{line}"
         );
         if garbage {
