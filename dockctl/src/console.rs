@@ -131,10 +131,13 @@ impl Session {
             let Some(on) = echo else {
                 // The board's update receiver holds the line ('C' before a file, NAK
                 // inside one: a transfer left unfinished): cancel it, then try again.
+                // ('C' before a file, NAK inside one, ACK for a block that was on its way
+                // when the line went, CAN: the receiver's bytes, never a console line.)
+                use docking_logic::ymodem::{ACK, NAK};
                 let ymodem = !got.is_empty()
-                    && got.iter().all(|&b| {
-                        b == b'C' || b == docking_logic::ymodem::NAK || b == b'\r' || b == b'\n'
-                    });
+                    && got
+                        .iter()
+                        .all(|&b| matches!(b, b'C' | ACK | NAK | CAN | b'\r' | b'\n'));
                 if ymodem && !ymodem_cancelled {
                     self.cancel_transfer()?;
                     ymodem_cancelled = true;

@@ -275,7 +275,7 @@ fn update(
         .file
         .file_name()
         .map_or("update.dcs".into(), |n| n.to_string_lossy().into_owned());
-    let sent = send(&mut s, ctx, &bytes, &name);
+    let sent = send(&mut s, ctx, &bytes, &name, &args.file.display().to_string());
     // Over, whichever way (a cancel was answered, or the line is gone).
     s.transfer_open = matches!(sent, Err(Error::NoAnswer(_)));
     let t = sent?;
@@ -523,7 +523,13 @@ impl Progress {
 }
 
 /// Send `file` by YMODEM-1K to a board whose receiver waits; the figures.
-pub fn send(s: &mut Session, ctx: &mut Ctx, file: &[u8], name: &str) -> Result<Transfer, Error> {
+pub fn send(
+    s: &mut Session,
+    ctx: &mut Ctx,
+    file: &[u8],
+    name: &str,
+    path: &str,
+) -> Result<Transfer, Error> {
     let mut tx = Sender::new(name, file.len() as u32);
     let mut out = [0u8; PACKET_MAX];
     let mut progress = Progress::new(ctx, file.len() as u64);
@@ -550,7 +556,7 @@ pub fn send(s: &mut Session, ctx: &mut Ctx, file: &[u8], name: &str) -> Result<T
                     "the line was cut during the transfer ({why}) at {} % ({done} of {} B): the board keeps its image and refuses the partial one after 60 s of silence; run `dockctl update {}` again",
                     u64::from(done) * 100 / (file.len() as u64).max(1),
                     file.len(),
-                    name
+                    path
                 )));
             }
             Err(e) => break Err(e),
