@@ -259,6 +259,7 @@ fn export_writes_one_machines_record_and_watch_stops_on_ctrl_c() {
     assert_eq!(doc["tool"]["name"], "dockctl");
     assert!(doc["time"].as_str().unwrap().ends_with('Z'));
     assert_eq!(doc["identity"]["product"], "docking-controller");
+    assert_eq!(doc["identity"]["unit"], "HILSIM-0001");
     for k in ["version", "status", "wear", "faults", "measurements"] {
         assert!(doc[k].is_object(), "{k}: {doc}");
     }

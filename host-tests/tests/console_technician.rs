@@ -243,3 +243,25 @@ fn up_recalls_the_last_lines_but_never_one_holding_a_pin() {
         "{shown:?}"
     );
 }
+
+/// `version` names the unit (issue 35: an export of ten machines' records had nothing
+/// to tell them apart by but the cone): the serial the host gives (the chip's unique ID
+/// on the board, as Modbus device identification's object 0x80), `none` / null without.
+#[test]
+fn version_names_the_unit_by_its_serial() {
+    let mut r = commissioned();
+    assert!(r.command("version", 400).ends_with(" unit=none\r\n"));
+    assert_eq!(json(&mut r, "version")["unit"], serde_json::Value::Null);
+    r.console.set_unit("2F0035000B51353532383631");
+    let text = r.command("version", 400);
+    assert!(
+        text.ends_with(" trial=no unit=2F0035000B51353532383631\r\n"),
+        "{text}"
+    );
+    assert_eq!(json(&mut r, "version")["unit"], "2F0035000B51353532383631");
+    // Only printable ASCII, 24 bytes at most.
+    r.console.set_unit("ABC\u{7}DEF");
+    assert_eq!(json(&mut r, "version")["unit"], "ABC");
+    r.console.set_unit(&"9".repeat(40));
+    assert_eq!(json(&mut r, "version")["unit"], "9".repeat(24));
+}

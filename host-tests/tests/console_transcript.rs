@@ -11,8 +11,9 @@
 //!
 //! Recorded again for issue 35's intended changes (docs/console.md): `status` with echo
 //! on (a person's terminal, the `<keys …>` lines) in topics, a line each; an unset cone
-//! serial `serial=none` / `"serial":null` (it was empty). A script's replies are as
-//! they were otherwise.
+//! serial `serial=none` / `"serial":null` (it was empty); `version`'s new field, the
+//! unit's serial (`unit=none` / `"unit":null` here: the rig gives none). A script's
+//! replies are as they were otherwise.
 
 use std::fmt::Write as _;
 

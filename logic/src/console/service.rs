@@ -288,7 +288,14 @@ struct TermState {
     /// The host runs `update`'s session ([`Console::enable_updater`]: the board); the
     /// simulators have no DFU partition and refuse `update`.
     updater: bool,
+    /// The unit's serial number (the chip's unique ID in hex, as Modbus device
+    /// identification's object 0x80), `unit_len` bytes of it ([`Console::set_unit`]).
+    unit: [u8; UNIT_MAX],
+    unit_len: u8,
 }
+
+/// The longest unit serial `version` reports (the chip's 96-bit ID in hex: 24).
+pub const UNIT_MAX: usize = 24;
 
 /// Ctrl-C: abandon the line.
 const CTRL_C: u8 = 0x03;
@@ -380,6 +387,8 @@ impl Console {
                 state: None,
                 maint: false,
                 updater: false,
+                unit: [0; UNIT_MAX],
+                unit_len: 0,
             },
         }
     }
@@ -818,6 +827,21 @@ impl Console {
         self.term.updater
     }
 
+    /// The unit's serial number `version` reports (issue 35: `dockctl export` names the
+    /// machine by it): printable ASCII, at most [`UNIT_MAX`] bytes (more are cut).
+    pub fn set_unit(&mut self, serial: &str) {
+        let b = serial.as_bytes();
+        let n = b
+            .iter()
+            .take(UNIT_MAX)
+            .take_while(|c| c.is_ascii_graphic())
+            .count();
+        if let (Some(dst), Some(src)) = (self.term.unit.get_mut(..n), b.get(..n)) {
+            dst.copy_from_slice(src);
+        }
+        self.term.unit_len = n as u8;
+    }
+
     /// Whether an `update` waits for its session (asked once: it is cleared).
     pub fn take_update(&mut self) -> bool {
         core::mem::take(&mut self.deferred.update)
@@ -1209,9 +1233,9 @@ impl Console {
     /// `version`: the running image (its header's version; the build's without one),
     /// `(test key)` when the built-in key is the test key, the image it replaced, a
     /// rollback (issue 21), and whether it runs on trial (issue 31: `trial=yes|failed`,
-    /// then what to do, on a line of its own). Fields added to 927460b's reply, none
-    /// renamed: the text's first two words and the JSON's `name` and `version` are as
-    /// they were.
+    /// then what to do, on a line of its own), and the unit's serial (issue 35: `unit=`,
+    /// `none` when the host gave none). Fields added to 927460b's reply, none renamed:
+    /// the text's first two words and the JSON's `name` and `version` are as they were.
     #[inline(never)]
     fn version(&mut self, r: &crate::update::ImageReport, json: bool) {
         use super::update::version_text;
@@ -1222,6 +1246,9 @@ impl Console {
         );
         let v = running_text(r, &mut a);
         let previous = version_text(r.previous, &mut b);
+        let n = usize::from(self.term.unit_len).min(UNIT_MAX);
+        let unit_bytes = self.term.unit;
+        let unit = core::str::from_utf8(unit_bytes.get(..n).unwrap_or(&[])).unwrap_or("");
         let rolled = match (r.rolled_back, r.rolled_back_version) {
             (false, _) => "no",
             (true, None) => "yes",
@@ -1243,8 +1270,12 @@ impl Console {
                 };
                 f.str("trial", r.trial.word())?;
                 match r.trial.advice() {
-                    Some(a) => f.str("trial_advice", a),
-                    None => f.none("trial_advice"),
+                    Some(a) => f.str("trial_advice", a)?,
+                    None => f.none("trial_advice")?,
+                };
+                match unit {
+                    "" => f.none("unit"),
+                    u => f.str("unit", u),
                 }
             });
         } else {
@@ -1262,6 +1293,8 @@ impl Console {
                         rolled,
                         " trial=",
                         r.trial.word(),
+                        " unit=",
+                        if unit.is_empty() { "none" } else { unit },
                         "\r\n",
                     ],
                 )?;
