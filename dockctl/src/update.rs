@@ -153,9 +153,40 @@ pub fn run(line: &LineArgs, ctx: &mut Ctx, args: &UpdateArgs) -> Result<i32, Err
     r.map(|_| 0)
 }
 
+/// One step said: `what` in a column of its own, then `text`; on a terminal wrapped at
+/// [`WRAP`] columns under the text's start (a log or a pipe gets one line a step).
 fn say(ctx: &mut Ctx, what: &str, text: &str) {
-    let _ = writeln!(ctx.err, "{what:<9}{text}");
+    let line = format!("{what:<9}{text}");
+    let shown = if ctx.err_tty {
+        wrap(&line, WRAP, 9)
+    } else {
+        line
+    };
+    let _ = writeln!(ctx.err, "{shown}");
     let _ = ctx.err.flush();
+}
+
+/// Where a terminal's lines are wrapped, columns.
+const WRAP: usize = 96;
+
+/// `line` wrapped at spaces within `width` columns, the next lines indented by `indent`.
+fn wrap(line: &str, width: usize, indent: usize) -> String {
+    let mut out = String::new();
+    let mut col = 0;
+    for (i, word) in line.split(' ').enumerate() {
+        let w = word.chars().count();
+        if i > 0 && col + 1 + w > width && col > indent {
+            out.push('\n');
+            out.push_str(&" ".repeat(indent));
+            col = indent;
+        } else if i > 0 {
+            out.push(' ');
+            col += 1;
+        }
+        out.push_str(word);
+        col += w;
+    }
+    out
 }
 
 fn update(
@@ -375,10 +406,18 @@ fn update(
     } else {
         format!("counters that changed meanwhile: {}", changed.join(", "))
     };
-    let _ = writeln!(
-        ctx.err,
+    let done = format!(
         "updated to {file_version} (from {running}, previous={}); {counters}",
         now.get("previous").map_or("?".into(), J::plain)
+    );
+    let _ = writeln!(
+        ctx.err,
+        "{}",
+        if ctx.err_tty {
+            wrap(&done, WRAP, 11)
+        } else {
+            done
+        }
     );
     Ok(file_version)
 }
@@ -677,4 +716,24 @@ fn cancel_sending(
         ),
     }
     Error::Interrupted
+}
+
+#[cfg(test)]
+mod tests {
+    use super::wrap;
+
+    #[test]
+    fn a_step_is_wrapped_under_its_text() {
+        let w = wrap(
+            "file     target/update.dcs: version 0.1.1, layout C, 104808 B of image",
+            40,
+            9,
+        );
+        assert_eq!(
+            w,
+            "file     target/update.dcs: version\n         0.1.1, layout C, 104808 B of\n         image"
+        );
+        assert!(w.lines().all(|l| l.chars().count() <= 40));
+        assert_eq!(wrap("short", 40, 9), "short");
+    }
 }
