@@ -37,7 +37,9 @@ fn dockctl_bin() -> &'static Path {
     })
 }
 
-/// `vboard serve --pty --plc`: the PLC in charge (no demo cycles; DOCK on stdin).
+/// `vboard serve --pty --plc --speed 4`: the PLC in charge (no demo cycles; DOCK on
+/// stdin); the emulation as fast as it goes up to four times real time (CI's time: the
+/// tool's time-outs are the wall's, and long).
 struct Board {
     child: Child,
     stdin: ChildStdin,
@@ -54,7 +56,7 @@ impl Drop for Board {
 impl Board {
     fn serve() -> Board {
         let mut child = Command::new(env!("CARGO_BIN_EXE_vboard"))
-            .args(["serve", "--for", "900", "--pty", "--plc"])
+            .args(["serve", "--for", "900", "--pty", "--plc", "--speed", "4"])
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
