@@ -353,6 +353,14 @@ impl Session {
         self.maint_ours
     }
 
+    /// The board said it restarts (an update verified): its restart ends maintenance
+    /// mode and turns echo on, so leaving puts nothing back until the console is found
+    /// again ([`Session::after_restart`]).
+    pub fn board_restarts(&mut self) {
+        self.maint_ours = false;
+        self.echo_was_on = false;
+    }
+
     /// The board restarted (an update): echo is on again and maintenance mode is over.
     /// Find the console again as at the start; echo is turned on again at the end, as
     /// the restart left it.

@@ -16,7 +16,9 @@
 //!
 //! Ctrl-C at any point: a transfer is cancelled (CAN CAN: the board refuses the
 //! partial image and keeps its own), maintenance mode the tool entered is left, echo
-//! put back. A line cut during the transfer: the board keeps its image and refuses the
+//! put back. Once the last block is sent the board has the file and nothing stops it:
+//! Ctrl-C then waits for the verdict (a refusal is said, maintenance mode left) and
+//! stops only the waiting through the restart, which itself ends maintenance mode. A line cut during the transfer: the board keeps its image and refuses the
 //! partial one after 60 s of silence; run the tool again (it cancels a transfer the
 //! board still waits in).
 
@@ -334,8 +336,17 @@ fn update(
             }
         ),
     );
-    // 5. The board's verdict.
-    let verdict = match s.reply_until(Instant::now() + VERDICT_TIMEOUT) {
+    // 5. The board's verdict. The board has the whole file: Ctrl-C stops nothing on it
+    // now, so the first one is held until the verdict (a second of the board's checks;
+    // a second Ctrl-C leaves at once): a refusal is then said, and maintenance mode left.
+    let pressed = std::mem::take(&mut s.cancel);
+    let verdict = s.reply_until(Instant::now() + VERDICT_TIMEOUT);
+    let held = cancelled(&s.cancel);
+    s.cancel = pressed;
+    if held {
+        s.cancel.store(true, std::sync::atomic::Ordering::SeqCst);
+    }
+    let verdict = match verdict {
         Ok(Some(l)) => l,
         Ok(None) => {
             return Err(Error::NoAnswer(format!(
@@ -358,7 +369,24 @@ fn update(
         "verified",
         verdict.trim_start_matches("ok: update verified: "),
     );
-    // 6. The restart.
+    // The restart ends maintenance mode and turns echo on: nothing to put back on a
+    // board that is restarting (a `maint exit` now would go to the bootloader).
+    s.board_restarts();
+    // 6. The restart. Ctrl-C from here on stops the waiting, not the update: the
+    // board has verified the image and restarts into it.
+    let waited = |e: Error, ctx: &mut Ctx| {
+        if matches!(e, Error::Interrupted) {
+            say(
+                ctx,
+                "stopped",
+                &format!("waiting only: the board verified {file_version} and restarts into it; `dockctl version` says how it stands"),
+            );
+        }
+        e
+    };
+    if cancelled(&s.cancel) {
+        return Err(waited(Error::Interrupted, ctx));
+    }
     let t0 = Instant::now();
     let limit = Duration::from_secs_f64(args.restart_timeout.clamp(10.0, 600.0));
     say(
@@ -366,11 +394,12 @@ fn update(
         "restart",
         "the board restarts; the bootloader swaps the new image in (4-22 s)",
     );
-    let banner = wait_banner(&mut s, t0 + limit)?;
+    let banner = wait_banner(&mut s, t0 + limit).map_err(|e| waited(e, ctx))?;
     let back_s = t0.elapsed().as_secs_f64();
     say(ctx, "back", &format!("after {back_s:.1} s: {banner}"));
-    s.after_restart()?;
-    let (now, confirmed) = confirmation(&mut s, ctx, Instant::now() + CONFIRM_TIMEOUT.min(limit))?;
+    s.after_restart().map_err(|e| waited(e, ctx))?;
+    let (now, confirmed) = confirmation(&mut s, ctx, Instant::now() + CONFIRM_TIMEOUT.min(limit))
+        .map_err(|e| waited(e, ctx))?;
     rep.restart_s = Some(t0.elapsed().as_secs_f64());
     let now_running = now.text("version").to_string();
     // 7. What happened.

@@ -32,6 +32,22 @@ struct Fake {
     drop_at: Option<usize>,
     /// A noise byte (STX) on the line just before this block.
     noise_before: Option<u32>,
+    /// From the last block to the verdict, and from the verdict to the boot banner, ms
+    /// (what the board receives meanwhile is lost, as in a reset).
+    verdict_ms: u64,
+    restart_ms: u64,
+}
+
+impl Fake {
+    fn new(after: After) -> Fake {
+        Fake {
+            after,
+            drop_at: None,
+            noise_before: None,
+            verdict_ms: 300,
+            restart_ms: 1500,
+        }
+    }
 }
 
 struct State {
@@ -186,13 +202,15 @@ impl Fake {
                     }
                     Action::Done(x) => {
                         let _ = c.write_all(x);
-                        std::thread::sleep(Duration::from_millis(300));
+                        std::thread::sleep(Duration::from_millis(self.verdict_ms));
                         if self.after == After::Refused {
                             line(c, "error: update refused: signature does not verify (unsigned, another key's, or changed)");
                             return;
                         }
                         line(c, &format!("ok: update verified: version 0.1.1, {} bytes, signature good; restarting into it (the old image comes back if it does not confirm)", size - 72));
-                        std::thread::sleep(Duration::from_millis(1500));
+                        std::thread::sleep(Duration::from_millis(self.restart_ms));
+                        // Whatever came during the reset is lost.
+                        while matches!(c.read(&mut buf), Ok(n) if n > 0) {}
                         st.restarted = true;
                         st.maint = false;
                         if self.after == After::RolledBack {
@@ -311,9 +329,8 @@ fn err(o: &Output) -> String {
 #[test]
 fn a_byte_lost_in_a_block_costs_a_repeat_not_the_transfer() {
     let addr = Fake {
-        after: After::Updated,
         drop_at: Some(133 + 1029 + 500),
-        noise_before: None,
+        ..Fake::new(After::Updated)
     }
     .start();
     let o = update(&addr, &file());
@@ -334,9 +351,8 @@ fn a_byte_lost_in_a_block_costs_a_repeat_not_the_transfer() {
 fn noise_before_a_block_does_not_loop_the_transfer_on_one_blocks_nak() {
     let (f, block) = file_with(Some(docking_logic::ymodem::STX));
     let addr = Fake {
-        after: After::Updated,
-        drop_at: None,
         noise_before: block,
+        ..Fake::new(After::Updated)
     }
     .start();
     let o = update(&addr, &f);
@@ -347,12 +363,7 @@ fn noise_before_a_block_does_not_loop_the_transfer_on_one_blocks_nak() {
 
 #[test]
 fn an_update_rolled_back_is_said_so_and_exits_3() {
-    let addr = Fake {
-        after: After::RolledBack,
-        drop_at: None,
-        noise_before: None,
-    }
-    .start();
+    let addr = Fake::new(After::RolledBack).start();
     let o = update(&addr, &file());
     let e = err(&o);
     assert_eq!(o.status.code(), Some(3), "{e}");
@@ -364,12 +375,7 @@ fn an_update_rolled_back_is_said_so_and_exits_3() {
 
 #[test]
 fn an_image_that_never_confirms_is_said_so_and_exits_3() {
-    let addr = Fake {
-        after: After::NeverConfirms,
-        drop_at: None,
-        noise_before: None,
-    }
-    .start();
+    let addr = Fake::new(After::NeverConfirms).start();
     let o = update(&addr, &file());
     let e = err(&o);
     assert_eq!(o.status.code(), Some(3), "{e}");
@@ -381,12 +387,7 @@ fn an_image_that_never_confirms_is_said_so_and_exits_3() {
 
 #[test]
 fn the_boards_refusal_after_the_file_is_its_reason_and_maintenance_mode_is_left() {
-    let addr = Fake {
-        after: After::Refused,
-        drop_at: None,
-        noise_before: None,
-    }
-    .start();
+    let addr = Fake::new(After::Refused).start();
     let o = update(&addr, &file());
     let e = err(&o);
     assert_eq!(o.status.code(), Some(1), "{e}");
@@ -401,4 +402,81 @@ fn the_boards_refusal_after_the_file_is_its_reason_and_maintenance_mode_is_left(
     let mut b = [0u8; 256];
     let n = s.read(&mut b).unwrap();
     assert!(String::from_utf8_lossy(&b[..n]).contains("\"maintenance\":false"));
+}
+
+/// `dockctl update` run in the background, SIGINT once a stderr line starts with
+/// `at`: (exit status, all of stderr).
+fn update_interrupted_at(addr: &str, file: &str, at: &str) -> (Option<i32>, String) {
+    use std::io::BufRead;
+    let pin = std::env::temp_dir().join(format!("dockctl-fake-pin-{}", rand()));
+    std::fs::write(&pin, "2468\n").unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_dockctl"))
+        .args(["--tcp", addr, "update", file, "--pin-file"])
+        .arg(&pin)
+        .args(["--restart-timeout", "30"])
+        .stdin(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut err = String::new();
+    loop {
+        let mut l = String::new();
+        assert!(
+            lines.read_line(&mut l).unwrap() > 0,
+            "dockctl ended before {at:?}: {err}"
+        );
+        err.push_str(&l);
+        if l.starts_with(at) {
+            break;
+        }
+    }
+    // SAFETY: a signal to our own child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    lines.read_to_string(&mut err).unwrap();
+    let st = child.wait().unwrap();
+    let _ = std::fs::remove_file(pin);
+    (st.code(), err)
+}
+
+/// Ctrl-C while the board restarts into the verified image: the waiting stops (exit
+/// 130, said so), and nothing is sent to put the console back: the restart ended
+/// maintenance mode (before, a `maint exit` went to the restarting board, unanswered,
+/// and the tool said it could not leave maintenance mode).
+#[test]
+fn ctrl_c_during_the_restart_stops_the_waiting_and_sends_nothing_to_the_restarting_board() {
+    let addr = Fake {
+        restart_ms: 6000,
+        ..Fake::new(After::Updated)
+    }
+    .start();
+    let (code, e) = update_interrupted_at(&addr, &file(), "restart ");
+    assert_eq!(code, Some(130), "{e}");
+    assert!(
+        e.contains("stopped  waiting only: the board verified 0.1.1 and restarts into it; `dockctl version` says how it stands"),
+        "{e}"
+    );
+    assert!(e.contains("error: interrupted (Ctrl-C)"), "{e}");
+    assert!(!e.contains("could not leave maintenance mode"), "{e}");
+}
+
+/// Ctrl-C after the last block, before the board's verdict: the board has the whole
+/// file, so the tool waits for the verdict and then stops waiting, saying what the
+/// board does (before, the wait was cut off and its `maint exit` was answered by the
+/// verdict: "could not leave maintenance mode", and the board restarted anyway).
+#[test]
+fn ctrl_c_before_the_verdict_waits_for_it_and_says_what_the_board_does() {
+    let addr = Fake {
+        verdict_ms: 3000,
+        ..Fake::new(After::Updated)
+    }
+    .start();
+    let (code, e) = update_interrupted_at(&addr, &file(), "sent ");
+    assert_eq!(code, Some(130), "{e}");
+    assert!(e.contains("verified version 0.1.1"), "{e}");
+    assert!(
+        e.contains("stopped  waiting only: the board verified 0.1.1 and restarts into it"),
+        "{e}"
+    );
+    assert!(!e.contains("could not leave maintenance mode"), "{e}");
 }
