@@ -32,7 +32,9 @@ use docking_logic::diag::{file_tail, Crash, CrashKind, ResetCause};
 use docking_logic::hal::StopLatch;
 use docking_logic::hal::Watchdog;
 use docking_logic::hx711::{Calibration, Gain, Hx711};
-use docking_logic::safety::{EstopEdges, GatedEn, GatedHigh, KernelEvent, SafetyKernel};
+use docking_logic::safety::{
+    EstopEdges, GatedEn, GatedHigh, GatedPulses, KernelEvent, SafetyKernel,
+};
 use stm32f4xx_hal::gpio::{
     Input, Output, PinState, PB0, PB1, PC0, PC1, PC2, PC3, PC4, PC5, PD0, PD1, PD12, PD13, PD2,
     PD3, PE10, PE11,
@@ -205,7 +207,7 @@ pub struct Board;
 impl Bsp for Board {
     type EnN = GatedEn<PE11<Output>, BoardStop>;
     type Dir = PE10<Output>;
-    type Pulses = BoardStepPulses;
+    type Pulses = GatedPulses<BoardStepPulses, BoardStop>;
     type LockIn1 = GatedHigh<PD12<Output>, BoardStop>;
     type LockIn2 = GatedHigh<PD13<Output>, BoardStop>;
     type Home = PC0<Input>;
@@ -433,7 +435,7 @@ mod app {
             flash: OdometerFlash::new(dp.FLASH),
             en_n: GatedEn::new(en_n, BoardStop),
             dir,
-            pulses: BoardStepPulses,
+            pulses: GatedPulses::new(BoardStepPulses, BoardStop),
             lock_in1: GatedHigh::new(lock_in1, BoardStop),
             lock_in2: GatedHigh::new(lock_in2, BoardStop),
             home,
@@ -706,7 +708,15 @@ mod app {
                 return; // `control` pends us again after its next step
             }
             owner::apply_published(ctrl);
+            let modes = (ctrl.maintenance_mode(), ctrl.updating());
             owner::MAILBOX.serve(ctrl);
+            if modes != (ctrl.maintenance_mode(), ctrl.updating()) {
+                // A mode granted by the job (a login, an update begun): the control task
+                // writes the PLC outputs now, READY low before the console says so, not
+                // at the next step (it steps only when one is due; docs/board.md, "What
+                // holds between the steps", rule 3).
+                rtic::pend(pac::Interrupt::TIM2);
+            }
             // The flash's turn (at rest only: `Controller::at_rest`).
             let erases = OdometerFlash::erases();
             ctrl.background();
@@ -837,8 +847,14 @@ mod app {
                 });
                 let t = clock::now_us();
                 if server.request_due(t) {
+                    // Issued when its first character began (a clear refused if an E-STOP
+                    // edge came after that: docs/board.md, "What holds between the steps").
+                    let issued = server.request_start_us() as u32;
                     mailbox.call(&mut |ctrl| {
-                        if let Some(reply) = server.poll(t, ctrl, serial) {
+                        ctrl.issued_at(Some(issued));
+                        let reply = server.poll(t, ctrl, serial);
+                        ctrl.issued_at(None);
+                        if let Some(reply) = reply {
                             line.send(reply);
                             // No flash work from now until the reply is out.
                             ctrl.set_bus_busy(true);
@@ -875,12 +891,21 @@ mod app {
             // login's PIN hash and the reply's formatting and sending without it.
             let (cmd_line, _) = console.read_line(term);
             if let Some(cmd_line) = cmd_line {
+                // Issued as its first byte came: read now, less its time on the line at
+                // 115 200 Bd (87 µs a byte, its CR LF included).
+                let issued = clock::now_us_low().wrapping_sub((cmd_line.len() as u32 + 2) * 87);
                 mailbox.call(&mut |ctrl| {
+                    ctrl.issued_at(Some(issued));
                     console.run_line(ctrl, &cmd_line, now_ms);
+                    ctrl.issued_at(None);
                 });
                 console.finish(now_ms);
+                // A login that checked out: published first (only the mode's end goes
+                // through the flag, `owner.rs`), then granted by its own job before the
+                // console says so.
+                owner::MAINTENANCE.store(console.maintenance_active(now_ms), Ordering::Relaxed);
                 if console.store_due() {
-                    // A record the hash just made (`pin set`).
+                    // A login's grant, a record the hash just made (`pin set`).
                     mailbox.call(&mut |ctrl| console.store(ctrl, now_ms));
                 }
             }
@@ -891,7 +916,7 @@ mod app {
             }
             #[cfg(not(feature = "updater"))]
             let _ = session;
-            // What the service applies at its next run: the login, the line.
+            // What the service applies at its next run: the login's end, the line.
             owner::MAINTENANCE.store(console.maintenance_active(now_ms), Ordering::Relaxed);
             console.observe(owner::state_name(), now_ms);
         }

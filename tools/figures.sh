@@ -5,7 +5,8 @@
 # regenerates it).
 #
 #   bash tools/figures.sh            # about 7 minutes on 2 cores, after the builds
-#   bash tools/figures.sh --sweep    # also the full timing sweep (80 runs, ~30 min)
+#   bash tools/figures.sh --sweep    # also the full timing sweep (80 runs) and the
+#                                    # 200-seed first-boot cuts (tools/keep-up.sh --slow)
 #
 # The virtual board's table is measured twice: on this tree's image and on the image of
 # $FIGURES_BEFORE (default b20ffb8, the tree before issue 20), built from source in a
@@ -166,6 +167,10 @@ scene_row() { # model args...: one table row from `vboard scene overload --flood
     echo "at the maximum erase time (\`vboard scene sector-move --json\`; docs/modbus.md): $(field modbus_polls <<<"$sector_json") requests,"
     echo "$(field modbus_poll_busy <<<"$sector_json") answered busy (exception 06) during the erase, $(field modbus_poll_timeouts <<<"$sector_json") unanswered, the longest"
     echo "wait for a reply $(field modbus_reply_max_ms <<<"$sector_json") ms."
+    echo
+    echo "## Keeping up with real clients (issue 33: \`bash tools/keep-up.sh\`; \`--slow\` with \`--sweep\`)"
+    echo
+    if [ "$sweep" = 1 ]; then bash tools/keep-up.sh --slow; else bash tools/keep-up.sh; fi
     if [ "$sweep" = 1 ]; then
         echo
         echo "The worst case over seeds 1–10 and every model (\`vboard sweep --flood\`):"

@@ -14,6 +14,12 @@
 //! serial `serial=none` / `"serial":null` (it was empty); `version`'s new field, the
 //! unit's serial (`unit=none` / `"unit":null` here: the rig gives none). A script's
 //! replies are as they were otherwise.
+//!
+//! One line was recorded again since, for a change of the machine, not of the text:
+//! the last `status` says `cycles_completed=3`, not 4 — the session's `dock`, `stop`,
+//! `undock`, `clear-fault` stops a docking in its pre-alignment, and 927460b counted
+//! the recovery's return as a cycle (issue 32, item 5: only a cycle that reached the
+//! cone counts).
 
 use std::fmt::Write as _;
 

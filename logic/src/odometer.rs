@@ -1326,6 +1326,10 @@ pub struct ReferenceRun {
     /// The wear estimate fitted to a fixed set of readings (1.2 × the model, ± a few µm)
     /// at the run's end: the estimator's arithmetic, host against target.
     pub estimate: crate::estimate::Estimate,
+    /// The same from five readings of a cone running in (every 100 cycles to 500,
+    /// near-linear then bending), 5 000 cycles on: both laws of the fit and their
+    /// weighing.
+    pub estimate_early: crate::estimate::Estimate,
 }
 
 /// A deterministic odometer workload in integers only — a load shaped like Eq. 7 (four
@@ -1383,6 +1387,23 @@ pub fn reference_run(cycles: u32) -> ReferenceRun {
         WearConfig::DEFAULT.limit_nm,
         Material::ZQSn5_2,
     );
+    let early: heapless::Vec<crate::estimate::Reading, 5> =
+        [40_000, 76_000, 104_000, 124_000, 139_000]
+            .iter()
+            .zip(1..)
+            .map(|(&nm, k): (&i32, u64)| {
+                let noise = (rnd() % 3_001) as i32 - 1_500;
+                crate::estimate::Reading {
+                    e_q32: (k * 100) << 32,
+                    wear_nm: nm + noise,
+                }
+            })
+            .collect();
+    let estimate_early = crate::estimate::Fit::new(&early).at(
+        5_000 << 32,
+        WearConfig::DEFAULT.limit_nm,
+        Material::ZQSn5_2,
+    );
     ReferenceRun {
         cycles,
         e_q32: odo.equivalent_cycles_q32(),
@@ -1390,6 +1411,7 @@ pub fn reference_run(cycles: u32) -> ReferenceRun {
         remaining_cycles: odo.remaining_cycles(),
         record: StateRecord::of(&odo, true).to_bytes(),
         estimate,
+        estimate_early,
     }
 }
 
@@ -1403,11 +1425,21 @@ impl core::fmt::Display for ReferenceRun {
         for b in self.record {
             write!(f, "{b:02x}")?;
         }
-        let e = &self.estimate;
-        write!(
-            f,
-            " estimate={},{},{},{}",
-            e.wear_nm, e.low_nm, e.high_nm, e.remaining_cycles
-        )
+        for (name, e) in [
+            ("estimate", &self.estimate),
+            ("early", &self.estimate_early),
+        ] {
+            write!(
+                f,
+                " {name}={},{},{},{},{},{}",
+                e.wear_nm,
+                e.low_nm,
+                e.high_nm,
+                e.remaining_cycles,
+                e.remaining_low_cycles,
+                e.remaining_high_cycles
+            )?;
+        }
+        Ok(())
     }
 }

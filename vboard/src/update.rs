@@ -370,6 +370,7 @@ pub fn update(s: &mut Session, checks: &mut Checks) -> Result<(), Halt> {
     let app = app_bytes(&s.board.image);
     let file = update_file(&app, NEW_VERSION);
     let boots = s.seen.boots;
+    let t0 = s.now();
     let t = transfer(s, &file, None, Some(file.len() / 2))?;
     checks.push((
         "the update verified".into(),
@@ -445,7 +446,67 @@ pub fn update(s: &mut Session, checks: &mut Checks) -> Result<(), Halt> {
         erases_after == erases_before,
         format!("{erases_before:?} → {erases_after:?}"),
     ));
+    let (ok, detail) = one_erase_a_window(s, t0);
+    checks.push((
+        "one flash erase a service window, the trial's confirmation included (a control step between any two)".into(),
+        ok,
+        detail,
+    ));
     Ok(())
+}
+
+/// Whether every two sector erases the application started after `after_ps` have a
+/// control step (TIM2's entry) between them: one erase a service window (issue 31, fix
+/// 2: the control step's deadline and the watchdog keep their margins). The bootloader's
+/// swap, which has no control step, is left out: its erases are between the update's
+/// reset and the new image's first instruction in ACTIVE.
+pub fn one_erase_a_window(s: &Session, after_ps: u64) -> (bool, String) {
+    let steps = s
+        .board
+        .soc()
+        .entry_log
+        .times(crate::scene::CONTROL_EXCEPTION);
+    let erases: Vec<(u64, u64, u32)> = s
+        .board
+        .soc()
+        .flash
+        .erase_log()
+        .iter()
+        .copied()
+        .filter(|&(start, _, _)| start >= after_ps)
+        .collect();
+    let resets: Vec<u64> = s.board.resets.iter().map(|&(t, _)| t).collect();
+    let mut worst = String::new();
+    let mut ok = true;
+    for w in erases.windows(2) {
+        let ((_, end, a), (start, _, b)) = (w[0], w[1]);
+        // In the bootloader (a reset since the last control step before the erase):
+        // the swap has no control step at all; left out.
+        let last_step = steps.iter().copied().filter(|&t| t < start).max();
+        let last_reset = resets.iter().copied().filter(|&t| t < start).max();
+        let in_boot = match (last_step, last_reset) {
+            (_, None) => false,
+            (None, Some(_)) => true,
+            (Some(st), Some(r)) => r > st,
+        };
+        let between = steps.iter().any(|&t| t >= end && t <= start);
+        if !in_boot && !between {
+            ok = false;
+            worst = format!("sector {a} then sector {b} with no control step between");
+        }
+    }
+    (
+        ok,
+        format!(
+            "{} erases after the transfer began{}",
+            erases.len(),
+            if worst.is_empty() {
+                String::new()
+            } else {
+                format!(": {worst}")
+            }
+        ),
+    )
 }
 
 /// A bad file of `update-bad`.
@@ -1113,6 +1174,77 @@ pub fn update_from_marked(
         "no cut: confirmed (STATE says BOOT)".into(),
         state_word(&s) == update_layout::state::BOOT,
         format!("{:#010x}", state_word(&s)),
+    ));
+    Ok(s)
+}
+
+/// Issue 31, fix 1: from the marked flash `m`, the new image's trial whose confirmation
+/// cannot be written (STATE, sector 1, write-protected once the bootloader has swapped:
+/// the first word program fails with WRPERR). It is tried again at later rests, three
+/// attempts in all, each logged; after the last, `version --json` and Modbus device
+/// identification (object 0x84) say `failed`, STATE still says SWAP, and the next reset,
+/// the protection gone, rolls the image back.
+pub fn update_confirm_fails(
+    opts: &Options,
+    m: &Marked,
+    checks: &mut Checks,
+) -> Result<Session, String> {
+    let mut s = from_marked(opts, m)?;
+    // The swap first (it writes STATE's progress words), then the protection.
+    let deadline = s.now() + 120 * PS_PER_S;
+    s.run_until(deadline, |x| {
+        logged(x, "trial boot, confirmed once the load cell answers")
+    })
+    .map_err(|e| e.to_string())?;
+    s.board.soc_mut().flash.write_protect(1, true);
+    let deadline = s.now() + 10 * PS_PER_S;
+    s.run_until(deadline, |x| logged(x, "attempt 3 of 3"))
+        .map_err(|e| e.to_string())?;
+    s.run_for(PS_PER_S).map_err(|e| e.to_string())?;
+    let attempts: Vec<String> = s
+        .board
+        .log
+        .iter()
+        .filter(|l| l.msg.contains("trial boot not confirmed"))
+        .map(|l| l.msg.clone())
+        .collect();
+    checks.push((
+        "a failed confirmation: three attempts, each logged".into(),
+        attempts.len() == 3
+            && (1..=3).all(|n| {
+                attempts
+                    .iter()
+                    .any(|a| a.contains(&format!("attempt {n} of 3")))
+            }),
+        attempts.join(" | "),
+    ));
+    let v = version(&mut s).map_err(|e| e.to_string())?;
+    let ident = s
+        .modbus(&crate::scene::rtu(1, &[0x2B, 0x0E, 0x04, 0x84]), PS_PER_S)
+        .map_err(|e| e.to_string())?;
+    // The one object's value: unit, 2B, 0E, 04, conformity, more, next, count, id, len.
+    let value = ident.get(10..ident.len().saturating_sub(2)).unwrap_or(&[]);
+    checks.push((
+        "then version and Modbus identification say trial failed, STATE still SWAP".into(),
+        json_field(&v, "trial").as_deref() == Some("failed")
+            && value == b"failed"
+            && state_word(&s) == update_layout::state::SWAP,
+        format!(
+            "{} | object 0x84 {:?} | STATE {:#010x}",
+            v.trim(),
+            String::from_utf8_lossy(value),
+            state_word(&s)
+        ),
+    ));
+    s.board.soc_mut().flash.write_protect(1, false);
+    s.seen.boots = 0;
+    s.board.reset_pin();
+    let booted = run_to_boot(&mut s, 1, 120 * PS_PER_S).map_err(|e| e.to_string())?;
+    let img = which(&s, &m.old, &m.new);
+    checks.push((
+        "the next reset rolls it back".into(),
+        booted && img == "old",
+        format!("ACTIVE {img}"),
     ));
     Ok(s)
 }

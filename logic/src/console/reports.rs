@@ -177,6 +177,14 @@ pub(super) fn wear_fields(f: &mut dyn Fields, v: &WearView) -> fmt::Result {
     f.fixed("estimate_low_mm", est.low_nm as i64, 6)?;
     f.fixed("estimate_high_mm", est.high_nm as i64, 6)?;
     f.u64("remaining_estimate_cycles", est.remaining_cycles as u64)?;
+    f.u64(
+        "remaining_estimate_low_cycles",
+        est.remaining_low_cycles as u64,
+    )?;
+    f.u64(
+        "remaining_estimate_high_cycles",
+        est.remaining_high_cycles as u64,
+    )?;
     f.group("readings")?;
     f.fixed("baseline_bore_mm", base as i64, 3)?;
     f.bool("baseline_assumed", cone.baseline().is_none())?;

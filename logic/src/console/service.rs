@@ -330,6 +330,9 @@ struct Deferred {
     pin_set: bool,
     pin_rec: [u8; PinRecord::LEN],
     pin_rec_ready: bool,
+    /// A login's PIN checked out: maintenance mode waits to be granted to the controller
+    /// ([`Console::store`]) before the reply says so.
+    grant: bool,
     /// A report waits to be written (`report_json`: as JSON).
     report: Report,
     report_json: bool,
@@ -374,6 +377,7 @@ impl Console {
                 pin_set: false,
                 pin_rec: [0; PinRecord::LEN],
                 pin_rec_ready: false,
+                grant: false,
                 report: Report::None,
                 report_json: false,
                 update: false,
@@ -670,9 +674,10 @@ impl Console {
 
     /// Phase 3, without the controller: the work a command left for after the
     /// controller is released (a maintenance login's PIN check). Returns the PIN hashes
-    /// computed. The controller learns the new maintenance mode from
-    /// [`Self::maintenance_active`] (the board and [`Self::poll`] tell it after each
-    /// command).
+    /// computed. A login that checks out is granted to the controller by
+    /// [`Self::store`] (phase 4, [`Self::store_due`]), which replies; the session's end
+    /// by its idle timeout reaches it through [`Self::maintenance_active`] (the board
+    /// and [`Self::poll`] tell it).
     #[inline(never)]
     pub fn finish(&mut self, now_ms: u64) -> u32 {
         let json = self.deferred.report_json;
@@ -711,15 +716,23 @@ impl Console {
         1
     }
 
-    /// Whether a command's record waits for [`Self::store`] (with the controller).
+    /// Whether a command's record, or a login's grant, waits for [`Self::store`] (with
+    /// the controller).
     pub fn store_due(&self) -> bool {
-        self.deferred.pin_rec_ready
+        self.deferred.pin_rec_ready || self.deferred.grant
     }
 
-    /// Phase 4, with the controller again: store what [`Self::finish`] prepared (a new
-    /// PIN record: written at rest only, else refused), then the prompt.
+    /// Phase 4, with the controller again: what [`Self::finish`] prepared — a login's
+    /// grant of maintenance mode (in force in the controller before the reply says so:
+    /// a DOCK edge or a Modbus command from then on is refused, and the prompt shows
+    /// the state the grant found: docs/board.md, "What holds between the steps", rule
+    /// 2), a new PIN record (written at rest only, else refused) — then the prompt.
     #[inline(never)]
     pub fn store(&mut self, ctrl: &mut dyn Machine, now_ms: u64) {
+        if core::mem::take(&mut self.deferred.grant) {
+            ctrl.set_maintenance_mode(self.auth.is_active(now_ms));
+            self.ok(&"maintenance mode (ends after 10 min idle or `maint exit`)");
+        }
         if core::mem::take(&mut self.deferred.pin_rec_ready) {
             let rec = self.deferred.pin_rec;
             match ctrl.store_record(kind::PIN, &rec) {
@@ -747,7 +760,8 @@ impl Console {
         match self.auth.try_enter(now_ms, &pin, rec.as_ref()) {
             Ok(()) => {
                 info!("maintenance mode entered");
-                self.ok(&"maintenance mode (ends after 10 min idle or `maint exit`)");
+                // Granted to the controller, and only then said, by `store`.
+                self.deferred.grant = true;
             }
             Err(e) => {
                 warn!("maintenance login refused");
@@ -1170,6 +1184,7 @@ impl Console {
             }
             Command::MaintExit => {
                 self.auth.exit();
+                ctrl.set_maintenance_mode(false);
                 self.ok(&"maintenance mode ended");
             }
             Command::PinSet { pin } => {
@@ -1404,6 +1419,10 @@ impl Console {
             kv_fixed(o, "estimate_high_mm", est.high_nm as i64, 6)?;
             kv(o, "remaining_estimate_cycles")?;
             write_u64(o, u64::from(est.remaining_cycles))?;
+            kv(o, "remaining_estimate_low_cycles")?;
+            write_u64(o, u64::from(est.remaining_low_cycles))?;
+            kv(o, "remaining_estimate_high_cycles")?;
+            write_u64(o, u64::from(est.remaining_high_cycles))?;
             kv_fixed(o, "baseline_bore_mm", base as i64, 3)?;
             if assumed {
                 o.write_str(
