@@ -163,9 +163,9 @@ fn type_line(addr: &str, line: &str, want: &str) -> String {
 
 #[test]
 fn every_reading_command_as_a_table_as_json_and_as_csv() {
-    // At 5 × real time: the demo's cycles (which pause for 5 s of machine time after
-    // every console command) fill the history while the test reads.
-    let a = serve_at(Link::Tcp("127.0.0.1:0".parse().unwrap()), 5.0);
+    // At 20 × real time: the demo docks only after 60 s of machine time without a
+    // keystroke (3 s of wall here), and every dockctl run types.
+    let a = serve_at(Link::Tcp("127.0.0.1:0".parse().unwrap()), 20.0);
     // Tables with units.
     let st = ok(&a, &["status"]);
     for want in [
@@ -214,15 +214,17 @@ fn every_reading_command_as_a_table_as_json_and_as_csv() {
         let v: serde_json::Value = serde_json::from_str(&j).unwrap();
         assert!(v.is_object(), "{cmd}: {j}");
     }
-    // The history fills as the demo docks: wait for a cycle.
-    let deadline = Instant::now() + Duration::from_secs(60);
+    // The history fills as the demo docks: wait for a cycle without typing (8 s of
+    // wall, 160 s of machine time: the 60 s the demo waits after a keystroke and a
+    // cycle), then read.
+    let deadline = Instant::now() + Duration::from_secs(90);
     let h = loop {
+        std::thread::sleep(Duration::from_secs(8));
         let h = ok(&a, &["history", "3"]);
         if !h.starts_with("no completed cycles") {
             break h;
         }
-        assert!(Instant::now() < deadline, "no cycle in a minute");
-        std::thread::sleep(Duration::from_secs(3));
+        assert!(Instant::now() < deadline, "no cycle in 90 s");
     };
     let head = h.lines().next().unwrap();
     assert!(
