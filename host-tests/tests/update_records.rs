@@ -279,3 +279,27 @@ fn an_image_on_trial_says_so_in_version_and_refuses_an_update_until_it_confirms(
     assert!(text.contains(" trial=failed"), "{text}");
     assert!(text.contains("the next reset rolls it back"), "{text}");
 }
+
+/// `update` typed while a Modbus reply to a polling PLC was on the line was refused
+/// ("the flash is written only at rest"): begin_update writes nothing, and the update's
+/// flash jobs wait for the line themselves. The flash writers that write at once still
+/// wait for it.
+#[test]
+fn an_update_was_refused_while_a_modbus_reply_was_on_the_line() {
+    use docking_logic::controller::MaintError;
+    let flash = SharedFlash::new(SimFlash::stm32f407_odometer());
+    let mut r = boot(&flash);
+    r.ctrl.set_bus_busy(true);
+    assert!(
+        !r.ctrl.at_rest(),
+        "a reply on the line holds the flash back"
+    );
+    assert_eq!(r.ctrl.begin_update(), Ok(()));
+    assert!(r.ctrl.updating());
+    r.ctrl.end_update();
+    assert_eq!(
+        r.ctrl.store_record(0x7E, b"x"),
+        Err(MaintError::NotAtRest),
+        "a record written at once still waits for the line"
+    );
+}

@@ -2190,11 +2190,15 @@ impl<B: Bsp> Controller<B> {
     // ones under 256 B).
     #[inline(never)]
     pub fn at_rest(&self) -> bool {
+        self.motionless() && !self.store.bus_busy
+    }
+
+    /// At rest but for the Modbus line: quiet, nothing held or driven.
+    fn motionless(&self) -> bool {
         self.is_quiet()
             && !self.axis_held()
             && !self.prop.is_enabled()
             && self.lock.cmd() == LockCmd::Off
-            && !self.store.bus_busy
     }
 
     /// Whether a maintenance action may write the flash now ([`Self::at_rest`]), and
@@ -2251,15 +2255,24 @@ impl<B: Bsp> Controller<B> {
         self.plc.maintenance_mode
     }
 
-    /// A firmware update begins (console `update`, issue 21): only at rest
-    /// ([`Self::at_rest`]: nothing moving, held or driven); from now until
+    /// A firmware update begins (console `update`, issue 21): only with nothing moving,
+    /// held or driven. A Modbus reply on the line does not refuse it: `begin_update`
+    /// writes nothing, and each of the update's flash jobs waits for the line by itself
+    /// (the board's `with_owner`), so a PLC that polls does not make `update` fail at
+    /// random (refused when the command met one of its replies, up to 7c11783's
+    /// successor of issue 32). From now until
     /// [`Self::end_update`] READY is low and every request but a stop is refused, from
     /// the console, Modbus and the DOCK pin alike (a DOCK edge is refused and logged).
     pub fn begin_update(&mut self) -> Result<(), MaintError> {
         if self.diag.images.trial != crate::update::Trial::No {
             return Err(MaintError::OnTrial);
         }
-        self.flash_turn()?;
+        if !self.is_quiet() {
+            return Err(MaintError::Moving);
+        }
+        if !self.motionless() {
+            return Err(MaintError::NotAtRest);
+        }
         if !self.plc.updating {
             info!("firmware update: receiving; READY low, requests refused");
         }

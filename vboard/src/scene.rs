@@ -1550,7 +1550,14 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             scripted_plc =
                 Some(maintenance_lockout(&mut s, &mut checks).map_err(|e| e.to_string())?);
         }
-        "update" => crate::update::update(&mut s, &mut checks).map_err(|e| e.to_string())?,
+        "update" => {
+            // A PLC polls the Modbus line through the whole update (issue 31: a reply
+            // within 100 ms, the DFU's erases included; issue 32: the update does not
+            // fail because the PLC polls).
+            s.poller = Some(crate::poller::Poller::new(s.now() + 50 * PS_PER_MS));
+            crate::update::update(&mut s, &mut checks).map_err(|e| e.to_string())?;
+            poll_check(&s, &mut checks, "the update, its erases included");
+        }
         "update-bad" => {
             crate::update::update_bad(&mut s, &mut checks).map_err(|e| e.to_string())?
         }

@@ -780,7 +780,6 @@ const LONG_FIRST: &[&str] = &[
     "dock_hold_an_hour_on_the_board_counts_one_cycle_without_wear_while_mated",
     "overload_stop_waited_for_the_main_loop_at_80_sps_during_a_console_flood",
     "a_console_byte_was_lost_while_a_record_was_written",
-    "a_critical_section_restored_from_lr_was_measured_as_still_masked",
     "a_power_cut_in_the_swap_or_the_first_boot_boots_a_whole_image_and_loses_no_record",
     "estop_bounce_on_the_board_latches_every_edge_and_recovers",
     "skipping_the_polling_loops_changes_nothing_in_a_sample_of_the_suite",
