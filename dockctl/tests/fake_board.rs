@@ -446,7 +446,7 @@ fn update_interrupted_at(addr: &str, file: &str, at: &str) -> (Option<i32>, Stri
 #[test]
 fn ctrl_c_during_the_restart_stops_the_waiting_and_sends_nothing_to_the_restarting_board() {
     let addr = Fake {
-        restart_ms: 6000,
+        restart_ms: 3000,
         ..Fake::new(After::Updated)
     }
     .start();
@@ -467,7 +467,7 @@ fn ctrl_c_during_the_restart_stops_the_waiting_and_sends_nothing_to_the_restarti
 #[test]
 fn ctrl_c_before_the_verdict_waits_for_it_and_says_what_the_board_does() {
     let addr = Fake {
-        verdict_ms: 3000,
+        verdict_ms: 2000,
         ..Fake::new(After::Updated)
     }
     .start();
