@@ -793,9 +793,11 @@ mod app {
         // The settings in force (the default ones if the stored were refused) for the
         // flash erase's responder too (`modbus.rs`).
         modbus::configure(&cx.local.server.settings());
-        // The unit's serial for Modbus device identification: the chip's unique ID.
+        // The unit's serial for Modbus device identification and `version`: the chip's
+        // unique ID.
         let serial_hex = unit_serial();
         let serial = core::str::from_utf8(&serial_hex).unwrap_or("");
+        cx.local.console.set_unit(serial);
         let mut stack_checked_us = 0u64;
         loop {
             // Sleep until there is work: every interrupt that gives idle work sets

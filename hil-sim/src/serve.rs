@@ -231,6 +231,8 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
     rig.ctrl
         .boot(docking_logic::diag::ResetCause::PowerOn, None, &[]);
     rig.console_enabled = true;
+    // The unit's serial, as `version` and device identification name it.
+    rig.console.set_unit(UNIT_SERIAL);
     driver.setup(rig.devices(), 1, opts.rate_sps, 1_000);
     // Control steps run, and the count at the last PLC input change.
     let mut steps: u64 = 0;

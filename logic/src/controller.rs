@@ -1943,7 +1943,10 @@ impl<B: Bsp> Controller<B> {
                 self.store.persist_pending = true;
                 self.store.persist_cycle_end = true;
             }
-            SeqEvent::CycleStarted(n) => info!("cycle {=u32} started", n),
+            SeqEvent::CycleStarted(n) => {
+                self.odo.start_cycle();
+                info!("cycle {=u32} started", n)
+            }
             SeqEvent::FaultCleared => info!("fault cleared; recovering"),
             SeqEvent::Homed => info!("homed"),
             SeqEvent::RequestRefused(r) => warn!(

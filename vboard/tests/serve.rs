@@ -56,9 +56,18 @@ fn a_terminal_reads_the_version_over_tcp() {
     s.set_read_timeout(Some(Duration::from_millis(200)))
         .unwrap();
     let reply = ask(&mut s, "version", "docking-controller ");
+    // Then the unit: the chip's 96-bit unique ID (issue 35), in hex.
+    let (head, unit) = reply
+        .trim()
+        .rsplit_once(" unit=")
+        .expect("the unit at the end");
     assert_eq!(
-        reply.trim(),
+        head,
         "docking-controller 0.1.0 (test key) previous=none rolled_back=no trial=no"
+    );
+    assert!(
+        unit.len() == 24 && unit.bytes().all(|c| c.is_ascii_hexdigit()),
+        "{reply}"
     );
     let _ = child.kill();
     let _ = child.wait();
