@@ -690,7 +690,16 @@ mod app {
             cx.shared.kernel.lock(|k| k.configure(cfg, now));
             // What a reset must not lose (the flash snapshot waits for a rest).
             crash::journal_write(&ctrl.journal());
+            // The handshake with the E-STOP's edges as they are now: one no step has
+            // taken keeps MATED and READY low (the interrupt drove them low; issue 32's
+            // review). An edge between this snapshot and the write: its interrupt's
+            // MATED-low may have come before the write, so it is done again after.
+            let edges = ESTOP_EDGES.snapshot();
+            ctrl.set_plc(plc.dock.is_low(), plc.estop.is_high(), edges);
             plc.write(ctrl.handshake());
+            if ESTOP_EDGES.snapshot().edges != edges.edges {
+                estop_lock_and_mated_off();
+            }
         });
         rtic::pend(pac::Interrupt::SPI1);
     }
@@ -799,6 +808,7 @@ mod app {
         let serial = core::str::from_utf8(&serial_hex).unwrap_or("");
         cx.local.console.set_unit(serial);
         let mut stack_checked_us = 0u64;
+        let mut console_quiet_us = clock::now_us_low();
         loop {
             // Sleep until there is work: every interrupt that gives idle work sets
             // IDLE_WORK (the service after each run, at least once a sample period; the
@@ -809,9 +819,15 @@ mod app {
             // but the HX711's own pulse, and a DOUT edge at its start waits for all of
             // it). An interrupt after the unmasked check sets the flag; one during the
             // masked check stays pending and `wfi` returns at once.
-            let pending = cx.local.term.rx_pending()
-                || cx.local.modbus_line.rx_pending()
-                || cx.local.server.receiving();
+            // The time before a look that found the console's ring empty: a line read
+            // later was typed after it (its issue time, below).
+            let looked_us = clock::now_us_low();
+            let console_waiting = cx.local.term.rx_pending();
+            if !console_waiting {
+                console_quiet_us = looked_us;
+            }
+            let pending =
+                console_waiting || cx.local.modbus_line.rx_pending() || cx.local.server.receiving();
             let work = pending
                 || cortex_m::interrupt::free(|_| {
                     let w = IDLE_WORK.swap(false, Ordering::Relaxed);
@@ -877,7 +893,9 @@ mod app {
                 let flash = core::cell::RefCell::new(update::UpdateFlash);
                 let key = &update::PUBLIC_KEY;
                 if let Some(out) = session.poll(term, &flash, key, now_ms) {
-                    mailbox.call(&mut |ctrl| {
+                    // Its records are written at once, before the restart: at rest with
+                    // the line free (`update::at_rest`).
+                    update::at_rest(&mut |ctrl| {
                         docking_logic::console::update::finish(console, ctrl, out, now_ms)
                     });
                     console.flush_output(term);
@@ -891,9 +909,12 @@ mod app {
             // login's PIN hash and the reply's formatting and sending without it.
             let (cmd_line, _) = console.read_line(term);
             if let Some(cmd_line) = cmd_line {
-                // Issued as its first byte came: read now, less its time on the line at
-                // 115 200 Bd (87 µs a byte, its CR LF included).
-                let issued = clock::now_us_low().wrapping_sub((cmd_line.len() as u32 + 2) * 87);
+                // Issued no later than the last look that found the console's ring empty
+                // (its end, the CR, came after that look): never later than it was typed.
+                // The read time less the line's time on the wire was later whenever idle
+                // read late (a Modbus job's wait for its window, an erase), and a clear
+                // typed before an E-STOP pulse ran after it (issue 32's review).
+                let issued = console_quiet_us;
                 mailbox.call(&mut |ctrl| {
                     ctrl.issued_at(Some(issued));
                     console.run_line(ctrl, &cmd_line, now_ms);

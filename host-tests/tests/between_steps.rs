@@ -391,3 +391,53 @@ fn a_clear_on_its_way_as_an_estop_pulse_came_ran_after_it() {
     r.ctrl.issued_at(None);
     assert!(run_until(&mut r, 6_000, |r| r.ctrl.state() == State::Idle));
 }
+
+/// Issue 32's review: a control run without a step (TIM2 between two sample steps, or
+/// pended by the service) wrote the handshake as of the last step: after the E-STOP
+/// interrupt drove MATED low, MATED went high again until the step that latched the
+/// fault (low, high, low on the PLC's input).
+#[test]
+fn mated_was_driven_high_again_by_a_control_run_without_a_step_after_an_estop_edge() {
+    let mut r = Rig::booted(RigOptions::new(80));
+    r.ctrl.command(Request::Dock).unwrap();
+    assert!(run_until(&mut r, 20_000, |r| r.ctrl.handshake().mated));
+    // The E-STOP interrupt counts its edge; the input closes again (a pulse).
+    r.estop_input(true);
+    r.estop_input(false);
+    // A control run that does not step: the pins and the edges read, the handshake
+    // written.
+    r.ctrl.set_plc(false, false, r.estop_edges.snapshot());
+    let h = r.ctrl.handshake();
+    assert!(!h.mated && !h.ready, "{h:?}");
+    // The step takes the edge and latches the fault.
+    r.tick();
+    assert!(matches!(r.ctrl.state(), State::Faulted { .. }), "{:?}", r.ctrl.state());
+    assert!(!r.ctrl.handshake().mated);
+}
+
+/// Issue 32's review: a PLC docking started by a step just before a technician's grant
+/// could not be withdrawn by the PLC (its DOCK release refused in maintenance mode):
+/// the machine mated and held with a technician logged in — item 2's outcome.
+#[test]
+fn a_plc_docking_started_before_a_grant_could_not_be_withdrawn_by_the_plc() {
+    let mut r = Rig::booted(RigOptions::new(80));
+    r.dock_line.set(false);
+    assert!(run_until(&mut r, 60, |r| r.ctrl.state().is_docking()));
+    // The console's grant job.
+    r.ctrl.set_maintenance_mode(true);
+    // The PLC releases DOCK: its docking is withdrawn.
+    r.dock_line.set(true);
+    assert!(
+        run_until(&mut r, 4_000, |r| r.ctrl.state() == State::Idle),
+        "{:?}",
+        r.ctrl.state()
+    );
+    assert!(!r.ctrl.handshake().mated);
+    // A docking the console started in maintenance mode is not the PLC's to withdraw.
+    r.ctrl.command(Request::Dock).unwrap();
+    assert!(run_until(&mut r, 60, |r| r.ctrl.state().is_docking()));
+    assert_eq!(
+        r.ctrl.command_from(Source::Plc, Request::Undock),
+        Err(docking_logic::controller::Refusal::MaintenanceMode)
+    );
+}

@@ -417,6 +417,9 @@ pub struct Controller<B: Bsp> {
     /// Who asked for `pending`: its gate ([`Controller::gate`]) is checked again at the
     /// step that runs it.
     pending_source: Source,
+    /// Who started the docking under way (or the last one): the PLC may withdraw its
+    /// own docking while a technician holds maintenance mode ([`Self::gate`]).
+    docking_source: Source,
     /// When `pending` was issued, if its client said ([`Controller::issued_at`]): the
     /// first character of a Modbus frame, a console line's (µs since boot, low 32 bits,
     /// the E-STOP interrupt's clock).
@@ -1006,6 +1009,7 @@ impl<B: Bsp> Controller<B> {
             last_step_us: None,
             pending: None,
             pending_source: Source::Console,
+            docking_source: Source::Console,
             pending_issued_us: None,
             issued_hint: None,
             odo,
@@ -1637,7 +1641,7 @@ impl<B: Bsp> Controller<B> {
         }
         if starting && request.is_some() {
             match self.take_tare() {
-                TareResult::Ready => {}
+                TareResult::Ready => self.docking_source = self.pending_source,
                 TareResult::NotYet => {
                     // Wait for more zero-load samples (from the same source: its gate
                     // is checked again at the next step).
@@ -2101,7 +2105,13 @@ impl<B: Bsp> Controller<B> {
         if self.plc.updating && r != Request::Stop {
             return Err(Refusal::Updating);
         }
-        if source == Source::Plc && self.plc.maintenance_mode && r != Request::Stop {
+        // The PLC's undock of a docking the PLC started stays its own: one started just
+        // before a grant would otherwise mate and hold with no way back for the PLC
+        // (issue 32's review; item 2's outcome). It starts nothing.
+        let own_undock = r == Request::Undock
+            && self.docking_source == Source::Plc
+            && self.seq.state().is_docking();
+        if source == Source::Plc && self.plc.maintenance_mode && r != Request::Stop && !own_undock {
             return Err(Refusal::MaintenanceMode);
         }
         Ok(())
@@ -2115,6 +2125,12 @@ impl<B: Bsp> Controller<B> {
             (self.guard.force_mn - self.cfg.hold_expected_mn).abs() <= HOLD_TOLERANCE_MN;
         // As of the last step (cached: see step 7).
         let level = self.level;
+        // An E-STOP edge no step has taken yet (the board's control run without a step,
+        // between two sample steps, or pended by the service): the E-STOP interrupt
+        // drove MATED and the lock low; nothing raises them again before the step that
+        // latches the fault (issue 32's review: MATED went low, high, low).
+        let unseen_edge = self.plc.estop_events.edges != self.plc.estop_edges_seen;
+        let estop = self.plc.estop_open || unseen_edge;
         Handshake {
             dock: self.plc.dock,
             estop: self.plc.estop_open,
@@ -2123,7 +2139,7 @@ impl<B: Bsp> Controller<B> {
                 && sw.locked
                 && self.cell.calibrated
                 && level != WearLevel::Limit
-                && !self.plc.estop_open
+                && !estop
                 && !self.plc.maintenance_mode
                 && !self.plc.updating,
             mated: matches!(
@@ -2132,7 +2148,8 @@ impl<B: Bsp> Controller<B> {
                     unmating: false,
                     ..
                 }
-            ) && in_envelope,
+            ) && in_envelope
+                && !estop,
             fault: matches!(state, State::Faulted { .. } | State::BackingOff { .. }),
             maintenance: level >= WearLevel::Warning,
         }

@@ -165,6 +165,31 @@ fn with_owner(op: &mut dyn FnMut() -> Result<(), OdoFlashError>) -> Result<(), F
 }
 
 #[cfg(feature = "updater")]
+/// Run `op` with the controller in the owner's window once the machine is at rest with
+/// the Modbus line free (tried once a window, [`OWNER_TRIES`] windows at most; then
+/// run anyway, its records queued). The update's end writes its records at once and
+/// then restarts: with a reply on the line its image record was refused and its audit
+/// record queued in RAM, lost at the restart (issue 32's review).
+pub fn at_rest(op: &mut dyn FnMut(&mut Ctrl)) {
+    for i in 0..OWNER_TRIES {
+        let mut done = false;
+        let mut steps = 0;
+        MAILBOX.call(&mut |ctrl: &mut Ctrl| {
+            steps = super::owner::steps();
+            ctrl.set_bus_busy(super::modbus::busy());
+            if ctrl.at_rest() || i + 1 == OWNER_TRIES {
+                op(ctrl);
+                done = true;
+            }
+        });
+        if done {
+            return;
+        }
+        super::owner::sleep_until_step_after(steps);
+    }
+}
+
+#[cfg(feature = "updater")]
 impl Sectors for UpdateFlash {
     fn read(&mut self, addr: u32, buf: &mut [u8]) -> Result<(), FlashError> {
         let end = u64::from(addr) + buf.len() as u64;

@@ -636,7 +636,9 @@ pub fn finish(console: &mut Console, ctrl: &mut dyn Machine, out: Outcome, now_m
     match out {
         Outcome::Verified { len, version } => {
             let rec = marked_record(&images, version);
-            if ctrl.store_record(kind::IMAGE, rec.bytes()).is_err() {
+            // Written at once at rest (the board runs this job at rest with the line
+            // free), else queued and counted like every record (rule 4).
+            if !ctrl.write_or_queue_record(kind::IMAGE, rec.bytes()) {
                 error!("update: the image record was not written");
             }
             info!("update verified and marked: restarting into it");
