@@ -411,7 +411,11 @@ fn mated_was_driven_high_again_by_a_control_run_without_a_step_after_an_estop_ed
     assert!(!h.mated && !h.ready, "{h:?}");
     // The step takes the edge and latches the fault.
     r.tick();
-    assert!(matches!(r.ctrl.state(), State::Faulted { .. }), "{:?}", r.ctrl.state());
+    assert!(
+        matches!(r.ctrl.state(), State::Faulted { .. }),
+        "{:?}",
+        r.ctrl.state()
+    );
     assert!(!r.ctrl.handshake().mated);
 }
 
