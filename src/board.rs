@@ -32,7 +32,9 @@ use docking_logic::diag::{file_tail, Crash, CrashKind, ResetCause};
 use docking_logic::hal::StopLatch;
 use docking_logic::hal::Watchdog;
 use docking_logic::hx711::{Calibration, Gain, Hx711};
-use docking_logic::safety::{EstopEdges, GatedEn, GatedHigh, KernelEvent, SafetyKernel};
+use docking_logic::safety::{
+    EstopEdges, GatedEn, GatedHigh, GatedPulses, KernelEvent, SafetyKernel,
+};
 use docking_logic::signature::monitor::SignatureMem;
 use docking_logic::signature::Signature;
 use stm32f4xx_hal::gpio::{
@@ -207,7 +209,7 @@ pub struct Board;
 impl Bsp for Board {
     type EnN = GatedEn<PE11<Output>, BoardStop>;
     type Dir = PE10<Output>;
-    type Pulses = BoardStepPulses;
+    type Pulses = GatedPulses<BoardStepPulses, BoardStop>;
     type LockIn1 = GatedHigh<PD12<Output>, BoardStop>;
     type LockIn2 = GatedHigh<PD13<Output>, BoardStop>;
     type Home = PC0<Input>;
@@ -470,7 +472,7 @@ mod app {
             flash: OdometerFlash::new(dp.FLASH),
             en_n: GatedEn::new(en_n, BoardStop),
             dir,
-            pulses: BoardStepPulses,
+            pulses: GatedPulses::new(BoardStepPulses, BoardStop),
             lock_in1: GatedHigh::new(lock_in1, BoardStop),
             lock_in2: GatedHigh::new(lock_in2, BoardStop),
             home,
@@ -726,7 +728,16 @@ mod app {
             cx.shared.kernel.lock(|k| k.configure(cfg, now));
             // What a reset must not lose (the flash snapshot waits for a rest).
             crash::journal_write(&ctrl.journal());
+            // The handshake with the E-STOP's edges as they are now: one no step has
+            // taken keeps MATED and READY low (the interrupt drove them low; issue 32's
+            // review). An edge between this snapshot and the write: its interrupt's
+            // MATED-low may have come before the write, so it is done again after.
+            let edges = ESTOP_EDGES.snapshot();
+            ctrl.set_plc(plc.dock.is_low(), plc.estop.is_high(), edges);
             plc.write(ctrl.handshake());
+            if ESTOP_EDGES.snapshot().edges != edges.edges {
+                estop_lock_and_mated_off();
+            }
         });
         rtic::pend(pac::Interrupt::SPI1);
     }
@@ -750,7 +761,15 @@ mod app {
                 return; // `control` pends us again after its next step
             }
             owner::apply_published(ctrl);
+            let modes = (ctrl.maintenance_mode(), ctrl.updating());
             owner::MAILBOX.serve(ctrl);
+            if modes != (ctrl.maintenance_mode(), ctrl.updating()) {
+                // A mode granted by the job (a login, an update begun): the control task
+                // writes the PLC outputs now, READY low before the console says so, not
+                // at the next step (it steps only when one is due; docs/board.md, "What
+                // holds between the steps", rule 3).
+                rtic::pend(pac::Interrupt::TIM2);
+            }
             // The flash's turn (at rest only: `Controller::at_rest`).
             let erases = OdometerFlash::erases();
             ctrl.background();
@@ -827,10 +846,13 @@ mod app {
         // The settings in force (the default ones if the stored were refused) for the
         // flash erase's responder too (`modbus.rs`).
         modbus::configure(&cx.local.server.settings());
-        // The unit's serial for Modbus device identification: the chip's unique ID.
+        // The unit's serial for Modbus device identification and `version`: the chip's
+        // unique ID.
         let serial_hex = unit_serial();
         let serial = core::str::from_utf8(&serial_hex).unwrap_or("");
+        cx.local.console.set_unit(serial);
         let mut stack_checked_us = 0u64;
+        let mut console_quiet_us = clock::now_us_low();
         loop {
             // Sleep until there is work: every interrupt that gives idle work sets
             // IDLE_WORK (the service after each run, at least once a sample period; the
@@ -841,9 +863,15 @@ mod app {
             // but the HX711's own pulse, and a DOUT edge at its start waits for all of
             // it). An interrupt after the unmasked check sets the flag; one during the
             // masked check stays pending and `wfi` returns at once.
-            let pending = cx.local.term.rx_pending()
-                || cx.local.modbus_line.rx_pending()
-                || cx.local.server.receiving();
+            // The time before a look that found the console's ring empty: a line read
+            // later was typed after it (its issue time, below).
+            let looked_us = clock::now_us_low();
+            let console_waiting = cx.local.term.rx_pending();
+            if !console_waiting {
+                console_quiet_us = looked_us;
+            }
+            let pending =
+                console_waiting || cx.local.modbus_line.rx_pending() || cx.local.server.receiving();
             let work = pending
                 || cortex_m::interrupt::free(|_| {
                     let w = IDLE_WORK.swap(false, Ordering::Relaxed);
@@ -879,8 +907,14 @@ mod app {
                 });
                 let t = clock::now_us();
                 if server.request_due(t) {
+                    // Issued when its first character began (a clear refused if an E-STOP
+                    // edge came after that: docs/board.md, "What holds between the steps").
+                    let issued = server.request_start_us() as u32;
                     mailbox.call(&mut |ctrl| {
-                        if let Some(reply) = server.poll(t, ctrl, serial) {
+                        ctrl.issued_at(Some(issued));
+                        let reply = server.poll(t, ctrl, serial);
+                        ctrl.issued_at(None);
+                        if let Some(reply) = reply {
                             line.send(reply);
                             // No flash work from now until the reply is out.
                             ctrl.set_bus_busy(true);
@@ -903,7 +937,9 @@ mod app {
                 let flash = core::cell::RefCell::new(update::UpdateFlash);
                 let key = &update::PUBLIC_KEY;
                 if let Some(out) = session.poll(term, &flash, key, now_ms) {
-                    mailbox.call(&mut |ctrl| {
+                    // Its records are written at once, before the restart: at rest with
+                    // the line free (`update::at_rest`).
+                    update::at_rest(&mut |ctrl| {
                         docking_logic::console::update::finish(console, ctrl, out, now_ms)
                     });
                     console.flush_output(term);
@@ -917,12 +953,24 @@ mod app {
             // login's PIN hash and the reply's formatting and sending without it.
             let (cmd_line, _) = console.read_line(term);
             if let Some(cmd_line) = cmd_line {
+                // Issued no later than the last look that found the console's ring empty
+                // (its end, the CR, came after that look): never later than it was typed.
+                // The read time less the line's time on the wire was later whenever idle
+                // read late (a Modbus job's wait for its window, an erase), and a clear
+                // typed before an E-STOP pulse ran after it (issue 32's review).
+                let issued = console_quiet_us;
                 mailbox.call(&mut |ctrl| {
+                    ctrl.issued_at(Some(issued));
                     console.run_line(ctrl, &cmd_line, now_ms);
+                    ctrl.issued_at(None);
                 });
                 console.finish(now_ms);
+                // A login that checked out: published first (only the mode's end goes
+                // through the flag, `owner.rs`), then granted by its own job before the
+                // console says so.
+                owner::MAINTENANCE.store(console.maintenance_active(now_ms), Ordering::Relaxed);
                 if console.store_due() {
-                    // A record the hash just made (`pin set`).
+                    // A login's grant, a record the hash just made (`pin set`).
                     mailbox.call(&mut |ctrl| console.store(ctrl, now_ms));
                 }
             }
@@ -933,7 +981,7 @@ mod app {
             }
             #[cfg(not(feature = "updater"))]
             let _ = session;
-            // What the service applies at its next run: the login, the line.
+            // What the service applies at its next run: the login's end, the line.
             owner::MAINTENANCE.store(console.maintenance_active(now_ms), Ordering::Relaxed);
             console.observe(owner::state_name(), now_ms);
         }

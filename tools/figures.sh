@@ -5,7 +5,8 @@
 # regenerates it).
 #
 #   bash tools/figures.sh            # about 7 minutes on 2 cores, after the builds
-#   bash tools/figures.sh --sweep    # also the full timing sweep (80 runs, ~30 min)
+#   bash tools/figures.sh --sweep    # also the full timing sweep (80 runs) and the
+#                                    # 200-seed first-boot cuts (tools/keep-up.sh --slow)
 #
 # The virtual board's table is measured twice: on this tree's image and on the image of
 # $FIGURES_BEFORE (default b20ffb8, the tree before issue 20), built from source in a
@@ -68,6 +69,12 @@ update_file_line=$(grep '^update file:' <<<"$size_out" || true)
 # The bootloader's swap and revert (issue 31), and a PLC polling through an odometer
 # sector move at the maximum erase time.
 swap_table=$($vb swap-time 2>/dev/null || echo "vboard swap-time failed")
+# The update's transfer against the line's limit (issue 35): the scene's check of it.
+pace() { $vb scene update --flash-timing "$1" --json 2>/dev/null |
+    python3 -c 'import json,sys; print(next((c["detail"] for c in json.load(sys.stdin)["checks"] if "pace" in c["name"]), "no pace check"))' ||
+    echo "vboard scene update failed"; }
+pace_typical=$(pace typical)
+pace_max=$(pace max)
 sector_json=$($vb scene sector-move --json 2>/dev/null || echo '{}')
 
 bench=$($hil bench --cycles 1000)
@@ -147,10 +154,23 @@ scene_row() { # model args...: one table row from `vboard scene overload --flood
     echo "$swap_table"
     echo '```'
     echo
+    echo "The update's transfer over the console, YMODEM-1K at 115 200 Bd 8N1 (11 520 B/s), the"
+    echo "release image's update file sent by the project's sender (\`vboard scene update --json\`,"
+    echo "its pace check; docs/update.md, \"dockctl\"):"
+    echo
+    echo "| flash times | the transfer |"
+    echo "|---|---|"
+    echo "| typical | $pace_typical |"
+    echo "| datasheet's maximum | $pace_max |"
+    echo
     echo "A PLC's master polling input registers every 100 ms through an odometer sector move"
     echo "at the maximum erase time (\`vboard scene sector-move --json\`; docs/modbus.md): $(field modbus_polls <<<"$sector_json") requests,"
     echo "$(field modbus_poll_busy <<<"$sector_json") answered busy (exception 06) during the erase, $(field modbus_poll_timeouts <<<"$sector_json") unanswered, the longest"
     echo "wait for a reply $(field modbus_reply_max_ms <<<"$sector_json") ms."
+    echo
+    echo "## Keeping up with real clients (issue 33: \`bash tools/keep-up.sh\`; \`--slow\` with \`--sweep\`)"
+    echo
+    if [ "$sweep" = 1 ]; then bash tools/keep-up.sh --slow; else bash tools/keep-up.sh; fi
     if [ "$sweep" = 1 ]; then
         echo
         echo "The worst case over seeds 1–10 and every model (\`vboard sweep --flood\`):"

@@ -439,6 +439,8 @@ pub struct AccuracyReport {
     pub fixed: Vec<FixedReport>,
     /// The wear estimate against cones that do not follow the model.
     pub estimate: EstimateStudy,
+    /// The wear band early in a cone's life (issue 36).
+    pub early: crate::early_life::EarlyComparison,
 }
 
 /// A cone's true wear law (the wear estimate's test cases), µm after `m` nominal
@@ -533,6 +535,10 @@ pub struct EstimateRow {
     pub band_um: f64,
     /// Share of seeds whose band holds the truth, %.
     pub inside_pct: f64,
+    /// The previous release's (7c11783, [`crate::previous_estimate`]) mean error, µm.
+    pub previous_err_um: f64,
+    /// Its mean band width, µm.
+    pub previous_band_um: f64,
 }
 
 /// The estimate study.
@@ -552,8 +558,16 @@ pub fn estimate_study() -> EstimateStudy {
         let model_err_um = (depth_f64_nm(ESTIMATE_AT as f64) / 1000.0 - truth).abs();
         for k in ESTIMATE_READINGS {
             let (mut err, mut band, mut inside) = (0.0, 0.0, 0);
+            let (mut prev_err, mut prev_band) = (0.0, 0.0);
             for seed in 0..ESTIMATE_SEEDS {
                 let r = law.readings(ESTIMATE_AT, seed);
+                let prev = crate::previous_estimate::Fit::new(&r[..k.min(r.len())]).at(
+                    (ESTIMATE_AT as u64) << 32,
+                    800_000,
+                    Material::ZQSn5_2,
+                );
+                prev_err += (prev.wear_nm as f64 / 1000.0 - truth).abs();
+                prev_band += (prev.high_nm - prev.low_nm) as f64 / 1000.0;
                 let est = Fit::new(&r[..k.min(r.len())]).at(
                     (ESTIMATE_AT as u64) << 32,
                     800_000,
@@ -576,6 +590,8 @@ pub fn estimate_study() -> EstimateStudy {
                 model_err_um,
                 band_um: band / n,
                 inside_pct: 100.0 * inside as f64 / n,
+                previous_err_um: prev_err / n,
+                previous_band_um: prev_band / n,
             });
         }
     }
@@ -617,6 +633,7 @@ pub fn run() -> AccuracyReport {
         rows,
         fixed,
         estimate: estimate_study(),
+        early: crate::early_life::early_life_study(crate::early_life::SEEDS, true),
     }
 }
 
@@ -652,13 +669,15 @@ impl AccuracyReport {
             .iter()
             .map(|r| {
                 format!(
-                    "{{\"law\":\"{}\",\"readings\":{},\"estimate_err_um\":{:.3},\"model_err_um\":{:.3},\"band_um\":{:.3},\"inside_pct\":{:.1}}}",
+                    "{{\"law\":\"{}\",\"readings\":{},\"estimate_err_um\":{:.3},\"model_err_um\":{:.3},\"band_um\":{:.3},\"inside_pct\":{:.1},\"previous_err_um\":{:.3},\"previous_band_um\":{:.3}}}",
                     r.law.name(),
                     r.readings,
                     r.estimate_err_um,
                     r.model_err_um,
                     r.band_um,
-                    r.inside_pct
+                    r.inside_pct,
+                    r.previous_err_um,
+                    r.previous_band_um
                 )
             })
             .collect();
@@ -667,8 +686,9 @@ impl AccuracyReport {
             self.estimate.update_us,
             est.join(",")
         );
+        let early = self.early.to_json();
         format!(
-            "{{\"exact_stroke_n_mm\":{},\"dither_counts\":{},\"rates\":[{}],\"fixed\":{{\"material\":\"{}\",\"reference_rate_sps\":{},\"perturb_ppm\":{},\"seed\":{},\"runs\":[{}]}}{est}}}",
+            "{{\"exact_stroke_n_mm\":{},\"dither_counts\":{},\"rates\":[{}],\"fixed\":{{\"material\":\"{}\",\"reference_rate_sps\":{},\"perturb_ppm\":{},\"seed\":{},\"runs\":[{}]}}{est},\"early_life\":{early}}}",
             EXACT_STROKE_N_MM,
             DITHER_COUNTS,
             rows.join(","),
@@ -744,22 +764,26 @@ impl AccuracyReport {
         s += &format!(
             "# wear estimate at {ESTIMATE_AT} cycles from the first k micrometer readings (one per 1 000 cycles, σ 3 µm, 1 µm resolution), mean over {ESTIMATE_SEEDS} seeds, against cones that follow other laws; the model alone beside it\n"
         );
-        s += "law           |  k | estimate err µm | model err µm | band µm | truth in band %\n";
+        s += "law           |  k | estimate err µm | model err µm | band µm | truth in band % | 7c11783: err µm | band µm | band now / then\n";
         for r in &self.estimate.rows {
             s += &format!(
-                "{:<13} | {:>2} | {:>15.1} | {:>12.1} | {:>7.1} | {:>15.0}\n",
+                "{:<13} | {:>2} | {:>15.1} | {:>12.1} | {:>7.1} | {:>15.0} | {:>15.1} | {:>7.1} | {:>15.2}\n",
                 r.law.name(),
                 r.readings,
                 r.estimate_err_um,
                 r.model_err_um,
                 r.band_um,
-                r.inside_pct
+                r.inside_pct,
+                r.previous_err_um,
+                r.previous_band_um,
+                r.band_um / r.previous_band_um
             );
         }
         s += &format!(
             "# one update (a fit over 30 readings): {:.1} µs on this host; on the Cortex-M4, instructions: `cd vboard && cargo run --release -- estimate-cost`\n",
             self.estimate.update_us
         );
+        s += &self.early.to_text();
         s
     }
 }

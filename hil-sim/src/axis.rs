@@ -115,6 +115,9 @@ pub struct AxisModel {
     edges: RefCell<Vec<EnableEdge>>,
     /// Total carriage travel, steps (both directions).
     travel_steps: Cell<u64>,
+    /// Pulses that reached the driver while it was off (either drive path): none should
+    /// (a pulse counted with the carriage still is a counted position drifting).
+    pulses_while_off: Cell<u64>,
     /// µm per step (cached).
     um_per_step: f64,
     /// Hard stops and end switch, steps.
@@ -234,6 +237,10 @@ impl AxisModel {
             self.travel_steps.set(self.travel_steps.get() + moved);
             return after;
         }
+        if !self.enabled.get() {
+            self.pulses_while_off
+                .set(self.pulses_while_off.get().saturating_add(n));
+        }
         before
     }
 
@@ -312,6 +319,7 @@ impl SimAxis {
             end_noise_reads: Cell::new(0),
             edges: RefCell::new(Vec::new()),
             travel_steps: Cell::new(0),
+            pulses_while_off: Cell::new(0),
             um_per_step: 1000.0 / cfg.steps_per_mm as f64,
             lo_steps: cfg.um_to_steps(-2_000) as i64,
             hi_steps: cfg.um_to_steps(cfg.end_switch_um + 2_000) as i64,
@@ -378,6 +386,11 @@ impl SimAxis {
     pub fn travel_um(&self) -> f64 {
         let m = self.now();
         m.travel_steps.get() as f64 * 1000.0 / m.cfg.steps_per_mm as f64
+    }
+
+    /// Pulses that reached the driver while it was off, so far (both drive paths).
+    pub fn pulses_while_off(&self) -> u64 {
+        self.now().pulses_while_off.get()
     }
 
     /// What the STEP/DIR/EN pins did so far (pin path).

@@ -709,7 +709,7 @@ impl Progress {
 /// Run the command line `args` (without the program name), writing to `out`.
 pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
     let Some((cmd, rest)) = args.split_first() else {
-        return err(USAGE);
+        return err(overview().trim_end());
     };
     if rest.iter().any(|a| a == "--help" || a == "-h") {
         if let Some((_, h)) = COMMAND_HELP.iter().find(|(c, _)| c == cmd) {
@@ -740,6 +740,9 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
             let _ = write!(out, "{}", overview());
             Ok(())
         }
-        other => err(format!("unknown command '{other}'; {USAGE}")),
+        other => err(format!(
+            "unknown command '{other}'\n{}",
+            overview().trim_end()
+        )),
     }
 }

@@ -229,11 +229,13 @@ impl LifeReport {
             .map(|p| {
                 let est = p.estimate.map_or(String::new(), |e| {
                     format!(
-                        ",\"wear_estimate_mm\":{},\"estimate_low_mm\":{},\"estimate_high_mm\":{},\"remaining_estimate_cycles\":{}",
+                        ",\"wear_estimate_mm\":{},\"estimate_low_mm\":{},\"estimate_high_mm\":{},\"remaining_estimate_cycles\":{},\"remaining_estimate_low_cycles\":{},\"remaining_estimate_high_cycles\":{}",
                         mm(e.wear_nm),
                         mm(e.low_nm),
                         mm(e.high_nm),
-                        e.remaining_cycles
+                        e.remaining_cycles,
+                        e.remaining_low_cycles,
+                        e.remaining_high_cycles
                     )
                 });
                 format!(
@@ -263,7 +265,7 @@ impl LifeReport {
     pub fn to_text(&self) -> String {
         let estimates = self.points.iter().any(|p| p.estimate.is_some());
         let mut s = String::from(if estimates {
-            "cycle,wear_mm,remaining_cycles,wear_estimate_mm,estimate_low_mm,estimate_high_mm,remaining_estimate_cycles\n"
+            "cycle,wear_mm,remaining_cycles,wear_estimate_mm,estimate_low_mm,estimate_high_mm,remaining_estimate_cycles,remaining_estimate_low_cycles,remaining_estimate_high_cycles\n"
         } else {
             "cycle,wear_mm,remaining_cycles\n"
         });
@@ -271,11 +273,13 @@ impl LifeReport {
             s += &format!("{},{},{}", p.cycle, mm(p.wear_nm), p.remaining_cycles);
             if let Some(e) = p.estimate {
                 s += &format!(
-                    ",{},{},{},{}",
+                    ",{},{},{},{},{},{}",
                     mm(e.wear_nm),
                     mm(e.low_nm),
                     mm(e.high_nm),
-                    e.remaining_cycles
+                    e.remaining_cycles,
+                    e.remaining_low_cycles,
+                    e.remaining_high_cycles
                 );
             }
             s += "\n";

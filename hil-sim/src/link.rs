@@ -42,6 +42,11 @@ impl Pty {
                 return Err(os_err("posix_openpt"));
             }
             let master = std::fs::File::from_raw_fd(m);
+            // Close-on-exec, as every fd std opens: a program this process starts must
+            // not hold the pty open (the far end would never see it close).
+            if libc::fcntl(m, libc::F_SETFD, libc::FD_CLOEXEC) != 0 {
+                return Err(os_err("fcntl FD_CLOEXEC"));
+            }
             if libc::grantpt(m) != 0 || libc::unlockpt(m) != 0 {
                 return Err(os_err("grantpt/unlockpt"));
             }
@@ -52,7 +57,10 @@ impl Pty {
             let path = std::ffi::CStr::from_ptr(buf.as_ptr())
                 .to_string_lossy()
                 .into_owned();
-            let s = libc::open(buf.as_ptr(), libc::O_RDWR | libc::O_NOCTTY);
+            let s = libc::open(
+                buf.as_ptr(),
+                libc::O_RDWR | libc::O_NOCTTY | libc::O_CLOEXEC,
+            );
             if s < 0 {
                 return Err(os_err("open slave"));
             }

@@ -9,7 +9,7 @@ use docking_logic::controller::{Bsp, Controller, ControllerConfig, Parts};
 use docking_logic::hal::{LoadCellAdc, StepPulses, StopLatch, Watchdog};
 use docking_logic::hx711::{Calibration, Gain, Hx711};
 use docking_logic::profile::STROKE_UM;
-use docking_logic::safety::{GatedEn, GatedHigh, SafetyKernel};
+use docking_logic::safety::{GatedEn, GatedHigh, GatedPulses, SafetyKernel};
 
 use crate::axis::{AxisPin, AxisPulses, EndSwitch, HomeSwitch, SimAxis};
 use crate::clock::SimClock;
@@ -127,6 +127,82 @@ pub struct SimStop {
     pulses: Rc<RefCell<AxisPulses>>,
     /// (stops so far, latched)
     state: Rc<Cell<(u32, bool)>>,
+    /// Something to do at a look at the latch (see [`LatchHook`]).
+    hook: LatchHook,
+}
+
+/// An action run **inside** a control step: at the `n`-th look at the stop latch from
+/// now (the step's gate check, each gated pin's checks before and after its write, the
+/// step rate's) or write of a motor pin (EN, DIR, the lock's bridge: [`Watched`]), the
+/// instants where a stop from an interrupt would land between a check and a write on
+/// the board. The rig has no interrupts; this is how a host test puts an
+/// event there (`host-tests/tests/interleavings.rs`: an E-STOP pulse inside a step).
+#[derive(Clone, Default)]
+pub struct LatchHook(Rc<LatchHookState>);
+
+/// Type of a [`LatchHook`]'s action.
+type LatchAction = Box<dyn FnMut()>;
+
+#[derive(Default)]
+struct LatchHookState {
+    /// Looks at the latch still to come before the action (0: none armed).
+    countdown: Cell<u32>,
+    action: RefCell<Option<LatchAction>>,
+}
+
+impl LatchHook {
+    /// Run `action` at the `n`-th look at the latch from now (`n` ≥ 1).
+    pub fn arm(&self, n: u32, action: impl FnMut() + 'static) {
+        self.0.countdown.set(n.max(1));
+        *self.0.action.borrow_mut() = Some(Box::new(action));
+    }
+
+    /// Forget an action not run yet; whether one was armed.
+    pub fn disarm(&self) -> bool {
+        self.0.countdown.set(0);
+        self.0.action.borrow_mut().take().is_some()
+    }
+
+    /// A look at the latch.
+    fn look(&self) {
+        let n = self.0.countdown.get();
+        if n == 0 {
+            return;
+        }
+        self.0.countdown.set(n - 1);
+        if n == 1 {
+            let action = self.0.action.borrow_mut().take();
+            if let Some(mut f) = action {
+                f();
+            }
+        }
+    }
+}
+
+/// A motor output whose every write is first a look for the stop latch's [`LatchHook`]:
+/// an interrupt just before the write.
+pub struct Watched<P>(P, LatchHook);
+
+impl<P> Watched<P> {
+    /// `pin`, watched by `stop`'s hook.
+    pub fn new(pin: P, stop: &SimStop) -> Self {
+        Self(pin, stop.hook.clone())
+    }
+}
+
+impl<P: embedded_hal::digital::ErrorType> embedded_hal::digital::ErrorType for Watched<P> {
+    type Error = P::Error;
+}
+
+impl<P: embedded_hal::digital::OutputPin> embedded_hal::digital::OutputPin for Watched<P> {
+    fn set_low(&mut self) -> Result<(), Self::Error> {
+        self.1.look();
+        self.0.set_low()
+    }
+    fn set_high(&mut self) -> Result<(), Self::Error> {
+        self.1.look();
+        self.0.set_high()
+    }
 }
 
 impl SimStop {
@@ -136,7 +212,13 @@ impl SimStop {
             en_n: Rc::new(RefCell::new(axis.enable_n())),
             pulses: Rc::new(RefCell::new(axis.pulses())),
             state: Rc::new(Cell::new((0, false))),
+            hook: LatchHook::default(),
         }
+    }
+
+    /// The hook run at a look at the latch.
+    pub fn hook(&self) -> &LatchHook {
+        &self.hook
     }
 }
 
@@ -152,6 +234,7 @@ impl StopLatch for SimStop {
         self.state.get().0
     }
     fn latched(&self) -> bool {
+        self.hook.look();
         self.state.get().1
     }
     fn rearm(&mut self, seen: u32) -> bool {
@@ -164,11 +247,11 @@ impl StopLatch for SimStop {
 }
 
 impl Bsp for SimBsp {
-    type EnN = GatedEn<AxisPin, SimStop>;
-    type Dir = AxisPin;
-    type Pulses = AxisPulses;
-    type LockIn1 = GatedHigh<LockPin, SimStop>;
-    type LockIn2 = GatedHigh<LockPin, SimStop>;
+    type EnN = GatedEn<Watched<AxisPin>, SimStop>;
+    type Dir = Watched<AxisPin>;
+    type Pulses = GatedPulses<AxisPulses, SimStop>;
+    type LockIn1 = GatedHigh<Watched<LockPin>, SimStop>;
+    type LockIn2 = GatedHigh<Watched<LockPin>, SimStop>;
     type Home = HomeSwitch;
     type End = EndSwitch;
     type Locked = LockedSwitch;
@@ -783,7 +866,9 @@ pub struct Rig {
     pub estop_line: SimLine,
     estop_was_open: bool,
     /// The board's E-STOP interrupt's record of edges (the firmware's own type).
-    pub estop_edges: docking_logic::safety::EstopEdges,
+    pub estop_edges: Rc<docking_logic::safety::EstopEdges>,
+    /// What the rig was built with (a reset builds the controller again from it).
+    opts: RigOptions,
     /// The MCU's option bytes (the BOR level).
     pub options: SimOptions,
     /// What the last console poll did.
@@ -797,6 +882,14 @@ pub const CONSOLE_NS_PER_BYTE: u64 = 2_000;
 pub const CONSOLE_NS_PER_COMMAND: u64 = 50_000;
 /// See [`CONSOLE_NS_PER_BYTE`].
 pub const CONSOLE_NS_PER_PIN_HASH: u64 = 3_000_000;
+
+/// What the board's E-STOP interrupt does to the lock besides the stop: both bridge
+/// inputs low, now (`estop_lock_and_mated_off` in `src/board.rs`).
+fn estop_lock_off(lock: &SimLock) {
+    use embedded_hal::digital::OutputPin;
+    let _ = lock.in1().set_low();
+    let _ = lock.in2().set_low();
+}
 
 /// The calibration of the simulated cell's default front end (offset 31 000 counts,
 /// 8 590 counts/N): mN per count in Q32.32.
@@ -850,8 +943,101 @@ impl Rig {
         if opts.commissioned {
             commission(&flash, &hx_cfg);
         }
+        let mcu = Mcu::on(
+            &opts,
+            &clock,
+            &axis,
+            &lock,
+            &hx,
+            &hx_cfg,
+            (&flash, &sig_flash),
+        );
+        Self {
+            clock,
+            axis,
+            lock,
+            hx,
+            wdg: mcu.wdg,
+            script,
+            ctrl: mcu.ctrl,
+            kernel: mcu.kernel,
+            stop: mcu.stop,
+            conversions,
+            flash,
+            sig_flash,
+            period_ns: 1_000_000_000 / opts.rate_sps.max(1) as u64,
+            console: mcu.console,
+            term: SimConsole::new(),
+            console_enabled: false,
+            dock_line: dock_request,
+            estop_line: estop,
+            estop_was_open: false,
+            estop_edges: Rc::new(docking_logic::safety::EstopEdges::new()),
+            opts,
+            options: mcu.options,
+            last_console: ConsolePoll::default(),
+        }
+    }
+
+    /// A reset of the MCU (`cause`: a pin reset, the watchdog…) with the machine where
+    /// it is: the axis, the lock, the load cell, the lines and the flashes stay;
+    /// the controller, its kernel and the console start again, and take back from the RAM
+    /// journal the counters the flash does not hold yet (as the board's journal, which
+    /// a reset does not clear: `src/board/crash.rs`). The E-STOP interrupt's record
+    /// starts again from zero (the board's is in RAM the reset initialises). The option
+    /// bytes (BOR) stay.
+    pub fn reset(&mut self, cause: docking_logic::diag::ResetCause) {
+        let journal = self.ctrl.journal();
+        let hx_cfg = self.hx.config();
+        let mut mcu = Mcu::on(
+            &self.opts,
+            &self.clock,
+            &self.axis,
+            &self.lock,
+            &self.hx,
+            &hx_cfg,
+            (&self.flash, &self.sig_flash),
+        );
+        mcu.ctrl.boot(cause, None, &[journal]);
+        mcu.options = self.options.clone();
+        self.wdg = mcu.wdg;
+        self.ctrl = mcu.ctrl;
+        self.kernel = mcu.kernel;
+        self.stop = mcu.stop;
+        self.console = mcu.console;
+        self.estop_edges = Rc::new(docking_logic::safety::EstopEdges::new());
+        // The interrupt sees the input as it is from now on (no edge for its level).
+        self.estop_was_open = self.estop_line.is_high();
+    }
+}
+
+/// The MCU's side of a rig: the controller on the machine's devices, its safety kernel,
+/// the console, and what they are built with.
+struct Mcu {
+    ctrl: Controller<SimBsp>,
+    kernel: SafetyKernel<SimAdc>,
+    stop: SimStop,
+    wdg: SimWatchdog,
+    console: Console,
+    options: SimOptions,
+}
+
+impl Mcu {
+    /// Built at the clock's now, on the devices of a machine and its odometer and
+    /// signature flashes.
+    fn on(
+        opts: &RigOptions,
+        clock: &SimClock,
+        axis: &SimAxis,
+        lock: &SimLock,
+        hx: &SimHx711<ProfileForce>,
+        hx_cfg: &Hx711Config,
+        (flash, sig_flash): (&SharedFlash, &SharedFlash),
+    ) -> Self {
+        let (clock, axis, lock, hx, hx_cfg, flash) = (clock, axis, lock, hx, *hx_cfg, flash);
+        let now_us = clock.now_ns() / 1_000;
         let wdg = SimWatchdog::new(clock.clone());
-        let stop = SimStop::new(&axis);
+        let stop = SimStop::new(axis);
         let adc = match opts.adc {
             AdcMode::Word => SimAdc::Word(hx.clone()),
             AdcMode::Pins => match Hx711::new(hx.dout(), hx.pd_sck(), clock.clone(), Gain::A128) {
@@ -861,11 +1047,11 @@ impl Rig {
         };
         let options = SimOptions::default();
         let parts = Parts::<SimBsp> {
-            en_n: GatedEn::new(axis.enable_n(), stop.clone()),
-            dir: axis.dir(),
-            pulses: axis.pulses(),
-            lock_in1: GatedHigh::new(lock.in1(), stop.clone()),
-            lock_in2: GatedHigh::new(lock.in2(), stop.clone()),
+            en_n: GatedEn::new(Watched::new(axis.enable_n(), &stop), stop.clone()),
+            dir: Watched::new(axis.dir(), &stop),
+            pulses: GatedPulses::new(axis.pulses(), stop.clone()),
+            lock_in1: GatedHigh::new(Watched::new(lock.in1(), &stop), stop.clone()),
+            lock_in2: GatedHigh::new(Watched::new(lock.in2(), &stop), stop.clone()),
             home: axis.home_switch_line(),
             end: axis.end_switch_line(),
             locked: lock.locked_switch_line(),
@@ -899,38 +1085,25 @@ impl Rig {
             Ok(c) => c,
             Err(e) => unreachable!("simulated pins are infallible: {e:?}"),
         };
-        let mut kernel = SafetyKernel::new(adc, cfg.guard, opts.rate_sps, ctrl.calibration(), 0);
-        kernel.configure(ctrl.kernel_config(), 0);
+        let mut kernel =
+            SafetyKernel::new(adc, cfg.guard, opts.rate_sps, ctrl.calibration(), now_us);
+        kernel.configure(ctrl.kernel_config(), now_us);
         // The board's greeting at boot (a terminal on `hil-sim serve` sees it first).
         let mut console = Console::new([0x5A; 32]);
-        console.observe(ctrl.state().name(), 0);
+        console.observe(ctrl.state().name(), now_us / 1_000);
         console.banner("power_on");
         Self {
-            clock,
-            axis,
-            lock,
-            hx,
-            wdg,
-            script,
             ctrl,
             kernel,
             stop,
-            conversions,
-            flash,
-            sig_flash,
-            period_ns: 1_000_000_000 / opts.rate_sps.max(1) as u64,
+            wdg,
             console,
-            term: SimConsole::new(),
-            console_enabled: false,
-            dock_line: dock_request,
-            estop_line: estop,
-            estop_was_open: false,
-            estop_edges: docking_logic::safety::EstopEdges::new(),
             options,
-            last_console: ConsolePoll::default(),
         }
     }
+}
 
+impl Rig {
     /// Advance virtual time to the next event (a conversion, or a sample period) and run
     /// what the board runs there: the safety kernel on the sample (it stops the
     /// propulsion itself if it must), then the control step, then the kernel's new
@@ -997,7 +1170,46 @@ impl Rig {
     /// 32-bit µs count).
     fn estop_edge(&mut self, open: bool, at_us: u64) {
         let n = self.stop.stop_now();
+        estop_lock_off(&self.lock);
         self.estop_edges.on_edge(n, open, at_us as u32);
+    }
+
+    /// An E-STOP pulse **inside** the next control step, at its `n`-th look at the stop
+    /// latch (see [`LatchHook`]): both edges there, each stopping as the board's
+    /// interrupt does. The rig has no interrupts; on the board this is a pulse landing
+    /// between the step's check of the latch and a write it guards. `false` from
+    /// [`Self::disarm_inside_step`] afterwards: it ran.
+    pub fn estop_pulse_inside_next_step(&mut self, n: u32) {
+        let mut stop = self.stop.clone();
+        let edges = self.estop_edges.clone();
+        let lock = self.lock.clone();
+        let clock = self.clock.clone();
+        self.stop.hook().arm(n, move || {
+            let t = (clock.now_ns() / 1_000) as u32;
+            for open in [true, false] {
+                let k = stop.stop_now();
+                estop_lock_off(&lock);
+                edges.on_edge(k, open, t);
+            }
+        });
+    }
+
+    /// Forget an action [`Self::estop_pulse_inside_next_step`] armed that has not run;
+    /// whether one was still armed.
+    pub fn disarm_inside_step(&mut self) -> bool {
+        self.stop.hook().disarm()
+    }
+
+    /// The E-STOP input opens (`true`) or closes, now: the board's interrupt at its edge
+    /// (stop, lock off, the edge counted), not at the next tick as [`Self::tick`] sees
+    /// a change of [`Self::estop_line`].
+    pub fn estop_input(&mut self, open: bool) {
+        self.estop_line.set(open);
+        if open != self.estop_was_open {
+            let now_us = self.clock.now_ns() / 1_000;
+            self.estop_edge(open, now_us);
+            self.estop_was_open = open;
+        }
     }
 
     /// An open pulse of `open_us` on a closed E-STOP input, shorter than a tick: the

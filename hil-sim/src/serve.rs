@@ -149,8 +149,13 @@ pub fn plc_line(h: &Handshake) -> String {
 /// Control steps after a PLC input change before `plc` answers (DOCK's debounce).
 const SETTLE_STEPS: u64 = 2;
 
-/// Machine time the demo cycling waits after a console command, ns.
-const DEMO_PAUSE_NS: u64 = 5_000_000_000;
+/// Machine time the demo cycling waits after anything typed on the console, ns: a
+/// technician commissioning the machine (`pin set` is refused while a docking moves)
+/// finds it at rest once the cycle in progress ends.
+const DEMO_PAUSE_NS: u64 = 60_000_000_000;
+
+/// The demo's rest between two cycles, machine time, ns: a person may act then.
+const DEMO_REST_NS: u64 = 10_000_000_000;
 
 /// Open the Modbus link (a TCP client that comes while another is connected is closed
 /// with no text: on a bus it would be noise); its address is printed as
@@ -226,12 +231,17 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
     rig.ctrl
         .boot(docking_logic::diag::ResetCause::PowerOn, None, &[]);
     rig.console_enabled = true;
+    // The unit's serial, as `version` and device identification name it.
+    rig.console.set_unit(UNIT_SERIAL);
     driver.setup(rig.devices(), 1, opts.rate_sps, 1_000);
     // Control steps run, and the count at the last PLC input change.
     let mut steps: u64 = 0;
     let mut changed_at: Option<u64> = None;
     let start = Instant::now();
     let mut last_command_ns: Option<u64> = None;
+    // When the machine came to rest (the demo rests there), and when a byte was typed.
+    let mut idle_since_ns: Option<u64> = None;
+    let mut typed = false;
     loop {
         let wall = start.elapsed().as_secs_f64();
         if opts.duration_s.is_some_and(|d| wall >= d) {
@@ -276,12 +286,22 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
             // maintenance mode (a console `dock` stays docked until `undock`), and for
             // a while after any command (a `pin set` finds the machine at rest).
             let now_ns = rig.clock.now_ns();
-            if rig.last_console.commands > 0 {
+            if rig.last_console.commands > 0 || std::mem::take(&mut typed) {
                 last_command_ns = Some(now_ns);
             }
             let technician = rig.console.maintenance_active(now_ns / 1_000_000)
                 || last_command_ns.is_some_and(|t| now_ns < t + DEMO_PAUSE_NS);
-            if auto_cycles && !technician && st.state == State::Idle && !rig.ctrl.persist_pending()
+            if st.state == State::Idle {
+                idle_since_ns.get_or_insert(now_ns);
+            } else {
+                idle_since_ns = None;
+            }
+            let rested = idle_since_ns.is_some_and(|t| now_ns >= t + DEMO_REST_NS);
+            if auto_cycles
+                && !technician
+                && rested
+                && st.state == State::Idle
+                && !rig.ctrl.persist_pending()
             {
                 rig.ctrl.request(Request::StartCycle);
             }
@@ -298,6 +318,7 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
         let room = RX_RING.saturating_sub(rig.term.rx_pending());
         if room > 0 {
             let bytes = bridge.read(room);
+            typed |= !bytes.is_empty();
             rig.term.send(&bytes);
         }
         let output = rig.term.take_output();

@@ -75,176 +75,69 @@ pub fn signed_file(image: &[u8], seed: &[u8; 32]) -> Vec<u8> {
     f
 }
 
-// The protocol's bytes are the receiver's (one definition); the CRC below is the
-// sender's own, so that a mistake in the receiver's table is not also the sender's.
-use docking_logic::ymodem::{ACK, C, CAN, EOT, NAK, SOH, STX};
+pub use docking_logic::ymodem::SendState;
+use docking_logic::ymodem::{Sender, PACKET_MAX};
 
-/// Where the sender stands.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SendState {
-    /// Waiting for the receiver's first 'C'.
-    Start,
-    /// Block 0 sent: waiting for ACK (then 'C').
-    Header,
-    /// Waiting for the 'C' after block 0's ACK.
-    HeaderC,
-    /// Block `n` sent.
-    Block(usize),
-    /// EOT sent (first or second).
-    Eot(u8),
-    /// The closing empty block 0 sent.
-    Close,
-    /// Finished (the receiver acknowledged the end).
-    Done,
-    /// The receiver cancelled.
-    Cancelled,
-}
-
-/// A YMODEM-1K sender of one file (lrzsz's `sb -k`): 1024-byte blocks (STX), CRC-16,
-/// the file's name and size in block 0, EOT twice, an empty block 0 to end the batch.
+/// A YMODEM-1K sender of one file (lrzsz's `sb -k`), owning its file: the project's
+/// sender ([`docking_logic::ymodem::Sender`], beside the receiver and sharing its
+/// constants; `dockctl update` sends with it too) with the packets it builds returned
+/// as vectors.
 pub struct YmodemSender {
-    name: String,
+    inner: Sender,
     data: Vec<u8>,
-    /// Where it stands.
+    /// Where it stands (as [`Sender::state`] after the last call).
     pub state: SendState,
-    /// Blocks (re)sent on a NAK.
+    /// Packets sent again (on a NAK, a repeated 'C' or a time-out).
     pub retries: u32,
-    can: bool,
 }
 
 impl YmodemSender {
     /// A sender of `data` as file `name`.
     pub fn new(name: &str, data: Vec<u8>) -> Self {
+        let inner = Sender::new(name, data.len() as u32);
         Self {
-            name: name.to_string(),
-            data,
-            state: SendState::Start,
+            state: inner.state(),
             retries: 0,
-            can: false,
+            inner,
+            data,
         }
     }
 
-    fn blocks(&self) -> usize {
-        self.data.len().div_ceil(1024)
-    }
-
-    fn packet(blk: u8, data: &[u8], len: usize, pad: u8) -> Vec<u8> {
-        let mut d = data.to_vec();
-        d.resize(len, pad);
-        let mut p = vec![if len == 128 { SOH } else { STX }, blk, !blk];
-        p.extend_from_slice(&d);
-        p.extend_from_slice(&crc16_xmodem(&d).to_be_bytes());
-        p
-    }
-
-    fn header(&self) -> Vec<u8> {
-        let mut h = self.name.as_bytes().to_vec();
-        h.push(0);
-        h.extend_from_slice(format!("{} 0 100644", self.data.len()).as_bytes());
-        Self::packet(0, &h, 128, 0)
-    }
-
-    fn block(&self, n: usize) -> Vec<u8> {
-        let from = (n - 1) * 1024;
-        let to = (from + 1024).min(self.data.len());
-        Self::packet(n as u8, &self.data[from..to], 1024, 0x1A)
+    /// What a call built, and the state after it.
+    fn sent(&mut self, out: &[u8; PACKET_MAX], n: usize) -> Vec<u8> {
+        self.state = self.inner.state();
+        self.retries = self.inner.retries();
+        out[..n].to_vec()
     }
 
     /// Whether the transfer is over (done or cancelled).
     pub fn finished(&self) -> bool {
-        matches!(self.state, SendState::Done | SendState::Cancelled)
+        self.inner.finished()
     }
 
     /// Bytes of the file acknowledged so far.
     pub fn acknowledged(&self) -> usize {
-        match self.state {
-            SendState::Block(n) => ((n - 1) * 1024).min(self.data.len()),
-            SendState::Eot(_) | SendState::Close | SendState::Done => self.data.len(),
-            _ => 0,
-        }
+        self.inner.acknowledged() as usize
     }
 
     /// The sender's own timeout ran out (lrzsz's `sb`: 10 s without an answer): the
     /// packet it waits on, again; nothing while it waits for the receiver's 'C'.
     pub fn on_timeout(&mut self) -> Vec<u8> {
-        match self.state {
-            SendState::Header => {
-                self.retries += 1;
-                self.header()
-            }
-            SendState::Block(n) => {
-                self.retries += 1;
-                self.block(n)
-            }
-            SendState::Eot(_) => vec![EOT],
-            _ => Vec::new(),
-        }
+        let mut out = [0u8; PACKET_MAX];
+        let n = self.inner.on_timeout(&self.data, &mut out);
+        self.sent(&out, n)
     }
 
     /// One byte from the receiver; what to send back.
     pub fn on_byte(&mut self, b: u8) -> Vec<u8> {
-        if b == CAN {
-            if self.can {
-                self.state = SendState::Cancelled;
-            }
-            self.can = true;
-            return Vec::new();
-        }
-        self.can = false;
-        match (self.state, b) {
-            (SendState::Start, C) => {
-                self.state = SendState::Header;
-                self.header()
-            }
-            (SendState::Header, ACK) => {
-                self.state = SendState::HeaderC;
-                Vec::new()
-            }
-            (SendState::Header, NAK | C) => {
-                self.retries += 1;
-                self.header()
-            }
-            (SendState::HeaderC, C) => {
-                if self.blocks() == 0 {
-                    self.state = SendState::Eot(1);
-                    return vec![EOT];
-                }
-                self.state = SendState::Block(1);
-                self.block(1)
-            }
-            (SendState::Block(n), ACK) => {
-                if n >= self.blocks() {
-                    self.state = SendState::Eot(1);
-                    vec![EOT]
-                } else {
-                    self.state = SendState::Block(n + 1);
-                    self.block(n + 1)
-                }
-            }
-            (SendState::Block(n), NAK) => {
-                self.retries += 1;
-                self.block(n)
-            }
-            (SendState::Eot(1), NAK) => {
-                self.state = SendState::Eot(2);
-                vec![EOT]
-            }
-            (SendState::Eot(_), ACK) => {
-                self.state = SendState::Close;
-                Vec::new()
-            }
-            (SendState::Close, C) => Self::packet(0, &[], 128, 0),
-            (SendState::Close, ACK) => {
-                self.state = SendState::Done;
-                Vec::new()
-            }
-            _ => Vec::new(),
-        }
+        let mut out = [0u8; PACKET_MAX];
+        let n = self.inner.on_byte(b, &self.data, &mut out);
+        self.sent(&out, n)
     }
 }
 
-/// CRC-16/XMODEM (poly 0x1021, init 0), bit by bit: the sender's own, not the
-/// receiver's table.
+/// CRC-16/XMODEM (poly 0x1021, init 0), bit by bit: not the logic crate's table, so
+/// the tests check the shared sender's packets against a CRC of their own.
 pub fn crc16_xmodem(data: &[u8]) -> u16 {
     let mut crc: u16 = 0;
     for &b in data {
@@ -278,5 +171,29 @@ mod tests {
     #[test]
     fn crc_matches_the_xmodem_check_value() {
         assert_eq!(crc16_xmodem(b"123456789"), 0x31C3);
+    }
+
+    /// The shared sender's blocks carry the file and a CRC that this bit-by-bit one
+    /// agrees with (the sender's is the receiver's table: a mistake there would pass a
+    /// sender-to-receiver test).
+    #[test]
+    fn the_shared_senders_blocks_carry_this_crc() {
+        use docking_logic::ymodem::{ACK, C, STX};
+        let file: Vec<u8> = (0..2500u32).map(|i| (i * 7 + i / 3) as u8).collect();
+        let mut s = YmodemSender::new("f", file.clone());
+        let b0 = s.on_byte(C);
+        assert_eq!(b0.len(), 133);
+        assert_eq!(crc16_xmodem(&b0[3..131]).to_be_bytes(), [b0[131], b0[132]]);
+        assert!(s.on_byte(ACK).is_empty());
+        let mut got = Vec::new();
+        let mut p = s.on_byte(C);
+        while p.first() == Some(&STX) {
+            assert_eq!(p.len(), 1029);
+            assert_eq!(crc16_xmodem(&p[3..1027]).to_be_bytes(), [p[1027], p[1028]]);
+            got.extend_from_slice(&p[3..1027]);
+            p = s.on_byte(ACK);
+        }
+        assert_eq!(&got[..file.len()], &file[..]);
+        assert_eq!(s.acknowledged(), file.len());
     }
 }

@@ -152,6 +152,7 @@ fn report_formats() {
             fixed_vs_f64_from(W_NOM_Q1, 1_000_000),
         ],
         estimate: estimate_study(),
+        early: hil_sim::early_life::early_life_study(2, true),
     };
     let json = report.to_json();
     assert!(!json.contains('\n'), "{json}");

@@ -137,7 +137,15 @@ fn life_replays_a_technicians_readings() {
         field(p400, "wear_mm") < est,
         "the model alone is below the cone"
     );
-    field(p400, "remaining_estimate_cycles");
+    let (left_lo, left, left_hi) = (
+        field(p400, "remaining_estimate_low_cycles"),
+        field(p400, "remaining_estimate_cycles"),
+        field(p400, "remaining_estimate_high_cycles"),
+    );
+    assert!(
+        left_lo <= left && left <= left_hi,
+        "{left_lo} {left} {left_hi}"
+    );
     // The text table carries the same columns.
     let (code, out, _) = run(&[
         "life",
@@ -150,7 +158,7 @@ fn life_replays_a_technicians_readings() {
     ]);
     assert_eq!(code, 0);
     assert!(out.starts_with(
-        "cycle,wear_mm,remaining_cycles,wear_estimate_mm,estimate_low_mm,estimate_high_mm,remaining_estimate_cycles\n100,"
+        "cycle,wear_mm,remaining_cycles,wear_estimate_mm,estimate_low_mm,estimate_high_mm,remaining_estimate_cycles,remaining_estimate_low_cycles,remaining_estimate_high_cycles\n100,"
     ));
 }
 
@@ -227,7 +235,7 @@ fn life_computes_what_it_computed_before_the_speed_up() {
                 readings,
                 "--json",
             ][..],
-            r#"{"material":"zqsn5-2","points":[{"cycle":1,"wear_mm":0.003018,"remaining_cycles":45267,"wear_estimate_mm":0.003018,"estimate_low_mm":0.000000,"estimate_high_mm":0.048755,"remaining_estimate_cycles":45267},{"cycle":1000,"wear_mm":0.173505,"remaining_cycles":44268,"wear_estimate_mm":0.225902,"estimate_low_mm":0.218359,"estimate_high_mm":0.233686,"remaining_estimate_cycles":23043}],"not_reached":[],"life_cycles":45268,"limit_reached":false,"cycles_run":1000,"erases_per_sector_max":0,"faults":0,"sim_time_s":58240.3}"#,
+            r#"{"material":"zqsn5-2","points":[{"cycle":1,"wear_mm":0.003018,"remaining_cycles":45267,"wear_estimate_mm":0.003018,"estimate_low_mm":0.000000,"estimate_high_mm":0.048755,"remaining_estimate_cycles":45267,"remaining_estimate_low_cycles":6299,"remaining_estimate_high_cycles":1642125},{"cycle":1000,"wear_mm":0.173505,"remaining_cycles":44268,"wear_estimate_mm":0.225902,"estimate_low_mm":0.218359,"estimate_high_mm":0.233686,"remaining_estimate_cycles":23043,"remaining_estimate_low_cycles":6687,"remaining_estimate_high_cycles":4294967295}],"not_reached":[],"life_cycles":45268,"limit_reached":false,"cycles_run":1000,"erases_per_sector_max":0,"faults":0,"sim_time_s":58240.3}"#,
         ),
     ] {
         let (code, out, err) = run(args);

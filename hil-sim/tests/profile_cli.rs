@@ -63,8 +63,8 @@ fn bad_arguments_get_one_line_and_exit_2() {
         &["profile", "--rate"],
         &["profile", "--stroke", "sideways"],
         &["profile", "--bogus", "1"],
-        &["frobnicate"],
-        &[],
+        // No command or an unknown one: the commands, one a line
+        // (scene_cli.rs, `no_command_or_an_unknown_one_prints_the_commands_one_a_line`).
     ] {
         usage_error(args);
     }

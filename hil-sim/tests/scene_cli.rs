@@ -42,6 +42,24 @@ fn bad_scene_arguments_exit_2_with_one_line() {
     }
 }
 
+/// `hil-sim` with no command, or an unknown one, printed its usage as one line of
+/// 1,200 characters: it is one command a line, as `--help` has it.
+#[test]
+fn no_command_or_an_unknown_one_prints_the_commands_one_a_line() {
+    for args in [&[][..], &["fly"]] {
+        let (code, out, err) = run(args);
+        assert_eq!(code, 2, "{args:?}");
+        assert!(out.is_empty(), "{out}");
+        let lines: Vec<&str> = err.lines().collect();
+        assert!(lines.len() >= 9, "{err}");
+        assert!(lines.iter().all(|l| l.len() < 160), "{err}");
+        assert!(
+            lines.iter().any(|l| l.trim_start().starts_with("serve ")),
+            "{err}"
+        );
+    }
+}
+
 #[test]
 fn bench_reports_figures() {
     let (code, out, _) = run(&["bench", "--cycles", "5"]);

@@ -102,7 +102,7 @@ impl<W: Write> Terminal<W> {
 fn check_wear(term: &mut Terminal<impl Write>) {
     let text = term.ask("wear");
     assert!(
-        text.starts_with("cone=1 material=zqsn5-2 serial= cycles="),
+        text.starts_with("cone=1 material=zqsn5-2 serial=none cycles="),
         "{text}"
     );
     assert!(

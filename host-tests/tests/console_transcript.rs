@@ -8,6 +8,18 @@
 //! record the transcript again (only for an intended change of a reply, with the change
 //! in docs/console.md): `TRANSCRIPT_RECORD=1 cargo test -p host-tests --test
 //! console_transcript`.
+//!
+//! Recorded again for issue 35's intended changes (docs/console.md): `status` with echo
+//! on (a person's terminal, the `<keys …>` lines) in topics, a line each; an unset cone
+//! serial `serial=none` / `"serial":null` (it was empty); `version`'s new field, the
+//! unit's serial (`unit=none` / `"unit":null` here: the rig gives none). A script's
+//! replies are as they were otherwise.
+//!
+//! One line was recorded again since, for a change of the machine, not of the text:
+//! the last `status` says `cycles_completed=3`, not 4 — the session's `dock`, `stop`,
+//! `undock`, `clear-fault` stops a docking in its pre-alignment, and 927460b counted
+//! the recovery's return as a cycle (issue 32, item 5: only a cycle that reached the
+//! cone counts).
 
 use std::fmt::Write as _;
 

@@ -230,3 +230,76 @@ fn a_power_cut_between_the_confirmation_and_its_record_is_recorded_at_the_next_b
     drop(r);
     assert_eq!(seq(&flash), written, "no record more");
 }
+
+/// Issue 31, fix 3: the running image on trial says so, and what to do, in `version`
+/// (text and JSON) and Modbus identification (object 0x84: `host-tests/tests/modbus.rs`
+/// reads `no`); its confirmation clears it. And `update` is refused while on trial,
+/// before anything is erased: in layout C, DFU holds the image a rollback copies back.
+#[test]
+fn an_image_on_trial_says_so_in_version_and_refuses_an_update_until_it_confirms() {
+    use docking_logic::controller::MaintError;
+    use docking_logic::update::{at_boot, confirmed, BootFacts, Trial};
+    use update_layout::state::Boot;
+    let flash = SharedFlash::new(SimFlash::stm32f407_odometer());
+    let mut r = boot(&flash);
+    let report = at_boot(
+        &mut r.ctrl,
+        BootFacts {
+            boot: Boot::Trial,
+            running: Some(v(1)),
+            page1: Some(v(0)),
+            test_key: true,
+        },
+    );
+    assert_eq!(report.trial, Trial::Waiting);
+    r.ctrl.set_images(report);
+    r.console_enabled = true;
+    let text = r.command("version", 10);
+    assert!(text.contains(" trial=yes"), "{text}");
+    assert!(text.contains("a reset before that rolls it back"), "{text}");
+    let json = r.command("version --json", 10);
+    assert!(json.contains("\"trial\":\"yes\""), "{json}");
+    assert!(json.contains("\"trial_advice\":\"on trial:"), "{json}");
+    assert_eq!(r.ctrl.begin_update(), Err(MaintError::OnTrial));
+    assert!(!r.ctrl.updating());
+
+    confirmed(&mut r.ctrl, &report);
+    assert_eq!(r.ctrl.images().trial, Trial::No);
+    let text = r.command("version", 10);
+    assert!(text.contains(" trial=no"), "{text}");
+    let json = r.command("version --json", 10);
+    assert!(json.contains("\"trial_advice\":null"), "{json}");
+
+    // A confirmation that failed on its last attempt: `failed`, and what it means.
+    r.ctrl.set_images(docking_logic::update::ImageReport {
+        trial: Trial::Failed,
+        ..report
+    });
+    let text = r.command("version", 10);
+    assert!(text.contains(" trial=failed"), "{text}");
+    assert!(text.contains("the next reset rolls it back"), "{text}");
+}
+
+/// `update` typed while a Modbus reply to a polling PLC was on the line was refused
+/// ("the flash is written only at rest"): begin_update writes nothing, and the update's
+/// flash jobs wait for the line themselves. The flash writers that write at once still
+/// wait for it.
+#[test]
+fn an_update_was_refused_while_a_modbus_reply_was_on_the_line() {
+    use docking_logic::controller::MaintError;
+    let flash = SharedFlash::new(SimFlash::stm32f407_odometer());
+    let mut r = boot(&flash);
+    r.ctrl.set_bus_busy(true);
+    assert!(
+        !r.ctrl.at_rest(),
+        "a reply on the line holds the flash back"
+    );
+    assert_eq!(r.ctrl.begin_update(), Ok(()));
+    assert!(r.ctrl.updating());
+    r.ctrl.end_update();
+    assert_eq!(
+        r.ctrl.store_record(0x7E, b"x"),
+        Err(MaintError::NotAtRest),
+        "a record written at once still waits for the line"
+    );
+}

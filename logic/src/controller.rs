@@ -278,7 +278,8 @@ pub enum Event {
     UncalibratedRefusal,
     /// A fault clear refused: the E-STOP input is open.
     EstopClearRefusal,
-    /// A DOCK pin request refused (why: the same reasons as a command's).
+    /// A DOCK pin request refused (why: the same reasons as a command's), or a request
+    /// accepted before a mode that refuses it was granted, refused at its step.
     RemoteRefused(Refusal),
     /// E-STOP edges the control step had not seen (each stopped the machine in its
     /// interrupt): how many, and how long the input was open if it has closed again
@@ -429,17 +430,31 @@ pub struct Controller<B: Bsp> {
     /// ([`Switches::bits`]: the filter works on all four at once.)
     switch_raw: u8,
     switches: u8,
+    /// When the input filters (the switches, DOCK) last took a reading ([`FILTER_GAP`]).
+    filtered_at_us: Option<u64>,
     last_step_us: Option<u64>,
     pending: Option<Request>,
+    /// Who asked for `pending`: its gate ([`Controller::gate`]) is checked again at the
+    /// step that runs it.
+    pending_source: Source,
+    /// Who started the docking under way (or the last one): the PLC may withdraw its
+    /// own docking while a technician holds maintenance mode ([`Self::gate`]).
+    docking_source: Source,
+    /// When `pending` was issued, if its client said ([`Controller::issued_at`]): the
+    /// first character of a Modbus frame, a console line's (µs since boot, low 32 bits,
+    /// the E-STOP interrupt's clock).
+    pending_issued_us: Option<u32>,
+    /// What the next request's client says of its issue ([`Controller::issued_at`]).
+    issued_hint: Option<u32>,
     odo: Odometer,
     /// The current cone's micrometer readings (not its baseline), oldest first.
     readings: heapless::Vec<Measurement, { odometer::READINGS_KEPT }>,
     /// The wear estimate's fit to them.
     fit: Fit,
     /// [`Controller::wear_level`] and [`Controller::wear_estimate`] as of `level_key`
-    /// ([`Controller::wear_key`]): the estimate costs ~22 k instructions (27–52 k on
-    /// the board), too much for every `status` or Modbus read while the console or the
-    /// PLC holds the controller.
+    /// ([`Controller::wear_key`]): the estimate costs ~53 k instructions on the M4
+    /// (`vboard estimate-cost`, since issue 36), too much for every `status` or Modbus
+    /// read while the console or the PLC holds the controller.
     level: WearLevel,
     estimate: Estimate,
     level_key: Option<WearKey>,
@@ -598,7 +613,19 @@ struct Step {
     fault: Option<FaultKind>,
     /// The guard tripped (overload or tension) in this step.
     tripped: bool,
+    /// This step's readings of the switches and of DOCK advance their two-reading
+    /// filters ([`FILTER_GAP`]).
+    filter: bool,
 }
+
+/// The two-reading input filters (the switches, DOCK: "a change counts once two control
+/// steps read it alike") take a reading only at a step at least this fraction of the
+/// sample period (numerator, denominator) after the one they last took: two steps run
+/// back to back (the control task catching up on samples queued behind a long job at
+/// rest, with the PLC's pins read once for all of them) are one reading, not two, so a
+/// glitch shorter than a period is still filtered (issue 32; docs/board.md, "What holds
+/// between the steps").
+const FILTER_GAP: (u64, u64) = (3, 4);
 
 /// Why a command ([`Controller::command`]) was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -1001,8 +1028,13 @@ impl<B: Bsp> Controller<B> {
             clear_epoch: 0,
             switch_raw: 0,
             switches: 0,
+            filtered_at_us: None,
             last_step_us: None,
             pending: None,
+            pending_source: Source::Console,
+            docking_source: Source::Console,
+            pending_issued_us: None,
+            issued_hint: None,
             odo,
             readings: heapless::Vec::new(),
             fit: Fit::prior(),
@@ -1127,8 +1159,17 @@ impl<B: Bsp> Controller<B> {
             let t_ms = self.last_step_us.unwrap_or(0) / 1000;
             self.push_event(t_ms, Event::Signature(v));
         }
+        // The wear level the handshake reports, when what it depends on changed at rest
+        // (a cycle's unfinished load-distance counted, a reading, a baseline): here,
+        // not in the control step (the estimate's evaluation costs ~53 k instructions on
+        // the M4, `vboard estimate-cost`). A cycle's end refreshes it in its step (the
+        // cycle's record carries the level), and a start's gate refreshes it before it
+        // decides, so no docking starts on a level older than its step.
         if self.at_rest() {
-            self.write_queued_records();
+            self.refresh_level();
+            // One failed write per rest at most: the snapshot waits while a queued
+            // record ahead of it fails (both go to the same flash).
+            let queue_written = self.write_queued_records();
             // A cycle that ended in a fault (or a recovery that touched the cone) left
             // load–distance no completed cycle will count: it is the cone's now.
             let w = self.odo.fold_pending();
@@ -1140,14 +1181,18 @@ impl<B: Bsp> Controller<B> {
                 self.store.persist_pending = true;
             }
             // The odometer first; the signature's store only in a turn the odometer
-            // left unused (one flash job, and at most one erase, a turn).
-            let odometer_busy = self.store.persist_pending
+            // left unused (one flash job, and at most one erase, a turn), and not
+            // after a queued record failed (one failed write per rest).
+            let odometer_busy = !queue_written
+                || self.store.persist_pending
                 || self
                     .store
                     .log
                     .as_ref()
                     .is_some_and(|l| l.needs_maintenance());
-            self.persist();
+            if queue_written {
+                self.persist();
+            }
             if !odometer_busy && !self.plc.updating {
                 self.persist_signature();
             }
@@ -1249,6 +1294,9 @@ impl<B: Bsp> Controller<B> {
             return;
         };
         let mut failed = false;
+        // Only a write that happened clears the failures in a row (a rest with nothing to
+        // write must not forget a queued record's failed tries).
+        let mut wrote = false;
         if self.store.persist_pending {
             let st = StateRecord::of(&self.odo, self.store.persist_cycle_end);
             let rec = st.to_bytes();
@@ -1262,6 +1310,7 @@ impl<B: Bsp> Controller<B> {
                     }
                     self.store.persist_pending = false;
                     self.store.persist_cycle_end = false;
+                    wrote = true;
                 }
                 Err(_) => {
                     // Kept pending (the counters stay in RAM and in the RAM journal).
@@ -1270,13 +1319,16 @@ impl<B: Bsp> Controller<B> {
                 }
             }
         }
-        if !self.store.persist_pending && !failed && l.needs_maintenance() && l.maintain().is_err()
-        {
-            failed = true;
-            error!("odometer: sector pre-erase failed");
+        if !self.store.persist_pending && !failed && l.needs_maintenance() {
+            if l.maintain().is_err() {
+                failed = true;
+                error!("odometer: sector pre-erase failed");
+            } else {
+                wrote = true;
+            }
         }
         if !failed {
-            if !self.store.persist_pending {
+            if wrote {
                 self.store.storage_failures = 0;
             }
             return;
@@ -1372,13 +1424,16 @@ impl<B: Bsp> Controller<B> {
     ///
     /// A pending [`Request::Stop`] is never replaced by another request.
     pub fn request(&mut self, r: Request) {
-        self.queue(r);
+        self.queue(Source::Console, r);
     }
 
-    /// Queue `r` for the next step, unless a stop waits there: a stop always wins.
-    fn queue(&mut self, r: Request) {
+    /// Queue `r` from `source` for the next step, unless a stop waits there: a stop
+    /// always wins.
+    fn queue(&mut self, source: Source, r: Request) {
         if self.pending != Some(Request::Stop) {
             self.pending = Some(r);
+            self.pending_source = source;
+            self.pending_issued_us = self.issued_hint;
         }
     }
 
@@ -1442,6 +1497,12 @@ impl<B: Bsp> Controller<B> {
             .last_step_us
             .map_or(self.period_us, |t| now_us.saturating_sub(t));
         self.last_step_us = Some(now_us);
+        let filter = self.filtered_at_us.is_none_or(|t| {
+            now_us.saturating_sub(t) * FILTER_GAP.1 >= self.period_us * FILTER_GAP.0
+        });
+        if filter {
+            self.filtered_at_us = Some(now_us);
+        }
         self.prop.sync();
         let mut fault = match ev {
             Some(KernelEvent::Io { .. }) => Some(FaultKind::Io),
@@ -1454,12 +1515,15 @@ impl<B: Bsp> Controller<B> {
             closed(&mut self.locked),
             closed(&mut self.released),
         ) {
-            (Ok(home), Ok(end), Ok(locked), Ok(released)) => self.filter_switches(Switches {
-                home,
-                end,
-                locked,
-                released,
-            }),
+            (Ok(home), Ok(end), Ok(locked), Ok(released)) if filter => {
+                self.filter_switches(Switches {
+                    home,
+                    end,
+                    locked,
+                    released,
+                })
+            }
+            (Ok(_), Ok(_), Ok(_), Ok(_)) => Switches::from_bits(self.switches),
             _ => {
                 fault = Some(FaultKind::Io);
                 Switches::default()
@@ -1474,6 +1538,7 @@ impl<B: Bsp> Controller<B> {
             switches,
             fault,
             tripped: false,
+            filter,
         };
         (st, dt_us)
     }
@@ -1574,14 +1639,28 @@ impl<B: Bsp> Controller<B> {
     /// mode), E-STOP edges and level latch the fault, and a mated force outside the
     /// hold envelope latches `hold_force`.
     fn stage_plc(&mut self, st: &mut Step) {
-        // The PLC: DOCK counts once two steps read it alike, and acts at its edges.
-        if self.plc.dock_raw == self.plc.dock_seen && self.plc.dock_raw != self.plc.dock {
+        // The PLC: DOCK counts once two steps read it alike (steps a period apart:
+        // `FILTER_GAP`), and acts at its edges.
+        if st.filter
+            && self.plc.dock_raw == self.plc.dock_seen
+            && self.plc.dock_raw != self.plc.dock
+        {
             self.plc.dock = self.plc.dock_raw;
             let r = match (self.plc.dock, st.state) {
                 (true, State::PowerUp) => Some(Request::Home),
                 (true, _) => Some(Request::Dock),
                 (false, s) if s.is_docking() => Some(Request::Undock),
-                (false, _) => None,
+                (false, _) => {
+                    // "Be undocked" withdraws a docking of the PLC's not started yet (it
+                    // waits for the tare's zero-load samples): as it aborts one under
+                    // way, the level is the request (issue 32, found by the checker;
+                    // docs/board.md, "What holds between the steps", rule 6).
+                    if self.pending == Some(Request::Dock) && self.pending_source == Source::Plc {
+                        self.pending = None;
+                        warn!("DOCK released: the docking not started yet is withdrawn");
+                    }
+                    None
+                }
             };
             // Through the same gate as the console's and Modbus's commands. A refused
             // edge is consumed, not deferred: the PLC asks again (after maintenance,
@@ -1593,7 +1672,9 @@ impl<B: Bsp> Controller<B> {
                 }
             }
         }
-        self.plc.dock_seen = self.plc.dock_raw;
+        if st.filter {
+            self.plc.dock_seen = self.plc.dock_raw;
+        }
         // E-STOP: every edge its interrupt counted (each one stopped the machine
         // there) latches the fault, however short the pulse; so does the input open.
         let es = self.plc.estop_events;
@@ -1612,13 +1693,14 @@ impl<B: Bsp> Controller<B> {
                 },
             );
         }
-        if (new_edges != 0 || self.plc.estop_open)
-            && st.state
-                != (State::Faulted {
-                    fault: FaultKind::EmergencyStop,
-                })
-        {
-            st.fault = st.fault.or(Some(FaultKind::EmergencyStop));
+        // Whatever the state, a latched E-STOP included: the sequencer keeps it latched
+        // and refuses a clear in a step that detects a fault (a clear accepted before
+        // these edges must not run past them: `Sequencer::step`). And whatever else
+        // this step found: an overload found with it would be answered by the
+        // controlled back-off, a motion (issue 32, found by the interleaving checker;
+        // docs/board.md, "What holds between the steps", rule 1).
+        if new_edges != 0 || self.plc.estop_open {
+            st.fault = Some(FaultKind::EmergencyStop);
         }
         // Mated: the force must stay in the hold envelope.
         if let (
@@ -1649,17 +1731,29 @@ impl<B: Bsp> Controller<B> {
     /// limit, calibration, tare), the faults of this step, the sequencer's decision.
     fn stage_sequencer(&mut self, st: &mut Step) -> crate::sequencer::Outputs {
         let mut request = self.pending.take();
+        if let Some(r) = request {
+            if let Err(why) = self.gate(self.pending_source, r) {
+                // Accepted before a mode that now refuses it was granted.
+                request = None;
+                warn!("{} refused at its step ({})", r, why);
+                self.push_event(st.now_ms, Event::RemoteRefused(why));
+            }
+        }
         let starting =
             matches!(request, Some(Request::StartCycle | Request::Dock)) && st.state == State::Idle;
-        if request == Some(Request::ClearFault) && self.plc.estop_open {
+        if request == Some(Request::ClearFault)
+            && (self.plc.estop_open || self.estop_edge_since_issue(st.now_us))
+        {
             request = None;
-            error!("clear refused: the E-STOP input is open");
+            error!(
+                "clear refused: the E-STOP input is open, or changed since the clear was issued"
+            );
             self.push_event(st.now_ms, Event::EstopClearRefusal);
         }
         if starting && self.plc.estop_open {
             request = None;
         }
-        if starting && request.is_some() && self.wear_level() == WearLevel::Limit {
+        if starting && request.is_some() && self.refresh_level() == WearLevel::Limit {
             // Worn out: no new docking until the cone is replaced.
             request = None;
             error!(
@@ -1678,21 +1772,16 @@ impl<B: Bsp> Controller<B> {
         }
         if starting && request.is_some() {
             match self.take_tare() {
-                TareResult::Ready => {}
+                TareResult::Ready => self.docking_source = self.pending_source,
                 TareResult::NotYet => {
-                    self.pending = request.take(); // wait for more zero-load samples
+                    // Wait for more zero-load samples (from the same source: its gate
+                    // is checked again at the next step).
+                    self.pending = request.take();
                 }
                 TareResult::Implausible => st.fault = st.fault.or(Some(FaultKind::ImplausibleTare)),
             }
         }
-        if request == Some(Request::ClearFault) && matches!(st.state, State::Faulted { .. }) {
-            // The kernel forgets its sample history and restarts its timeout.
-            self.clear_epoch = self.clear_epoch.wrapping_add(1);
-            // The flash gets another STORAGE_ATTEMPTS tries.
-            self.store.storage_blocked = false;
-            self.store.storage_failures = 0;
-            self.store.storage_fault_due = false;
-        } else if self.store.storage_fault_due && !matches!(st.state, State::Faulted { .. }) {
+        if self.store.storage_fault_due && !matches!(st.state, State::Faulted { .. }) {
             self.store.storage_fault_due = false;
             st.fault = st.fault.or(Some(FaultKind::Storage));
         }
@@ -1708,6 +1797,15 @@ impl<B: Bsp> Controller<B> {
             request,
         };
         let out = self.seq.step(&inputs);
+        if out.event == Some(SeqEvent::FaultCleared) {
+            // The clear ran (not one the sequencer refused for a fault this step
+            // detected): the kernel forgets its sample history and restarts its
+            // timeout, and the flash gets another STORAGE_ATTEMPTS tries.
+            self.clear_epoch = self.clear_epoch.wrapping_add(1);
+            self.store.storage_blocked = false;
+            self.store.storage_failures = 0;
+            self.store.storage_fault_due = false;
+        }
         if let Some(ev) = out.event {
             self.on_seq_event(st.now_ms, ev);
         }
@@ -1777,14 +1875,21 @@ impl<B: Bsp> Controller<B> {
         }
     }
 
-    /// Stage 8, **watchdog** (fed by a loop that keeps its period) and the wear level
-    /// the handshake reports.
+    /// Stage 8, **watchdog** (fed by a loop that keeps its period). (The wear level the
+    /// handshake reports is refreshed at the cycle's end and in the service's window at
+    /// rest: [`Self::background`].)
     fn stage_watchdog(&mut self, dt_us: u64) {
         if dt_us <= 3 * self.period_us {
             self.wdg.feed();
         }
-        // 7. The wear level the handshake reports, when what it depends on changed (the
-        // estimate's evaluation costs ~22 k instructions: once per cycle, not per step).
+    }
+
+    /// The wear level, the estimate computed again first when what it depends on
+    /// changed, and both kept ([`Self::wear_key`]): the cycle's end and a start's gate in
+    /// the step, the service's window at rest ([`Self::background`]); each evaluates the
+    /// estimate only when the key moved.
+    #[inline(always)]
+    fn refresh_level(&mut self) -> WearLevel {
         let key = self.wear_key();
         if self.level_key != Some(key) {
             let est = self.compute_estimate();
@@ -1792,6 +1897,7 @@ impl<B: Bsp> Controller<B> {
             self.estimate = est;
             self.level_key = Some(key);
         }
+        self.level
     }
 
     /// What the wear estimate and level depend on: the cone, its equivalent cycles,
@@ -1950,8 +2056,10 @@ impl<B: Bsp> Controller<B> {
             }
             SeqEvent::CycleCompleted(n) => {
                 let mut c = self.odo.complete_cycle();
-                // The level the machine acts on (the estimate's band, once measured).
-                c.level = self.wear_level();
+                // The level the machine acts on (the estimate's band, once measured),
+                // kept for the handshake (one evaluation of the estimate, at the cycle's
+                // end).
+                c.level = self.refresh_level();
                 info!(
                     "cycle {=u32} completed: cone cycle {=u32}, wear {=u32} nm, remaining {=u32} cycles",
                     n, c.cone_cycle, c.wear_nm, c.remaining_cycles
@@ -1970,7 +2078,10 @@ impl<B: Bsp> Controller<B> {
                 self.store.persist_pending = true;
                 self.store.persist_cycle_end = true;
             }
-            SeqEvent::CycleStarted(n) => info!("cycle {=u32} started", n),
+            SeqEvent::CycleStarted(n) => {
+                self.odo.start_cycle();
+                info!("cycle {=u32} started", n)
+            }
             SeqEvent::FaultCleared => info!("fault cleared; recovering"),
             SeqEvent::Homed => info!("homed"),
             SeqEvent::RequestRefused(r) => warn!(
@@ -2033,12 +2144,16 @@ impl<B: Bsp> Controller<B> {
     /// maintenance mode, everything but `Stop` from the PLC is refused
     /// ([`Refusal::MaintenanceMode`]).
     pub fn command_from(&mut self, source: Source, r: Request) -> Result<(), Refusal> {
-        if self.plc.updating && r != Request::Stop {
-            return Err(Refusal::Updating);
-        }
-        if source == Source::Plc && self.plc.maintenance_mode && r != Request::Stop {
-            return Err(Refusal::MaintenanceMode);
-        }
+        self.check_command(source, r)?;
+        self.queue(source, r);
+        Ok(())
+    }
+
+    /// Whether [`Self::command_from`] would accept `r` from `source` now, and why not:
+    /// its rules, without queueing anything. READY is high only when this accepts a dock
+    /// from the PLC (docs/board.md, "What holds between the steps").
+    pub fn check_command(&self, source: Source, r: Request) -> Result<(), Refusal> {
+        self.gate(source, r)?;
         let state = self.seq.state();
         let estop = |me: &Self| {
             if me.plc.estop_open {
@@ -2083,7 +2198,53 @@ impl<B: Bsp> Controller<B> {
                 }
             }
         }
-        self.queue(r);
+        Ok(())
+    }
+
+    /// The client of the next request says when it was issued: `issued_us` (µs since
+    /// boot, low 32 bits: the E-STOP interrupt's clock), the first character of its
+    /// Modbus frame or console line; `None` after the job (a request without it counts
+    /// from its acceptance). A clear issued before an E-STOP edge is refused at its
+    /// step even when a step before it, or before its acceptance, consumed that edge: the
+    /// PLC that sent it, or the technician who typed it, had not seen that edge
+    /// (docs/board.md, "What holds between the steps", rule 1; found by the virtual
+    /// board's campaign: a clear in flight on the Modbus line as a 50 µs pulse came).
+    pub fn issued_at(&mut self, issued_us: Option<u32>) {
+        self.issued_hint = issued_us;
+    }
+
+    /// Whether an E-STOP edge came after the pending request was issued (and before
+    /// `now_us`), by the interrupt's time stamps of the last opening and closing.
+    fn estop_edge_since_issue(&self, now_us: u64) -> bool {
+        let Some(t) = self.pending_issued_us else {
+            return false;
+        };
+        let es = self.plc.estop_events;
+        let window = (now_us as u32).wrapping_sub(t);
+        es.edges != 0
+            && [es.opened_us, es.closed_us]
+                .iter()
+                .any(|&e| e != t && e.wrapping_sub(t) <= window)
+    }
+
+    /// The modes' gate of [`Self::command_from`], checked when a request is accepted
+    /// **and again at the step that runs it** ([`Self::stage_sequencer`]): a mode
+    /// granted in between (maintenance mode to the console, an update begun) is in force
+    /// from its grant, not from the next request (issue 32; docs/board.md, "What holds
+    /// between the steps").
+    fn gate(&self, source: Source, r: Request) -> Result<(), Refusal> {
+        if self.plc.updating && r != Request::Stop {
+            return Err(Refusal::Updating);
+        }
+        // The PLC's undock of a docking the PLC started stays its own: one started just
+        // before a grant would otherwise mate and hold with no way back for the PLC
+        // (issue 32's review; item 2's outcome). It starts nothing.
+        let own_undock = r == Request::Undock
+            && self.docking_source == Source::Plc
+            && self.seq.state().is_docking();
+        if source == Source::Plc && self.plc.maintenance_mode && r != Request::Stop && !own_undock {
+            return Err(Refusal::MaintenanceMode);
+        }
         Ok(())
     }
 
@@ -2095,6 +2256,12 @@ impl<B: Bsp> Controller<B> {
             (self.guard.force_mn - self.cfg.hold_expected_mn).abs() <= HOLD_TOLERANCE_MN;
         // As of the last step (cached: see step 7).
         let level = self.level;
+        // An E-STOP edge no step has taken yet (the board's control run without a step,
+        // between two sample steps, or pended by the service): the E-STOP interrupt
+        // drove MATED and the lock low; nothing raises them again before the step that
+        // latches the fault (issue 32's review: MATED went low, high, low).
+        let unseen_edge = self.plc.estop_events.edges != self.plc.estop_edges_seen;
+        let estop = self.plc.estop_open || unseen_edge;
         Handshake {
             dock: self.plc.dock,
             estop: self.plc.estop_open,
@@ -2103,7 +2270,7 @@ impl<B: Bsp> Controller<B> {
                 && sw.locked
                 && self.cell.calibrated
                 && level != WearLevel::Limit
-                && !self.plc.estop_open
+                && !estop
                 && !self.plc.maintenance_mode
                 && !self.plc.updating,
             mated: matches!(
@@ -2112,7 +2279,8 @@ impl<B: Bsp> Controller<B> {
                     unmating: false,
                     ..
                 }
-            ) && in_envelope,
+            ) && in_envelope
+                && !estop,
             fault: matches!(state, State::Faulted { .. } | State::BackingOff { .. }),
             maintenance: level >= WearLevel::Warning,
         }
@@ -2170,11 +2338,15 @@ impl<B: Bsp> Controller<B> {
     // ones under 256 B).
     #[inline(never)]
     pub fn at_rest(&self) -> bool {
+        self.motionless() && !self.store.bus_busy
+    }
+
+    /// At rest but for the Modbus line: quiet, nothing held or driven.
+    fn motionless(&self) -> bool {
         self.is_quiet()
             && !self.axis_held()
             && !self.prop.is_enabled()
             && self.lock.cmd() == LockCmd::Off
-            && !self.store.bus_busy
     }
 
     /// Whether a maintenance action may write the flash now ([`Self::at_rest`]), and
@@ -2231,15 +2403,24 @@ impl<B: Bsp> Controller<B> {
         self.plc.maintenance_mode
     }
 
-    /// A firmware update begins (console `update`, issue 21): only at rest
-    /// ([`Self::at_rest`]: nothing moving, held or driven); from now until
+    /// A firmware update begins (console `update`, issue 21): only with nothing moving,
+    /// held or driven. A Modbus reply on the line does not refuse it: `begin_update`
+    /// writes nothing, and each of the update's flash jobs waits for the line by itself
+    /// (the board's `with_owner`), so a PLC that polls does not make `update` fail at
+    /// random (refused when the command met one of its replies, up to 7c11783's
+    /// successor of issue 32). From now until
     /// [`Self::end_update`] READY is low and every request but a stop is refused, from
     /// the console, Modbus and the DOCK pin alike (a DOCK edge is refused and logged).
     pub fn begin_update(&mut self) -> Result<(), MaintError> {
         if self.diag.images.trial != crate::update::Trial::No {
             return Err(MaintError::OnTrial);
         }
-        self.flash_turn()?;
+        if !self.is_quiet() {
+            return Err(MaintError::Moving);
+        }
+        if !self.motionless() {
+            return Err(MaintError::NotAtRest);
+        }
         if !self.plc.updating {
             info!("firmware update: receiving; READY low, requests refused");
         }
@@ -2277,31 +2458,64 @@ impl<B: Bsp> Controller<B> {
         self.store.bus_busy = busy;
     }
 
-    /// Write the records queued for a rest, oldest first (call only at rest).
-    fn write_queued_records(&mut self) {
-        while let Some(r) = self.store.record_queue.pop_front() {
-            let ok = self
-                .store
-                .log
-                .as_mut()
-                .is_some_and(|l| l.append(r.kind, &r.data).is_ok());
-            if ok {
-                self.cache_record(r.kind, &r.data);
-            } else {
+    /// Write the records queued for a rest, oldest first (call only at rest); whether the
+    /// queue is empty now.
+    ///
+    /// **A queued record leaves the queue only when it is written, or counted as
+    /// dropped** ([`Self::records_dropped`], reported by `faults`; docs/board.md, "What
+    /// holds between the steps"). A write that fails leaves it at the head of the queue,
+    /// tried again at the next rest under the counter snapshot's rule: one failure more
+    /// in a row, [`STORAGE_ATTEMPTS`] of them latch the `storage` fault and nothing is
+    /// tried until a clear. Only a log that could not even be opened (no flash to write
+    /// to) drops what waits, counted.
+    fn write_queued_records(&mut self) -> bool {
+        while let Some(r) = self.store.record_queue.front() {
+            if self.store.storage_blocked {
+                return false;
+            }
+            let Some(l) = self.store.log.as_mut() else {
+                // Nowhere to write it, ever: dropped, and counted.
+                let n = self.store.record_queue.len() as u32;
+                self.store.record_queue.clear();
+                self.store.records_dropped = self.store.records_dropped.saturating_add(n);
+                error!("odometer: {=u32} queued record(s) dropped: no log", n);
+                return true;
+            };
+            if l.append(r.kind, &r.data).is_err() {
+                error!("odometer: a queued record was not written; kept for the next rest");
                 self.store.storage_errors = self.store.storage_errors.saturating_add(1);
-                error!("odometer: a queued record was not written");
+                self.store.storage_failures = self.store.storage_failures.saturating_add(1);
+                if self.store.storage_failures >= STORAGE_ATTEMPTS {
+                    error!(
+                        "odometer: flash failed {=u8} times in a row; storage fault",
+                        STORAGE_ATTEMPTS
+                    );
+                    self.store.storage_blocked = true;
+                    self.store.storage_fault_due = true;
+                }
+                return false;
+            }
+            self.store.storage_failures = 0;
+            if let Some(r) = self.store.record_queue.pop_front() {
+                self.cache_record(r.kind, &r.data);
             }
         }
+        true
     }
 
     /// A record that may wait (an audit record): written now if the machine is at rest
-    /// (after any that wait, so the log keeps their order), else queued for the next
-    /// rest ([`Self::at_rest`]; [`Self::background`] writes it). `false`: not written
-    /// and not queued (the flash refused it, or the queue was full: counted).
+    /// and nothing waits before it (so the log keeps their order), else — or if the
+    /// flash refuses it now — queued for the next rest ([`Self::at_rest`];
+    /// [`Self::background`] writes it). `false`: not written and not queued (the queue
+    /// was full, or the record too long: counted in [`Self::records_dropped`]).
     pub fn write_or_queue_record(&mut self, kind: u8, data: &[u8]) -> bool {
-        if self.at_rest() {
-            self.write_queued_records();
-            return self.store_record(kind, data).is_ok();
+        if self.at_rest() && self.write_queued_records() {
+            if self.store_record(kind, data).is_ok() {
+                return true;
+            }
+            // The flash refused it: one failure more in a row, and the record waits
+            // for the next rest like one made out of turn.
+            self.store.storage_failures = self.store.storage_failures.saturating_add(1);
         }
         self.queue_record(kind, data)
     }

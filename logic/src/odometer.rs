@@ -305,6 +305,10 @@ pub struct Odometer {
     integ: StrokeIntegrator,
     /// Load–distance since the last completed cycle, Q63.1.
     pending_q1: u64,
+    /// Load–distance of the cycle in progress already counted into the cone by
+    /// [`Odometer::fold_pending`] (a fault's rest), Q63.1: it is still the cycle's, and
+    /// its history entry carries it when the cycle completes (issue 35).
+    cycle_folded_q1: u64,
     last_cycle_q1: u64,
     e_limit_q32: u64,
     e_warn_q32: u64,
@@ -330,6 +334,7 @@ impl Odometer {
             life,
             integ: StrokeIntegrator::default(),
             pending_q1: 0,
+            cycle_folded_q1: 0,
             last_cycle_q1: 0,
             e_limit_q32: e_at_depth_q32(cfg.limit_nm),
             e_warn_q32: e_at_depth_q32(warn_nm),
@@ -364,12 +369,23 @@ impl Odometer {
         self.integ.break_chain();
     }
 
+    /// A docking cycle starts: nothing of an earlier cycle is its.
+    pub fn start_cycle(&mut self) {
+        self.cycle_folded_q1 = 0;
+    }
+
     /// Close a completed docking cycle: its load–distance goes to the cone and the
-    /// lifetime totals; both cycle counters advance.
+    /// lifetime totals; both cycle counters advance. The cycle's load–distance
+    /// ([`CycleSummary::w_q1`], the history entry's) is the whole cycle's: what a fault's
+    /// rest counted into the cone already ([`Self::fold_pending`]) and the rest. (Until
+    /// issue 35 it was the rest only: after a `stop` during extraction and a
+    /// `clear-fault`, the entry read the recovery's last millimetres, 0.106 N·mm, while
+    /// the cone had grown by the whole cycle.)
     pub fn complete_cycle(&mut self) -> CycleSummary {
         self.integ.break_chain();
         let w = core::mem::take(&mut self.pending_q1);
-        self.last_cycle_q1 = w;
+        let whole = w.saturating_add(core::mem::take(&mut self.cycle_folded_q1));
+        self.last_cycle_q1 = whole;
         self.cone.w_q1 = self.cone.w_q1.saturating_add(w);
         self.cone.cycles = self.cone.cycles.saturating_add(1);
         self.life.w_q1 = self.life.w_q1.saturating_add(w);
@@ -378,7 +394,7 @@ impl Odometer {
         CycleSummary {
             lifetime_cycle: self.life.cycles,
             cone_cycle: self.cone.cycles,
-            w_q1: w,
+            w_q1: whole,
             wear_nm: self.wear_nm(),
             remaining_cycles: self.remaining_cycles(),
             level: self.level(),
@@ -390,6 +406,7 @@ impl Odometer {
     /// that the next snapshot carries it. Returns the amount, Q63.1.
     pub fn fold_pending(&mut self) -> u64 {
         let w = core::mem::take(&mut self.pending_q1);
+        self.cycle_folded_q1 = self.cycle_folded_q1.saturating_add(w);
         if w > 0 {
             self.cone.w_q1 = self.cone.w_q1.saturating_add(w);
             self.life.w_q1 = self.life.w_q1.saturating_add(w);
@@ -470,6 +487,7 @@ impl Odometer {
             self.life.cycles,
         );
         self.pending_q1 = 0;
+        self.cycle_folded_q1 = 0;
         self.integ.break_chain();
         self.refresh();
         &self.cone
@@ -1134,6 +1152,37 @@ mod tests {
         assert_eq!(o.fold_pending(), 0, "folded once");
     }
 
+    /// Issue 35: a cycle stopped (its load–distance so far folded into the cone at the
+    /// fault's rest) and then completed by the recovery: its summary, the history
+    /// entry's, is the whole cycle's; the cone counts each part once.
+    #[test]
+    fn a_cycle_folded_at_a_fault_and_completed_after_is_summed_whole() {
+        let mut o = nominal(10);
+        let w0 = o.cone().w_q1;
+        o.start_cycle();
+        o.on_contact_sample(0, 10_000);
+        o.on_contact_sample(1_000, 30_000);
+        let first = o.fold_pending();
+        o.end_contact();
+        o.on_contact_sample(1_000, 20_000);
+        o.on_contact_sample(1_500, 5_000);
+        let rest = o.pending_q1();
+        let c = o.complete_cycle();
+        assert_eq!(c.w_q1, first + rest, "the whole cycle");
+        assert_eq!(o.last_cycle_q1(), first + rest);
+        assert_eq!(o.cone().w_q1, w0 + first + rest, "each part once");
+        assert_eq!(o.cone().cycles, 11);
+        // A folded part of a cycle that never completed is not the next cycle's.
+        o.on_contact_sample(0, 10_000);
+        o.on_contact_sample(1_000, 10_000);
+        assert!(o.fold_pending() > 0);
+        o.start_cycle();
+        o.on_contact_sample(0, 10_000);
+        o.on_contact_sample(500, 10_000);
+        let only = o.pending_q1();
+        assert_eq!(o.complete_cycle().w_q1, only);
+    }
+
     #[test]
     fn a_reset_mid_cycle_lost_its_load_distance() {
         let mut before = nominal(10);
@@ -1277,6 +1326,10 @@ pub struct ReferenceRun {
     /// The wear estimate fitted to a fixed set of readings (1.2 × the model, ± a few µm)
     /// at the run's end: the estimator's arithmetic, host against target.
     pub estimate: crate::estimate::Estimate,
+    /// The same from five readings of a cone running in (every 100 cycles to 500,
+    /// near-linear then bending), 5 000 cycles on: both laws of the fit and their
+    /// weighing.
+    pub estimate_early: crate::estimate::Estimate,
 }
 
 /// A deterministic odometer workload in integers only — a load shaped like Eq. 7 (four
@@ -1334,6 +1387,23 @@ pub fn reference_run(cycles: u32) -> ReferenceRun {
         WearConfig::DEFAULT.limit_nm,
         Material::ZQSn5_2,
     );
+    let early: heapless::Vec<crate::estimate::Reading, 5> =
+        [40_000, 76_000, 104_000, 124_000, 139_000]
+            .iter()
+            .zip(1..)
+            .map(|(&nm, k): (&i32, u64)| {
+                let noise = (rnd() % 3_001) as i32 - 1_500;
+                crate::estimate::Reading {
+                    e_q32: (k * 100) << 32,
+                    wear_nm: nm + noise,
+                }
+            })
+            .collect();
+    let estimate_early = crate::estimate::Fit::new(&early).at(
+        5_000 << 32,
+        WearConfig::DEFAULT.limit_nm,
+        Material::ZQSn5_2,
+    );
     ReferenceRun {
         cycles,
         e_q32: odo.equivalent_cycles_q32(),
@@ -1341,6 +1411,7 @@ pub fn reference_run(cycles: u32) -> ReferenceRun {
         remaining_cycles: odo.remaining_cycles(),
         record: StateRecord::of(&odo, true).to_bytes(),
         estimate,
+        estimate_early,
     }
 }
 
@@ -1354,11 +1425,21 @@ impl core::fmt::Display for ReferenceRun {
         for b in self.record {
             write!(f, "{b:02x}")?;
         }
-        let e = &self.estimate;
-        write!(
-            f,
-            " estimate={},{},{},{}",
-            e.wear_nm, e.low_nm, e.high_nm, e.remaining_cycles
-        )
+        for (name, e) in [
+            ("estimate", &self.estimate),
+            ("early", &self.estimate_early),
+        ] {
+            write!(
+                f,
+                " {name}={},{},{},{},{},{}",
+                e.wear_nm,
+                e.low_nm,
+                e.high_nm,
+                e.remaining_cycles,
+                e.remaining_low_cycles,
+                e.remaining_high_cycles
+            )?;
+        }
+        Ok(())
     }
 }

@@ -32,7 +32,7 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use embedded_hal::digital::OutputPin;
 
 use crate::guard::{GuardConfig, OverloadGuard, SensorFault, SensorMonitor, Verdict};
-use crate::hal::{LoadCellAdc, StopLatch};
+use crate::hal::{LoadCellAdc, StepPulses, StopLatch};
 use crate::hx711::{Calibration, CODE_MAX, CODE_MIN};
 
 /// Which limit applies to the next samples.
@@ -384,6 +384,48 @@ impl<P: OutputPin, L: StopLatch> OutputPin for GatedEn<P, L> {
             return Err(GateError::Latched);
         }
         Ok(())
+    }
+}
+
+/// The step-pulse generator behind the safety path's latch: **no step rate is set while
+/// a stop is latched** (a rate asked for then is 0), checked, written, checked again as
+/// [`GatedEn`]'s EN.
+///
+/// The control step sets the rate last (`Propulsion::plan`, after the driver's EN and
+/// the lock): a stop that landed after the step's own check of the latch and before
+/// that write found its rate of zero overwritten, and the pulses went on with EN high
+/// until the next step — the counted position drifting (issue 32, item 6: shown on the
+/// virtual board, `an_estop_edge_between_the_gate_and_the_rate_left_pulses_running`).
+/// A stop that lands between this write and the second check sets the rate to zero
+/// itself and is seen by that check; the board's step tick emits no pulse while the
+/// latch is set either (`src/board/step.rs`). Docs/board.md, "What holds between the
+/// steps", rule 7.
+pub struct GatedPulses<P, L> {
+    pulses: P,
+    latch: L,
+}
+
+impl<P, L> GatedPulses<P, L> {
+    /// Gate `pulses` with `latch`.
+    pub fn new(pulses: P, latch: L) -> Self {
+        Self { pulses, latch }
+    }
+}
+
+impl<P: StepPulses, L: StopLatch> StepPulses for GatedPulses<P, L> {
+    fn set_rate_hz(&mut self, rate_hz: u32) {
+        if rate_hz != 0 && self.latch.latched() {
+            self.pulses.set_rate_hz(0);
+            return;
+        }
+        self.pulses.set_rate_hz(rate_hz);
+        if rate_hz != 0 && self.latch.latched() {
+            self.pulses.set_rate_hz(0);
+        }
+    }
+
+    fn take_pulses(&mut self) -> u32 {
+        self.pulses.take_pulses()
     }
 }
 

@@ -481,6 +481,12 @@ pub struct Sequencer {
     cycle_in_progress: u32,
     /// The cycle under way is a service docking (hold until undock), not a test cycle.
     service: bool,
+    /// The cycle under way reached the cone (its compliant insertion began): only such a
+    /// cycle counts as one when its return ends ([`State::Returning`]'s `ends_cycle`).
+    /// A docking stopped before the cone (an undock, a fault and its clear in the
+    /// pre-alignment or the release) counts nothing (issue 32; docs/board.md, "What
+    /// holds between the steps").
+    reached_cone: bool,
 }
 
 impl Sequencer {
@@ -492,6 +498,7 @@ impl Sequencer {
             cycles_completed: 0,
             cycle_in_progress: 0,
             service: false,
+            reached_cone: false,
         }
     }
 
@@ -600,7 +607,19 @@ impl Sequencer {
                 } if f != FaultKind::HoldForce => {
                     Some((State::Faulted { fault: f }, Some(SeqEvent::Fault(f))))
                 }
-                State::Faulted { .. } => None, // latched: only a clear gets out
+                // An E-STOP replaces any other latched fault (it is the one a clear
+                // must wait for: the input closed again).
+                State::Faulted { fault } if f == FaultKind::EmergencyStop && fault != f => {
+                    Some((State::Faulted { fault: f }, Some(SeqEvent::Fault(f))))
+                }
+                // Latched: only a clear gets out, and **not in a step that detects a
+                // fault**. A clear accepted before an E-STOP edge (or any other fault)
+                // that reaches the step with it is refused here, never run past the
+                // fault it has not seen (issue 32: the pulse's edges were consumed by
+                // the step that ran the clear, and the machine moved; docs/board.md,
+                // "What holds between the steps", rule 1). The state is written back
+                // unchanged so that `transition` does not run.
+                State::Faulted { .. } => Some((self.state, None)),
                 // Any fault (a stop included) ends the controlled retreat of an overload.
                 State::BackingOff { .. } => {
                     Some((State::Faulted { fault: f }, Some(SeqEvent::Fault(f))))
@@ -786,7 +805,7 @@ impl Sequencer {
                             self.start_return(
                                 now,
                                 inp.pos_um,
-                                self.cycle_in_progress > self.cycles_completed,
+                                self.reached_cone && self.cycle_in_progress > self.cycles_completed,
                             ),
                             None,
                             false,
@@ -801,6 +820,7 @@ impl Sequencer {
             State::Idle => match inp.request {
                 Some(r @ (Request::StartCycle | Request::Dock)) if sw.home && sw.locked => {
                     self.service = r == Request::Dock;
+                    self.reached_cone = false;
                     self.cycle_in_progress = self.cycles_completed.saturating_add(1);
                     let deadline_ms = self.move_deadline(
                         now,
@@ -865,6 +885,8 @@ impl Sequencer {
                         cfg.mated_um() - inp.pos_um,
                         cfg.dock_speed_um_per_s,
                     );
+                    // From here the rod goes into the cone: the cycle counts.
+                    self.reached_cone = true;
                     Some((State::Inserting { deadline_ms }, None, false))
                 } else if past(deadline_ms) {
                     fault(FaultKind::LockNotReleased)

@@ -24,6 +24,12 @@
 //! maximum cancels the transfer (CAN CAN). CAN CAN from the sender aborts. The last
 //! block's padding (0x1A) is cut at the size block 0 gave: [`Action::Data`] carries
 //! exactly the file's bytes. Nothing here panics on any input.
+//!
+//! [`Sender`] is the other side (issue 35: `dockctl update`, the simulators' tests and
+//! the virtual board's scenes send with it): lrzsz's `sb -k`, answer by answer, each
+//! packet built into the caller's buffer (no allocation). It takes the protocol's bytes
+//! from this module, one definition for both ends; its tests check its packets against
+//! the `crc` crate's CRC, not this crate's, so a mistake in the table is not in both.
 
 /// Start of a 128-byte block.
 pub const SOH: u8 = 0x01;
@@ -312,12 +318,254 @@ impl Receiver {
     }
 }
 
+/// Copy `bytes` into `out` at `at` (as many as fit); how many.
+fn put(out: &mut [u8], at: usize, bytes: &[u8]) -> usize {
+    let n = bytes.len().min(out.len().saturating_sub(at));
+    if let (Some(dst), Some(src)) = (out.get_mut(at..at + n), bytes.get(..n)) {
+        dst.copy_from_slice(src);
+    }
+    n
+}
+
+/// Data bytes of a YMODEM-1K block (STX).
+pub const BLOCK_LEN: usize = 1024;
+/// Data bytes of a short block (SOH: block 0).
+pub const SHORT_LEN: usize = 128;
+/// The longest packet: STX, the block number and its complement, 1024 bytes, the CRC.
+pub const PACKET_MAX: usize = BLOCK_LEN + 5;
+/// The longest file name block 0 carries (a longer one is cut).
+pub const NAME_MAX: usize = 64;
+/// The padding of the last block (SUB, as lrzsz pads).
+pub const PAD: u8 = 0x1A;
+
+/// Where a [`Sender`] stands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SendState {
+    /// Waiting for the receiver's first 'C'.
+    Start,
+    /// Block 0 sent: waiting for its ACK (then 'C').
+    Header,
+    /// Waiting for the 'C' after block 0's ACK.
+    HeaderC,
+    /// Block `n` (1-based) sent: waiting for its ACK.
+    Block(u32),
+    /// EOT sent (the first, or the second after the receiver's NAK).
+    Eot(u8),
+    /// The closing empty block 0 sent, or about to be.
+    Close,
+    /// Finished: the receiver acknowledged the end of the batch.
+    Done,
+    /// The receiver cancelled (CAN CAN), or the sender did ([`Sender::cancel`]).
+    Cancelled,
+}
+
+/// A YMODEM-1K sender of one file, as lrzsz's `sb -k` sends it: the file's name and
+/// size in block 0 (SOH, 128 bytes), the data in 1024-byte blocks (STX, the last padded
+/// with [`PAD`]), CRC-16, EOT answered by NAK then sent again, an empty block 0 to end
+/// the batch. Each call answers one byte from the receiver (or the sender's own
+/// time-out) with the bytes to send, built into the caller's `out`; the file is the
+/// caller's, passed whole to each call (its length is the size given to [`Sender::new`]).
+#[derive(Clone, Debug)]
+pub struct Sender {
+    name: [u8; NAME_MAX],
+    name_len: usize,
+    size: u32,
+    state: SendState,
+    retries: u32,
+    can: bool,
+}
+
+impl Sender {
+    /// A sender of a file of `size` bytes named `name` (cut to [`NAME_MAX`] bytes).
+    pub fn new(name: &str, size: u32) -> Self {
+        let mut n = [0u8; NAME_MAX];
+        let len = name.len().min(NAME_MAX);
+        if let (Some(dst), Some(src)) = (n.get_mut(..len), name.as_bytes().get(..len)) {
+            dst.copy_from_slice(src);
+        }
+        Self {
+            name: n,
+            name_len: len,
+            size,
+            state: SendState::Start,
+            retries: 0,
+            can: false,
+        }
+    }
+
+    /// Where it stands.
+    pub fn state(&self) -> SendState {
+        self.state
+    }
+
+    /// Packets sent again (on a NAK, a repeated 'C' or a time-out).
+    pub fn retries(&self) -> u32 {
+        self.retries
+    }
+
+    /// The file's blocks.
+    pub fn blocks(&self) -> u32 {
+        self.size.div_ceil(BLOCK_LEN as u32)
+    }
+
+    /// Whether the transfer is over (done or cancelled).
+    pub fn finished(&self) -> bool {
+        matches!(self.state, SendState::Done | SendState::Cancelled)
+    }
+
+    /// Bytes of the file the receiver has acknowledged.
+    pub fn acknowledged(&self) -> u32 {
+        match self.state {
+            SendState::Block(n) => (n.saturating_sub(1) * BLOCK_LEN as u32).min(self.size),
+            SendState::Eot(_) | SendState::Close | SendState::Done => self.size,
+            _ => 0,
+        }
+    }
+
+    /// Give up: the bytes that cancel the transfer (CAN CAN) into `out`.
+    pub fn cancel(&mut self, out: &mut [u8; PACKET_MAX]) -> usize {
+        self.state = SendState::Cancelled;
+        put(out, 0, &[CAN, CAN])
+    }
+
+    /// A packet into `out`: block `blk`, `data` padded with `pad` to 128 bytes
+    /// (`short`, SOH) or 1024 (STX), its CRC; its length.
+    fn packet(out: &mut [u8; PACKET_MAX], blk: u8, data: &[u8], short: bool, pad: u8) -> usize {
+        let (head, len) = if short {
+            (SOH, SHORT_LEN)
+        } else {
+            (STX, BLOCK_LEN)
+        };
+        put(out, 0, &[head, blk, !blk]);
+        let n = put(out, 3, data.get(..data.len().min(len)).unwrap_or(&[]));
+        if let Some(rest) = out.get_mut(3 + n..3 + len) {
+            rest.fill(pad);
+        }
+        let crc = crate::crc::crc16_xmodem(out.get(3..3 + len).unwrap_or(&[]));
+        put(out, 3 + len, &crc.to_be_bytes());
+        len + 5
+    }
+
+    /// Block 0: the name, NUL, the size in decimal, a modification time of 0 and the
+    /// mode, as `sb` writes them; zero-padded.
+    fn header(&self, out: &mut [u8; PACKET_MAX]) -> usize {
+        let mut d = [0u8; SHORT_LEN];
+        let mut at = put(&mut d, 0, self.name.get(..self.name_len).unwrap_or(&[])) + 1;
+        let mut digits = [0u8; 10];
+        let mut k = digits.len();
+        let mut x = self.size;
+        loop {
+            k -= 1;
+            if let Some(c) = digits.get_mut(k) {
+                *c = b'0' + (x % 10) as u8;
+            }
+            x /= 10;
+            if x == 0 || k == 0 {
+                break;
+            }
+        }
+        at += put(&mut d, at, digits.get(k..).unwrap_or(&[]));
+        put(&mut d, at, b" 0 100644");
+        Self::packet(out, 0, &d, true, 0)
+    }
+
+    /// Block `n` (1-based) of `file`.
+    fn block(&self, n: u32, file: &[u8], out: &mut [u8; PACKET_MAX]) -> usize {
+        let from = (n.saturating_sub(1) as usize).saturating_mul(BLOCK_LEN);
+        let to = from.saturating_add(BLOCK_LEN).min(file.len());
+        let data = file.get(from..to).unwrap_or(&[]);
+        Self::packet(out, n as u8, data, false, PAD)
+    }
+
+    /// The sender's own time-out ran out (`sb` waits 10 s for an answer): the packet it
+    /// waits on, again; nothing while it waits for the receiver's 'C'.
+    pub fn on_timeout(&mut self, file: &[u8], out: &mut [u8; PACKET_MAX]) -> usize {
+        match self.state {
+            SendState::Header => {
+                self.retries += 1;
+                self.header(out)
+            }
+            SendState::Block(n) => {
+                self.retries += 1;
+                self.block(n, file, out)
+            }
+            SendState::Eot(_) => put(out, 0, &[EOT]),
+            _ => 0,
+        }
+    }
+
+    /// One byte from the receiver; the bytes to send back, in `out` (their count).
+    pub fn on_byte(&mut self, b: u8, file: &[u8], out: &mut [u8; PACKET_MAX]) -> usize {
+        if self.finished() {
+            return 0;
+        }
+        if b == CAN {
+            if self.can {
+                self.state = SendState::Cancelled;
+            }
+            self.can = true;
+            return 0;
+        }
+        self.can = false;
+        match (self.state, b) {
+            (SendState::Start, C) => {
+                self.state = SendState::Header;
+                self.header(out)
+            }
+            (SendState::Header, ACK) => {
+                self.state = SendState::HeaderC;
+                0
+            }
+            (SendState::Header, NAK | C) => {
+                self.retries += 1;
+                self.header(out)
+            }
+            (SendState::HeaderC, C) => {
+                if self.blocks() == 0 {
+                    self.state = SendState::Eot(1);
+                    return put(out, 0, &[EOT]);
+                }
+                self.state = SendState::Block(1);
+                self.block(1, file, out)
+            }
+            (SendState::Block(n), ACK) => {
+                if n >= self.blocks() {
+                    self.state = SendState::Eot(1);
+                    put(out, 0, &[EOT])
+                } else {
+                    self.state = SendState::Block(n + 1);
+                    self.block(n + 1, file, out)
+                }
+            }
+            (SendState::Block(n), NAK) => {
+                self.retries += 1;
+                self.block(n, file, out)
+            }
+            (SendState::Eot(1), NAK) => {
+                self.state = SendState::Eot(2);
+                put(out, 0, &[EOT])
+            }
+            (SendState::Eot(_), ACK) => {
+                self.state = SendState::Close;
+                0
+            }
+            (SendState::Close, C) => Self::packet(out, 0, &[], true, 0),
+            (SendState::Close, ACK) => {
+                self.state = SendState::Done;
+                0
+            }
+            _ => 0,
+        }
+    }
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used, clippy::indexing_slicing, clippy::panic)]
 mod tests {
     extern crate std;
     use super::*;
     use std::format;
+    use std::string::String;
     use std::vec;
     use std::vec::Vec;
 
@@ -435,6 +683,151 @@ mod tests {
         let mut r = Receiver::new(1 << 20);
         assert_eq!(r.cancel(), Action::Aborted(Abort::Local, CAN2));
         assert_eq!(run(&mut r, &header("a", 10), &mut f), []);
+    }
+
+    /// The sender's packet is well framed, its CRC the `crc` crate's (not this
+    /// crate's table), its data `want` padded with `pad`.
+    fn assert_packet(p: &[u8], blk: u8, want: &[u8], pad: u8) {
+        let n = if p[0] == SOH { 128 } else { 1024 };
+        assert_eq!(p.len(), n + 5);
+        assert_eq!(p[0], if n == 128 { SOH } else { STX });
+        assert_eq!((p[1], p[2]), (blk, !blk));
+        let data = &p[3..3 + n];
+        assert_eq!(&data[..want.len()], want);
+        assert!(data[want.len()..].iter().all(|&b| b == pad));
+        let crc = crc::Crc::<u16>::new(&crc::CRC_16_XMODEM).checksum(data);
+        assert_eq!(&p[3 + n..], &crc.to_be_bytes());
+    }
+
+    /// Send `file` through a sender into a receiver, byte by byte both ways; the file
+    /// received, and the sender.
+    fn loopback(file: &[u8]) -> (Vec<u8>, Sender) {
+        let mut tx = Sender::new("docking-controller.dcs", file.len() as u32);
+        let mut rx = Receiver::new(1 << 20);
+        let mut got = Vec::new();
+        let mut out = [0u8; PACKET_MAX];
+        let mut to_rx: Vec<u8> = Vec::new();
+        let mut to_tx: Vec<u8> = rx.idle().to_vec();
+        for _ in 0..10_000 {
+            for b in core::mem::take(&mut to_tx) {
+                let n = tx.on_byte(b, file, &mut out);
+                to_rx.extend_from_slice(&out[..n]);
+            }
+            for b in core::mem::take(&mut to_rx) {
+                match rx.feed(b) {
+                    Action::Send(x) => to_tx.extend_from_slice(x),
+                    Action::Start { .. } => to_tx.extend_from_slice(rx.ack()),
+                    Action::Data { offset, len } => {
+                        assert_eq!(offset as usize, got.len());
+                        assert_eq!(rx.data().len(), len);
+                        got.extend_from_slice(rx.data());
+                        to_tx.extend_from_slice(rx.ack());
+                    }
+                    Action::Done(x) | Action::Aborted(_, x) => to_tx.extend_from_slice(x),
+                    Action::None => {}
+                }
+            }
+            if to_tx.is_empty() && to_rx.is_empty() {
+                break;
+            }
+        }
+        (got, tx)
+    }
+
+    #[test]
+    fn the_sender_and_the_receiver_carry_a_file_whole() {
+        for len in [1, 1023, 1024, 1025, 3000, 256 * 1024 + 7] {
+            let img = image(len);
+            let (got, tx) = loopback(&img);
+            assert!(got == img, "{len} bytes");
+            assert_eq!(tx.state(), SendState::Done);
+            assert_eq!(tx.acknowledged(), len as u32);
+            assert_eq!(tx.retries(), 0);
+        }
+    }
+
+    #[test]
+    fn the_senders_packets_are_sbs() {
+        let img = image(1500);
+        let mut tx = Sender::new("app.dcs", 1500);
+        let mut out = [0u8; PACKET_MAX];
+        // Nothing before the receiver's 'C'.
+        assert_eq!(tx.on_byte(ACK, &img, &mut out), 0);
+        let n = tx.on_byte(C, &img, &mut out);
+        assert_packet(&out[..n], 0, b"app.dcs\x001500 0 100644", 0);
+        assert_eq!(tx.on_byte(ACK, &img, &mut out), 0);
+        let n = tx.on_byte(C, &img, &mut out);
+        assert_packet(&out[..n], 1, &img[..1024], PAD);
+        assert_eq!(tx.acknowledged(), 0);
+        // A NAK: the same block again.
+        let n = tx.on_byte(NAK, &img, &mut out);
+        assert_packet(&out[..n], 1, &img[..1024], PAD);
+        assert_eq!(tx.retries(), 1);
+        let n = tx.on_byte(ACK, &img, &mut out);
+        assert_packet(&out[..n], 2, &img[1024..], PAD);
+        assert_eq!(tx.acknowledged(), 1024);
+        // The time-out: the same block again.
+        let n = tx.on_timeout(&img, &mut out);
+        assert_packet(&out[..n], 2, &img[1024..], PAD);
+        assert_eq!(tx.on_byte(ACK, &img, &mut out), 1);
+        assert_eq!(out[0], EOT);
+        assert_eq!(tx.acknowledged(), 1500);
+        assert_eq!(tx.on_byte(NAK, &img, &mut out), 1);
+        assert_eq!(out[0], EOT);
+        assert_eq!(tx.on_byte(ACK, &img, &mut out), 0);
+        let n = tx.on_byte(C, &img, &mut out);
+        assert_packet(&out[..n], 0, &[], 0);
+        assert_eq!(tx.on_byte(ACK, &img, &mut out), 0);
+        assert!(tx.finished());
+        assert_eq!(tx.state(), SendState::Done);
+    }
+
+    #[test]
+    fn the_sender_stops_on_the_receivers_cancel_and_cancels_itself() {
+        let img = image(5000);
+        let mut out = [0u8; PACKET_MAX];
+        let mut tx = Sender::new("a", 5000);
+        tx.on_byte(C, &img, &mut out);
+        tx.on_byte(ACK, &img, &mut out);
+        tx.on_byte(C, &img, &mut out);
+        // One CAN is noise; two cancel.
+        assert_eq!(tx.on_byte(CAN, &img, &mut out), 0);
+        assert!(!tx.finished());
+        assert_eq!(tx.on_byte(CAN, &img, &mut out), 0);
+        assert_eq!(tx.state(), SendState::Cancelled);
+        assert_eq!(tx.on_byte(ACK, &img, &mut out), 0);
+        let mut tx = Sender::new("a", 5000);
+        assert_eq!(tx.cancel(&mut out), 2);
+        assert_eq!(&out[..2], &[CAN, CAN]);
+        assert!(tx.finished());
+        // A receiver cancelled by the sender's CAN CAN ends without the file.
+        let mut rx = Receiver::new(1 << 20);
+        let mut f = Vec::new();
+        run(&mut rx, &header("a", 5000), &mut f);
+        assert_eq!(
+            run(&mut rx, &out[..2], &mut f),
+            [Action::Aborted(Abort::Cancelled, &[])]
+        );
+    }
+
+    #[test]
+    fn a_long_name_is_cut_and_block_numbers_wrap() {
+        let name: String = core::iter::repeat_n('n', 100).collect();
+        let img = image(300 * 1024);
+        let mut tx = Sender::new(&name, img.len() as u32);
+        let mut out = [0u8; PACKET_MAX];
+        let n = tx.on_byte(C, &img, &mut out);
+        let mut want = std::vec![b'n'; NAME_MAX];
+        want.push(0);
+        want.extend_from_slice(b"307200 0 100644");
+        assert_packet(&out[..n], 0, &want, 0);
+        tx.on_byte(ACK, &img, &mut out);
+        tx.on_byte(C, &img, &mut out);
+        for blk in 2..=257u32 {
+            let n = tx.on_byte(ACK, &img, &mut out);
+            let from = (blk as usize - 1) * 1024;
+            assert_packet(&out[..n], blk as u8, &img[from..from + 1024], PAD);
+        }
     }
 
     #[test]

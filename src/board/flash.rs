@@ -135,16 +135,19 @@ macro_rules! wait_idle_feeding {
         // zeroed by a call to flash); one user at a time: interrupts are masked.
         let responder = &mut *core::ptr::addr_of_mut!($crate::board::modbus::RESPONDER);
         let start = core::ptr::read_volatile(DWT_CYCCNT);
+        // Characters idle had not taken yet (a request that began before the wait).
+        if $crate::board::modbus::RING.pending() {
+            $crate::board::modbus::busy_responder(responder, start, $max_cycles);
+        }
         loop {
             let sr = core::ptr::read_volatile(FLASH_SR);
-            $crate::board::modbus::busy_responder_step(
-                responder,
-                core::ptr::read_volatile($crate::board::clock::TIM5_CNT),
-            );
             if sr & SR_BSY == 0
                 || core::ptr::read_volatile(DWT_CYCCNT).wrapping_sub(start) > $max_cycles
             {
                 break sr;
+            }
+            if $crate::board::modbus::char_waiting() {
+                $crate::board::modbus::busy_responder(responder, start, $max_cycles);
             }
             core::ptr::write_volatile(IWDG_KR, 0xAAAA);
         }

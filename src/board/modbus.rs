@@ -290,26 +290,58 @@ fn wait_sr(flag: u32, max: u32) {
     }
 }
 
-/// One step of the erase's responder (inlined into `flash.rs`'s SRAM loop, with every
-/// interrupt masked: it calls nothing and reads no flash): a received character into the
-/// ring, then each whole frame in the ring answered — exception 06 to a valid request
-/// for this unit. `now_us`: TIM5's low word.
+/// Whether a character waits in USART3's data register (inlined into `flash.rs`'s SRAM
+/// loop, with every interrupt masked: it calls nothing and reads no flash). One status
+/// register: the loop that polls it reads nothing but status registers while the line is
+/// quiet (the virtual board jumps over such a wait, as over any polling loop).
 #[inline(always)]
-pub fn busy_responder_step(r: &mut Responder, now_us: u32) {
-    // SAFETY: USART3's SR and DR (fixed MMIO); reading SR then DR clears RXNE and the
-    // error flags, as the interrupt would have.
-    unsafe {
-        let sr = core::ptr::read_volatile(SR);
-        if sr & (SR_RXNE | SR_RX_ERRORS) != 0 {
-            let dr = core::ptr::read_volatile(DR) as u16 & 0xFF;
-            let c = if sr & SR_RX_ERRORS != 0 {
-                LINE_ERROR
-            } else {
-                dr
-            };
-            RING.push(c, now_us);
+pub fn char_waiting() -> bool {
+    // SAFETY: a read of USART3's SR (fixed MMIO): no side effect.
+    unsafe { core::ptr::read_volatile(SR) & (SR_RXNE | SR_RX_ERRORS) != 0 }
+}
+
+/// The erase's responder, once a character came (or the ring held some when the erase
+/// began): each character into the ring, each whole frame answered — exception 06 to a
+/// valid request for this unit — until the ring is empty; a frame still arriving when
+/// the flash is done (`FLASH_SR.BSY` clear) or `cycles_left` have passed is left in the
+/// ring, whole, to idle. Feeds the watchdog meanwhile. In SRAM (`.data`), called from
+/// the flash's wait only, every interrupt masked.
+#[inline(never)]
+#[link_section = ".data.modbus_busy_responder"]
+pub fn busy_responder(r: &mut Responder, start_cycles: u32, max_cycles: u32) {
+    use super::flash::{DWT_CYCCNT, FLASH_SR, IWDG_KR, SR_BSY};
+    loop {
+        // SAFETY: USART3's SR and DR, TIM5's counter, FLASH_SR, the cycle counter and
+        // the watchdog's key register (fixed MMIO); reading SR then DR clears RXNE and
+        // the error flags, as the interrupt would have.
+        unsafe {
+            let sr = core::ptr::read_volatile(SR);
+            if sr & (SR_RXNE | SR_RX_ERRORS) != 0 {
+                let dr = core::ptr::read_volatile(DR) as u16 & 0xFF;
+                let c = if sr & SR_RX_ERRORS != 0 {
+                    LINE_ERROR
+                } else {
+                    dr
+                };
+                RING.push(c, core::ptr::read_volatile(super::clock::TIM5_CNT));
+            }
+            answer_whole_frames(r);
+            if !RING.pending()
+                || core::ptr::read_volatile(FLASH_SR) & SR_BSY == 0
+                || core::ptr::read_volatile(DWT_CYCCNT).wrapping_sub(start_cycles) > max_cycles
+            {
+                return;
+            }
+            core::ptr::write_volatile(IWDG_KR, 0xAAAA);
         }
     }
+}
+
+/// Each whole frame in the ring answered.
+#[inline(always)]
+fn answer_whole_frames(r: &mut Responder) {
+    // SAFETY: TIM5's counter, a fixed MMIO address.
+    let now_us = unsafe { core::ptr::read_volatile(super::clock::TIM5_CNT) };
     let char_us = setting(&RESPONDER_CHAR_US);
     let t35 = setting(&RESPONDER_T35_US);
     while let Some(end) = RING.first_frame_end(now_us, char_us, t35) {

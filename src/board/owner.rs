@@ -24,7 +24,11 @@
 //! * TIM2 (the control tick's timeout) is more than `RESERVE_US` from its update.
 //!
 //! Outside it, the service returns at once and the control task pends it again after
-//! its next step, so a job waits at most one sample period (12.5 ms at 80 SPS). A job
+//! its next step, so a job waits at most one sample period (12.5 ms at 80 SPS). Before
+//! the first step the window is open while TIM2's update is more than `RESERVE_US`
+//! away. A client whose job found the machine not ready for it (the update's flash
+//! work while a Modbus reply is on the line) waits for the next window
+//! ([`sleep_until_step_after`]) rather than posting the job again in the same one. A job
 //! that fits in the reserve therefore ends before the next step is due: what a
 //! technician or the PLC does cannot delay the control step. Every job that runs while
 //! anything moves is short (a console command's gather, one Modbus PDU: tens of µs);
@@ -37,9 +41,10 @@
 //!
 //! After each run the service publishes, with single-word atomics (no critical
 //! section: nothing may mask the E-STOP), what idle reads between jobs: the state's name
-//! (the console prompt). Idle publishes back the maintenance mode (the console's login)
-//! and the stack's high-water mark; whether the Modbus line holds the flash back is read
-//! fresh at every run (`modbus::busy`). (The log's events are not handed over: the control step logs each one where it
+//! (the console prompt). Idle publishes back the end of the maintenance mode (its idle
+//! timeout: a grant is a job, in force before the console says so) and the stack's
+//! high-water mark; whether the Modbus line holds the flash back is read fresh at every
+//! run (`modbus::busy`). (The log's events are not handed over: the control step logs each one where it
 //! happens; idle logged them a second time up to issue 20.)
 
 use core::cell::UnsafeCell;
@@ -62,24 +67,58 @@ pub const RESERVE_US: u32 = 2_000;
 
 /// When the last control step began (TIM5's low word, µs).
 static STEP_BEGAN_US: AtomicU32 = AtomicU32::new(0);
-/// Whether any step has run yet (before it, no window).
+/// Whether any step has run yet.
 static STEPPED: AtomicBool = AtomicBool::new(false);
+/// Control runs that stepped so far (wraps): a new window opened when it changed.
+static STEPS: AtomicU32 = AtomicU32::new(0);
 
 /// The control task, as a step begins: the window opens.
 pub fn step_began(now_us_low: u32) {
     STEP_BEGAN_US.store(now_us_low, Ordering::Relaxed);
     STEPPED.store(true, Ordering::Release);
+    STEPS.fetch_add(1, Ordering::Release);
 }
 
 /// Whether a job may start now: inside the window after the step that began last, with
 /// `RESERVE_US` left before the next one and before TIM2's update (`tim2_left_us`: how
-/// long until it; TIM2 counts µs).
+/// long until it; TIM2 counts µs). Before the first step (boot: nothing moves, and at
+/// 10 SPS the first step is 100 ms away), whenever TIM2's update is more than
+/// `RESERVE_US` away: idle's first request (the greeting) used to wait for that step,
+/// reading no console byte meanwhile, and a flooded console lapped its 44 ms ring
+/// (issue 32, item 7).
 pub fn in_window(now_us_low: u32, period_us: u32, tim2_left_us: u32) -> bool {
     if !STEPPED.load(Ordering::Acquire) {
-        return false;
+        return tim2_left_us > RESERVE_US;
     }
     let since = now_us_low.wrapping_sub(STEP_BEGAN_US.load(Ordering::Relaxed));
     since < period_us.saturating_sub(RESERVE_US) && tim2_left_us > RESERVE_US
+}
+
+/// Idle: sleep until a control step has begun after `steps` ([`steps`]): the next
+/// service window, with the inputs the step read (a retry that must wait for the world
+/// to change waits here, not in a loop of jobs within one window: `update.rs`).
+#[cfg(feature = "updater")]
+pub fn sleep_until_step_after(steps: u32) {
+    loop {
+        // As `Mailbox::call`: checked with interrupts masked, so a step that begins
+        // between the check and `wfi` leaves TIM2 pending and `wfi` returns at once.
+        let stepped = cortex_m::interrupt::free(|_| {
+            let s = STEPS.load(Ordering::Acquire) != steps;
+            if !s {
+                cortex_m::asm::wfi();
+            }
+            s
+        });
+        if stepped {
+            return;
+        }
+    }
+}
+
+/// Control runs that stepped so far (see [`sleep_until_step_after`]).
+#[cfg(feature = "updater")]
+pub fn steps() -> u32 {
+    STEPS.load(Ordering::Acquire)
 }
 
 const EMPTY: u8 = 0;
@@ -178,7 +217,12 @@ pub fn state_name() -> &'static str {
 
 // --- Published by idle, applied by the service -----------------------------------------
 
-/// The console's maintenance mode (a technician logged in).
+/// The console's maintenance mode (a technician logged in) as idle last saw it. Only
+/// its **end** goes this way (the session's idle timeout): a grant is a job of its own
+/// (the console's `store`, which replies only once the controller has it), and `maint
+/// exit` ends it in its own job; idle publishes `true` before the grant's job, so that a
+/// window between the job and the next publish never reads an older `false`
+/// (docs/board.md, "What holds between the steps", rule 2).
 pub static MAINTENANCE: AtomicBool = AtomicBool::new(false);
 /// The stack's high-water mark, bytes (0: not measured yet), and its size.
 pub static STACK_USED: AtomicU32 = AtomicU32::new(0);
@@ -187,7 +231,9 @@ pub static STACK_SIZE: AtomicU32 = AtomicU32::new(0);
 
 /// The service: apply what idle published.
 pub fn apply_published(ctrl: &mut Ctrl) {
-    ctrl.set_maintenance_mode(MAINTENANCE.load(Ordering::Relaxed));
+    if !MAINTENANCE.load(Ordering::Relaxed) {
+        ctrl.set_maintenance_mode(false);
+    }
     // The line as it is now (a request idle took and has not answered, a reply on the
     // wire): read at every run, never a flag published earlier (`modbus::busy`).
     ctrl.set_bus_busy(super::modbus::busy());

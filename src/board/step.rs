@@ -15,7 +15,9 @@
 //! [`BoardStop::stop_now`] is what the safety path calls from the HX711's interrupt:
 //! one store to GPIOE's set/reset register (EN high, no read-modify-write), the DDS
 //! increment to zero, the latch set. [`GatedEn`](docking_logic::safety::GatedEn)
-//! keeps EN from going low again until the controller re-arms the latch.
+//! keeps EN from going low again until the controller re-arms the latch, and
+//! [`GatedPulses`](docking_logic::safety::GatedPulses) a rate from being set; the tick
+//! emits no pulse while the latch is set (a STEP edge with EN high is never made).
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
@@ -70,7 +72,15 @@ impl StepGen {
         let dir_en = unsafe { core::ptr::read_volatile(GPIOE_ODR) } & DIR_EN;
         let changed = dir_en != self.last_dir_en;
         self.last_dir_en = dir_en;
-        let inc = INCREMENT.load(Ordering::Relaxed);
+        // No pulse while a stop is latched, whatever rate was set (a rate written after
+        // a stop the control step had not seen yet: issue 32, item 6; the driver's
+        // `GatedPulses` refuses those too; docs/board.md, "What holds between the
+        // steps", rule 7).
+        let inc = if LATCHED.load(Ordering::Relaxed) {
+            0
+        } else {
+            INCREMENT.load(Ordering::Relaxed)
+        };
         if inc == 0 {
             // At rest: no more ticks once the pin is low (the core may sleep).
             self.phase = 0;

@@ -124,19 +124,33 @@ pub struct UpdateFlash;
 
 #[cfg(feature = "updater")]
 /// Tries a flash job gets when the machine is not at rest just then (a Modbus reply on
-/// the line): one per service window, about 5 s at 80 SPS.
+/// the line): one per service window, 5 s at 80 SPS (50 s at 10 SPS).
 const OWNER_TRIES: u32 = 400;
 
 #[cfg(feature = "updater")]
 /// Run `op` in the owner's window at rest; retried while a Modbus reply holds the flash.
+///
+/// Each try sees the line as it is at that try (`modbus::busy`: a request taken and not
+/// answered, or the RS-485 driver's pin), and a try that finds the machine not at rest waits for
+/// the next service window before the next: the 400 tries used to run back to back
+/// in one window re-applying a bus-busy flag idle could not refresh, so a PLC polling
+/// once a second failed the update (issue 32, item 3; docs/board.md, "What holds
+/// between the steps", rule 8).
 fn with_owner(op: &mut dyn FnMut() -> Result<(), OdoFlashError>) -> Result<(), FlashError> {
     for _ in 0..OWNER_TRIES {
         let mut r = None;
+        // The window the try ran in (read in it: the job may wait for the next).
+        let mut steps = 0;
         MAILBOX.call(&mut |ctrl: &mut Ctrl| {
+            steps = super::owner::steps();
+            ctrl.set_bus_busy(super::modbus::busy());
             if ctrl.updating() && ctrl.at_rest() {
                 r = Some(op());
             }
         });
+        if r.is_none() {
+            super::owner::sleep_until_step_after(steps);
+        }
         match r {
             Some(Ok(())) => return Ok(()),
             Some(Err(OdoFlashError::Status(sr))) => return Err(FlashError::Status(sr)),
@@ -148,6 +162,31 @@ fn with_owner(op: &mut dyn FnMut() -> Result<(), OdoFlashError>) -> Result<(), F
         }
     }
     Err(FlashError::Timeout)
+}
+
+#[cfg(feature = "updater")]
+/// Run `op` with the controller in the owner's window once the machine is at rest with
+/// the Modbus line free (tried once a window, [`OWNER_TRIES`] windows at most; then
+/// run anyway, its records queued). The update's end writes its records at once and
+/// then restarts: with a reply on the line its image record was refused and its audit
+/// record queued in RAM, lost at the restart (issue 32's review).
+pub fn at_rest(op: &mut dyn FnMut(&mut Ctrl)) {
+    for i in 0..OWNER_TRIES {
+        let mut done = false;
+        let mut steps = 0;
+        MAILBOX.call(&mut |ctrl: &mut Ctrl| {
+            steps = super::owner::steps();
+            ctrl.set_bus_busy(super::modbus::busy());
+            if ctrl.at_rest() || i + 1 == OWNER_TRIES {
+                op(ctrl);
+                done = true;
+            }
+        });
+        if done {
+            return;
+        }
+        super::owner::sleep_until_step_after(steps);
+    }
 }
 
 #[cfg(feature = "updater")]

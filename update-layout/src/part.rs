@@ -112,7 +112,7 @@ pub struct Paged<'a, F: ?Sized> {
     pending: core::cell::Cell<u32>,
 }
 
-/// Words read at a time by the blank check and the erased words' verification.
+/// Bytes read at a time by the blank check and the erased words' verification.
 const CHUNK: usize = 64;
 
 impl<'a, F: Sectors + ?Sized> Paged<'a, F> {

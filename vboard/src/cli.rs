@@ -10,10 +10,10 @@ use crate::periph::flash::FlashTiming;
 use crate::scene::{Options, SceneOptions, SCENES};
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--cut transfer|swap|boot] [--curve FILE.json] [--flood] [--log] [--json] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] | estimate-cost [--readings N] [--firmware ELF] | signature-cost [--rate 10|80] [--cpi X] [--firmware ELF] [--json] | swap-time [--firmware ELF] [--json]";
+pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--cut transfer|swap|boot] [--curve FILE.json] [--flood] [--log] [--json] [--no-skip] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] [--no-skip] | estimate-cost [--readings N] [--firmware ELF] | signature-cost [--rate 10|80] [--cpi X] [--firmware ELF] [--json] [--no-skip] | swap-time [--firmware ELF] [--json]";
 
 /// The sweep's usage (`vboard sweep`).
-pub const SWEEP_USAGE: &str = "       vboard sweep [--scene NAME[,NAME...]] [--seeds 1..10|1,2,3] [--cpi X[,X...]] [--timing cpi|art[,...]] [--flood] [--cycles N] [--rate 10|80] [--lsi-hz HZ] [--flash-timing max|typical] [--firmware ELF] [--jobs N] [--json]";
+pub const SWEEP_USAGE: &str = "       vboard sweep [--scene NAME[,NAME...]] [--seeds 1..10|1,2,3] [--cpi X[,X...]] [--timing cpi|art[,...]] [--flood] [--cycles N] [--rate 10|80] [--lsi-hz HZ] [--flash-timing max|typical] [--firmware ELF] [--jobs N] [--json] [--no-skip]";
 
 /// How the command failed.
 #[derive(Debug)]
@@ -77,7 +77,8 @@ fn command_help(cmd: &str) -> Option<String> {
 }
 
 /// What each option does, by its flag (shared by the commands that take it).
-const OPTION_HELP: [(&str, &str); 24] = [
+const OPTION_HELP: [(&str, &str); 25] = [
+    ("--no-skip", "emulate every iteration of the polling loops (the same results, slower: the proof that skipping changes nothing)"),
     ("--firmware", "the image to run (default: the release build at the root; refused if older than its sources)"),
     ("--cycles", "docking cycles to run"),
     ("--rate", "the HX711's output rate, samples a second (its RATE pin)"),
@@ -145,6 +146,31 @@ fn one_option_a_line(synopsis: &str) -> String {
     out
 }
 
+/// The commands, one a line (`vboard --help`, and after a usage error).
+fn overview() -> String {
+    let mut s = String::from(
+        "usage: vboard COMMAND [OPTIONS]   (vboard COMMAND --help: its options, one a line)",
+    );
+    for (cmd, what) in [
+        ("scene", "a scene on the virtual board"),
+        (
+            "serve",
+            "the image in real time, its console (and Modbus) on a pty or TCP",
+        ),
+        ("estimate-cost", "the wear estimate's cost on the M4"),
+        (
+            "sweep",
+            "scenes over seeds and timing models, the worst figures",
+        ),
+        ("swap-time", "the bootloader's swap and revert, timed"),
+    ] {
+        let first = command_help(cmd).unwrap_or_default();
+        let first = first.lines().next().unwrap_or(cmd);
+        s += &format!("\n  {:<40} {what}", first.trim_start_matches("vboard "));
+    }
+    s
+}
+
 /// Session options from the common flags.
 fn session(o: &Opts) -> Result<Options, Failure> {
     let mut s = Options::new();
@@ -159,7 +185,7 @@ fn session(o: &Opts) -> Result<Options, Failure> {
         ));
     }
     s.seed = o.num("seed", 1u64, 0, u64::MAX)?;
-    let cpi = o.num("cpi", 1.0f64, 0.5, 10.0)?;
+    let cpi = o.num("cpi", 1.0f64, 1.0, 3.0)?;
     let lsi = o.num("lsi-hz", 32_000u64, 17_000, 47_000)?;
     let timing = match o.get("flash-timing") {
         None | Some("max") => FlashTiming::Max,
@@ -180,6 +206,7 @@ fn session(o: &Opts) -> Result<Options, Failure> {
         timing: timing_model,
         lsi_hz: lsi,
         flash_timing: timing,
+        skip: !o.flag("no-skip"),
     };
     Ok(s)
 }
@@ -208,7 +235,7 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
             "cut",
             "curve",
         ],
-        &["json", "flood", "log"],
+        &["json", "flood", "log", "no-skip"],
     )?;
     if o.get("curve").is_some() && !hil_sim::sigscene::SCENES.contains(&name.as_str()) {
         return usage(format!(
@@ -264,7 +291,7 @@ fn serve(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
             "seed",
             "modbus-tcp",
         ],
-        &["pty", "modbus-pty", "plc"],
+        &["pty", "modbus-pty", "plc", "no-skip"],
     )?;
     let link = match (o.flag("pty"), o.get("tcp")) {
         (true, Some(_)) => return usage("give --pty or --tcp, not both"),
@@ -311,7 +338,7 @@ fn sweep_cmd(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     let own = ["scene", "seeds", "cpi", "timing", "jobs"];
     let common = ["firmware", "cycles", "rate", "lsi-hz", "flash-timing"];
     let valued: Vec<&str> = own.iter().chain(&common).copied().collect();
-    let o = Opts::parse(args, &valued, &["json", "flood"])?;
+    let o = Opts::parse(args, &valued, &["json", "flood", "no-skip"])?;
     let scenes: Vec<String> = o
         .get("scene")
         .unwrap_or("overload,estop")
@@ -354,13 +381,16 @@ fn sweep_cmd(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     let mut base = None;
     for (t, c) in plan {
         let mut a = base_args.clone();
+        if o.flag("no-skip") {
+            a.push("--no-skip".to_string());
+        }
         a.extend(["--cpi".to_string(), c.to_string()]);
         if let Some(t) = t {
             a.extend(["--timing".to_string(), t.to_string()]);
         }
         let mut keys = vec!["cpi", "timing"];
         keys.extend(common);
-        let s = session(&Opts::parse(&a, &keys, &[])?)?;
+        let s = session(&Opts::parse(&a, &keys, &["no-skip"])?)?;
         models.push(crate::sweep::Model {
             label: format!("{} {c}", t.unwrap_or("cpi")),
             board: s.board,
@@ -424,7 +454,7 @@ fn estimate_cost(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
 /// `signature-cost [--rate 10|80] [--cpi X] [--firmware ELF] [--json]`: what the docking
 /// signature costs the image (crate::scene::signature_cost).
 fn signature_cost(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
-    let o = Opts::parse(args, &["firmware", "rate", "cpi"], &["json"])?;
+    let o = Opts::parse(args, &["firmware", "rate", "cpi"], &["json", "no-skip"])?;
     let opts = session(&o)?;
     let r = crate::scene::signature_cost(&opts).map_err(Failure::Run)?;
     let text = if o.flag("json") {
@@ -463,7 +493,7 @@ fn swap_time(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
 /// Run the command line `args` (without the program name).
 pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     let Some((cmd, rest)) = args.split_first() else {
-        return usage(USAGE);
+        return usage(overview());
     };
     if rest.iter().any(|a| a == "--help" || a == "-h") {
         if let Some(h) = command_help(cmd) {
@@ -479,10 +509,10 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
         "sweep" => sweep_cmd(rest, out),
         "swap-time" => swap_time(rest, out),
         "help" | "--help" | "-h" => {
-            let _ = writeln!(out, "{USAGE}\n{SWEEP_USAGE}");
+            let _ = writeln!(out, "{}", overview());
             Ok(())
         }
-        other => usage(format!("unknown command '{other}'; {USAGE}")),
+        other => usage(format!("unknown command '{other}'\n{}", overview())),
     }
 }
 
@@ -530,6 +560,32 @@ mod help_tests {
             out.contains("\n  --modbus-pty | --modbus-tcp 127.0.0.1:PORT "),
             "{out}"
         );
+    }
+
+    /// `vboard --help` printed one line of 1,200 characters; `--cpi 9` was run.
+    #[test]
+    fn help_is_a_command_a_line_and_cpi_is_one_to_three() {
+        let (r, out) = run_args(&["--help"]);
+        assert!(r.is_ok());
+        let lines: Vec<&str> = out.lines().collect();
+        assert_eq!(lines.len(), 6, "{out}");
+        assert!(lines.iter().all(|l| l.len() < 120), "{out}");
+        for cmd in ["scene", "serve", "estimate-cost", "sweep", "swap-time"] {
+            assert!(
+                lines.iter().any(|l| l.trim_start().starts_with(cmd)),
+                "{cmd}: {out}"
+            );
+        }
+        match run_args(&[]).0 {
+            Err(Failure::Usage(e)) => assert_eq!(e.lines().count(), 6, "{e}"),
+            _ => panic!("no command is a usage error"),
+        }
+        for cpi in ["9", "0.5", "3.5"] {
+            match run_args(&["scene", "boot", "--cpi", cpi]).0 {
+                Err(Failure::Usage(e)) => assert!(e.contains("cpi"), "{e}"),
+                _ => panic!("--cpi {cpi} accepted"),
+            }
+        }
     }
 
     #[test]

@@ -27,9 +27,7 @@
 //! * **Reset**: peripherals to reset values (RCC keeps the reset flags), SRAM kept,
 //!   `SP` and `PC` from the vector table.
 
-use unicorn_engine::{
-    Arch, ArmCpuModel, HookType, MemType, Mode, Prot, RegisterARM, RegisterARMCP, Unicorn,
-};
+use unicorn_engine::{Arch, ArmCpuModel, HookType, MemType, Mode, Prot, RegisterARM, Unicorn};
 
 use crate::image::Image;
 use crate::periph::flash::{FlashTiming, FLASH_BASE, ODOMETER_BASE};
@@ -75,6 +73,8 @@ pub struct BoardConfig {
     pub lsi_hz: u64,
     /// Flash program/erase timing.
     pub flash_timing: FlashTiming,
+    /// Skip polling loops ([`crate::loops`]; `--no-skip`: every iteration runs).
+    pub skip: bool,
 }
 
 impl Default for BoardConfig {
@@ -84,6 +84,7 @@ impl Default for BoardConfig {
             timing: Timing::Cpi,
             lsi_hz: 32_000,
             flash_timing: FlashTiming::Max,
+            skip: true,
         }
     }
 }
@@ -108,6 +109,27 @@ const GP_REGS: [RegisterARM; 13] = [
 ];
 const CODE_LEN: u32 = ODOMETER_BASE - FLASH_BASE;
 const WFI: u16 = 0xBF30;
+
+/// FNV-1a, 64 bits.
+struct Fnv(u64);
+
+impl Default for Fnv {
+    fn default() -> Self {
+        Self(0xCBF2_9CE4_8422_2325)
+    }
+}
+
+impl Fnv {
+    fn bytes(&mut self, b: &[u8]) {
+        for &x in b {
+            self.0 = (self.0 ^ u64::from(x)).wrapping_mul(0x0100_0000_01B3);
+        }
+    }
+
+    fn u64(&mut self, x: u64) {
+        self.bytes(&x.to_le_bytes());
+    }
+}
 
 /// Why a run stopped before its end time.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -165,6 +187,8 @@ pub struct Board {
     sleeping: bool,
     /// Resets so far, with their time, ps (the power-on included).
     pub resets: Vec<(u64, ResetCause)>,
+    /// The emulation's speed against the wall clock, window by window.
+    pub speed: crate::time::SpeedMeter,
 }
 
 fn reg(uc: &Unicorn<'_, Soc>, r: RegisterARM) -> u32 {
@@ -176,20 +200,12 @@ fn set(uc: &mut Unicorn<'_, Soc>, r: RegisterARM, v: u32) {
 }
 
 /// Rebuild the engine's cached mode flags after a change of IPSR/CONTROL from outside.
+/// A write of the flags does that in unicorn 2.1 (`APSR_NZCV`: `arm_rebuild_hflags`);
+/// the flags are written back as they are. (A failing coprocessor-register write did it
+/// too, but each failure costs the engine a `getenv` for its warning: 1 % of a run.)
 fn rebuild_hflags(uc: &mut Unicorn<'_, Soc>) {
-    let cp = RegisterARMCP {
-        cp: 15,
-        is64: 0,
-        sec: 0,
-        crn: 15,
-        crm: 15,
-        opc1: 7,
-        opc2: 7,
-        val: 0,
-    };
-    // No such register on an M profile: the write fails, but unicorn rebuilds the flags
-    // after any coprocessor-register write.
-    let _ = uc.reg_write_arm_coproc(&cp);
+    let nzcv = uc.reg_read(RegisterARM::APSR_NZCV).unwrap_or(0);
+    let _ = uc.reg_write(RegisterARM::APSR_NZCV, nzcv);
 }
 
 fn masks(uc: &Unicorn<'_, Soc>) -> Masks {
@@ -266,6 +282,7 @@ impl Board {
         let mut soc = Soc::new(world, cfg.cpi_milli, cfg.lsi_hz, cfg.flash_timing);
         let art = cfg.timing == Timing::Art;
         soc.art_timing = art;
+        soc.loops.enabled = cfg.skip;
         let e = |w: &str, err: unicorn_engine::uc_error| format!("unicorn {w}: {err:?}");
         let mut uc =
             Unicorn::new_with_data(Arch::ARM, Mode::THUMB, soc).map_err(|x| e("open", x))?;
@@ -431,6 +448,9 @@ impl Board {
                 }
             }
             let n = block_insns(uc, addr, size);
+            if uc.get_data().loops.enabled && crate::loops::on_block(uc, a, size, n) {
+                return;
+            }
             if uc.get_data().meter.is_some() {
                 meter_block(uc, addr as u32);
             }
@@ -530,6 +550,7 @@ impl Board {
             next_rtt_ps: 0,
             sleeping: false,
             resets: Vec::new(),
+            speed: Default::default(),
         })
     }
 }
@@ -1053,6 +1074,12 @@ impl Board {
     /// unmodelled peripheral access, an engine failure); faults of the image are not
     /// errors: they are taken as the core would.
     pub fn run_until(&mut self, until_ps: u64) -> Result<(), Halt> {
+        let r = self.run_until_inner(until_ps);
+        self.speed.tick(self.now());
+        r
+    }
+
+    fn run_until_inner(&mut self, until_ps: u64) -> Result<(), Halt> {
         loop {
             let done = self.uc.get_data_mut().process();
             if let Some(d) = done {
@@ -1127,6 +1154,7 @@ impl Board {
             }
             let pc = reg(&self.uc, RegisterARM::PC);
             self.uc.get_data_mut().runs += 1;
+            self.uc.get_data_mut().loops.restart();
             let r = self.uc.emu_start((pc | 1) as u64, 0, 0, 0);
             let stopped = self.uc.get_data().stop;
             match r {
@@ -1265,12 +1293,32 @@ impl Board {
     pub fn watch_pc(&mut self, addr: u32) -> std::rc::Rc<std::cell::Cell<u64>> {
         let hits = std::rc::Rc::new(std::cell::Cell::new(0u64));
         let h = hits.clone();
+        self.soc_mut().loops.watched_pcs.push(addr & !1);
         let _ = self
             .uc
             .add_code_hook(addr as u64, addr as u64, move |_, _, _| {
                 h.set(h.get() + 1);
             });
         hits
+    }
+
+    /// Run `f` with the board's peripherals and world each time the core is about to
+    /// execute the instruction at `addr`; when it returns `true`, the engine stops there,
+    /// so an interrupt `f` made pending (a line it changed, [`Soc::sample_exti`]) is
+    /// taken before the next instruction runs, as on the part at that instant. For
+    /// placing an event at a sub-step instant (`tests/between_steps.rs`: an E-STOP edge
+    /// between the control step's gate check and its step rate).
+    pub fn at_pc(&mut self, addr: u32, mut f: impl FnMut(&mut Soc) -> bool + 'static) {
+        let _ = self
+            .uc
+            .add_code_hook(addr as u64, addr as u64, move |uc, _, _| {
+                let s = uc.get_data_mut();
+                if f(s) {
+                    s.stop = true;
+                    s.irq_waiting = true;
+                    let _ = uc.emu_stop();
+                }
+            });
     }
 
     /// An imprecise bus error now (a write buffered to a peripheral that errs, a glitch
@@ -1323,6 +1371,73 @@ impl Board {
     /// The core's program counter.
     pub fn pc(&self) -> u32 {
         reg(&self.uc, RegisterARM::PC)
+    }
+
+    /// A digest of everything a run leaves that could tell two runs apart: every pin
+    /// edge and console and Modbus byte with its time, the defmt log, the resets, the
+    /// clock (time, instructions, cycles, sleep), the instructions, cycles and entries
+    /// of every exception, the control task's entries and pends, the watchdog's
+    /// reloads, the accesses counted, the accelerator's counters, the core's registers,
+    /// SRAM and CCM RAM. Not what only tells how the emulation got there (engine runs,
+    /// the loops skipped). FNV-1a, 64 bits.
+    pub fn trace_digest(&self) -> u64 {
+        let mut h = Fnv::default();
+        let s = self.soc();
+        for e in &s.edges {
+            h.u64(e.t_ps);
+            h.bytes(format!("{:?}", e.signal).as_bytes());
+            h.u64(u64::from(e.high));
+        }
+        for &(t, b) in s.console_out.iter().chain(&s.modbus_out) {
+            h.u64(t);
+            h.u64(u64::from(b));
+        }
+        for l in &self.log {
+            h.u64(l.t_ps);
+            for x in [&l.level, &l.timestamp, &l.msg] {
+                h.bytes(x.as_bytes());
+            }
+        }
+        for &(t, c) in &self.resets {
+            h.u64(t);
+            h.bytes(format!("{c:?}").as_bytes());
+        }
+        let c = &s.clock;
+        for x in [c.now_ps(), c.insns(), c.mc(), c.sleep_ps(), s.stall_ps] {
+            h.u64(x);
+        }
+        for v in [&s.exc_insns, &s.exc_entries, &s.exc_mc] {
+            v.iter().for_each(|&x| h.u64(x));
+        }
+        for &(e, t) in s.entry_log.entries.iter().chain(&s.entry_log.pends) {
+            h.u64(u64::from(e));
+            h.u64(t);
+        }
+        for b in &s.feeds.bursts {
+            for x in [b.first, b.last, b.count, b.max_gap] {
+                h.u64(x);
+            }
+        }
+        h.u64(s.accesses.0);
+        h.u64(s.accesses.1);
+        h.bytes(format!("{:?}", s.flash.art.stats).as_bytes());
+        for r in GP_REGS.iter().chain(&[
+            RegisterARM::SP,
+            RegisterARM::LR,
+            RegisterARM::PC,
+            RegisterARM::XPSR,
+            RegisterARM::PRIMASK,
+            RegisterARM::BASEPRI,
+        ]) {
+            h.u64(u64::from(reg(&self.uc, *r)));
+        }
+        for (base, len) in [(SRAM, SRAM_SIZE), (0x1000_0000, 0x1_0000)] {
+            let mut b = vec![0u8; len as usize];
+            if self.uc.mem_read(u64::from(base), &mut b).is_ok() {
+                h.bytes(&b);
+            }
+        }
+        h.0
     }
 
     /// Name a fault's location from the image's symbols.

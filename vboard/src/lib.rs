@@ -12,19 +12,22 @@
 //! * [`scene`]: the scenes of `vboard scene`;
 //! * [`realtime`]: the control step's period, the watchdog's feeding and the E-STOP's
 //!   reaction, measured on the peripheral models;
-//! * [`sweep`]: scenes over seeds and timing models, the worst figures.
+//! * [`sweep`]: scenes over seeds and timing models, the worst figures;
+//! * [`skip`]: polling loops recognised and jumped over, exactly.
 //!
 //! GPL-2.0 (it links unicorn); nothing of the firmware depends on it.
 
 pub mod cli;
 pub mod cpu;
 pub mod image;
+pub mod loops;
 pub mod periph;
 pub mod poller;
 pub mod realtime;
 pub mod rtt;
 pub mod scene;
 pub mod serve;
+pub mod skip;
 pub mod soc;
 pub mod swap;
 pub mod sweep;

@@ -72,7 +72,10 @@ impl Poller {
     /// (it opens the line in init; a master that asks earlier times out once, as it
     /// would on any board coming up).
     pub fn tick(&mut self, s: &mut Session) {
-        let now = s.now();
+        // The scene's millisecond grid (the board stops a little past each step's end,
+        // by as much as the instruction it was in: the master's instants are the
+        // grid's, so that they do not move with it).
+        let now = s.now() / PS_PER_MS * PS_PER_MS;
         if s.seen.boots == 0 {
             return;
         }
@@ -84,7 +87,7 @@ impl Poller {
                 }
                 let req = request();
                 let from = s.board.soc().modbus_out.len();
-                if s.board.soc_mut().modbus_send(&req) {
+                if s.board.soc_mut().modbus_send_at(&req, now) {
                     self.stats.polls += 1;
                     self.state = State::Waiting {
                         end_ps: now + req.len() as u64 * CHAR_PS,

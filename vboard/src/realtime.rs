@@ -11,9 +11,11 @@
 //!   work holding its resource (an RTIC lock raises BASEPRI), for higher-priority tasks,
 //!   for interrupts masked. The pend is the NVIC's: up to one translated block after the
 //!   timer's update while the core runs (interrupts are taken at block boundaries).
-//! * **Watchdog feeds**: the IWDG model notes every reload (`KR` = 0xAAAA,
-//!   [`crate::periph::iwdg::Iwdg::reload_times`]); a gap longer than three sample periods
-//!   is a missed feed.
+//! * **Watchdog feeds**: the board notes every reload of the IWDG model (`KR` = 0xAAAA,
+//!   [`Feeds`]); a gap longer than three sample periods is a missed feed. Reloads less
+//!   than [`BURST_PS`] apart are kept as one burst (first, last, count, largest gap):
+//!   the flash erase's wait reloads every few cycles, tens of millions of times a
+//!   sector; within a burst its largest gap stands for every gap it holds.
 //! * Both are judged **over the time anything moves**: an interval counts when it
 //!   overlaps a window in which the propulsion driver is enabled (EN low) or a lock
 //!   bridge input is high, as the pins show it. Boot, the BOR programming of a first
@@ -150,6 +152,119 @@ pub fn pend_entry_pairs(pends: &[u64], entries: &[u64], boundaries: &[u64]) -> V
     out
 }
 
+/// Reloads closer than this to the previous one join its burst, ps (1 ms: far below
+/// any feed gap that counts, far above the erase's wait loop's reloads).
+pub const BURST_PS: u64 = PS_PER_MS;
+
+/// Reloads less than [`BURST_PS`] apart: the first, the last, how many and the largest
+/// gap between two of them, ps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Burst {
+    /// First reload.
+    pub first: u64,
+    /// Last reload.
+    pub last: u64,
+    /// Reloads.
+    pub count: u64,
+    /// Largest gap between consecutive reloads in it (0: one reload).
+    pub max_gap: u64,
+}
+
+/// The watchdog's reloads as bursts, in time order; a reset ends a burst.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Feeds {
+    /// The bursts.
+    pub bursts: Vec<Burst>,
+    closed: bool,
+}
+
+impl Feeds {
+    /// A reload at `t_ps`.
+    pub fn add(&mut self, t_ps: u64) {
+        self.add_run(t_ps, t_ps, 1, 0);
+    }
+
+    /// `count` reloads from `first` to `last` whose consecutive gaps are at most
+    /// `max_gap` (< [`BURST_PS`]): as `count` calls of [`Feeds::add`] would leave it.
+    pub fn add_run(&mut self, first: u64, last: u64, count: u64, max_gap: u64) {
+        if count == 0 {
+            return;
+        }
+        match self.bursts.last_mut() {
+            Some(b) if !self.closed && first.saturating_sub(b.last) < BURST_PS => {
+                b.max_gap = b.max_gap.max(first - b.last).max(max_gap);
+                b.last = last;
+                b.count += count;
+            }
+            _ => self.bursts.push(Burst {
+                first,
+                last,
+                count,
+                max_gap,
+            }),
+        }
+        self.closed = false;
+    }
+
+    /// A reset: the next reload starts a burst of its own.
+    pub fn close(&mut self) {
+        self.closed = true;
+    }
+
+    /// Forget the bursts that ended before `t_ps` (a long `serve` keeps memory bounded);
+    /// the last one is kept.
+    pub fn forget_before(&mut self, t_ps: u64) {
+        let keep_from = self
+            .bursts
+            .iter()
+            .position(|b| b.last >= t_ps)
+            .unwrap_or(self.bursts.len())
+            .min(self.bursts.len().saturating_sub(1));
+        self.bursts.drain(..keep_from);
+    }
+}
+
+/// The gaps between the watchdog's reloads judged as [`judged_intervals`] judges
+/// events, bursts of reloads standing for their reloads: a burst that overlaps
+/// `windows` adds its largest internal gap.
+pub fn judged_feed_gaps(
+    bursts: &[Burst],
+    boundaries: &[u64],
+    end_ps: u64,
+    windows: &[(u64, u64)],
+) -> Vec<u64> {
+    let mut out = Vec::new();
+    let mut seg_ends: Vec<u64> = boundaries.to_vec();
+    seg_ends.push(end_ps);
+    let mut i = 0;
+    let mut seg_start = 0u64;
+    for &seg_end in &seg_ends {
+        let mut last: Option<u64> = None;
+        while i < bursts.len() && bursts[i].first <= seg_end {
+            let b = bursts[i];
+            if b.first >= seg_start {
+                if let Some(p) = last {
+                    if overlaps(windows, p, b.first) {
+                        out.push(b.first - p);
+                    }
+                }
+                if b.count > 1 && overlaps(windows, b.first, b.last) {
+                    out.push(b.max_gap);
+                }
+                last = Some(b.last);
+            }
+            i += 1;
+        }
+        if let Some(p) = last {
+            if seg_end > p && overlaps(windows, p, seg_end) {
+                out.push(seg_end - p);
+            }
+        }
+        seg_start = seg_end;
+    }
+    out
+}
+
 /// The control step's timing and the watchdog's feeding over the time anything moved.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ControlTiming {
@@ -174,19 +289,19 @@ pub struct ControlTiming {
 
 impl ControlTiming {
     /// Judge the control task's `entries`, its `pends` (when its interrupt became
-    /// pending) and the watchdog's `reloads` (ps) over `windows`, with resets at
+    /// pending) and the watchdog's `reloads` over `windows`, with resets at
     /// `resets` and the scene ending at `end_ps`, for a sample period of `period_ps`.
     pub fn measure(
         entries: &[u64],
         pends: &[u64],
-        reloads: &[u64],
+        reloads: &[Burst],
         resets: &[u64],
         end_ps: u64,
         windows: &[(u64, u64)],
         period_ps: u64,
     ) -> Self {
         let steps = judged_intervals(entries, resets, end_ps, windows);
-        let feeds = judged_intervals(reloads, resets, end_ps, windows);
+        let feeds = judged_feed_gaps(reloads, resets, end_ps, windows);
         let ms = |ps: u64| ps as f64 / PS_PER_MS as f64;
         let us = |ps: u64| ps as f64 * 1e-6;
         let pairs = pend_entry_pairs(pends, entries, resets);
@@ -291,14 +406,55 @@ mod tests {
         let windows = [(t + period, t + period + 100 * MS)];
         let end = t + period + 100 * MS;
         // Feeds with the steps, but one of 40 ms while moving.
-        let reloads = [t + period, t + period + 40 * MS, t + period + 50 * MS];
-        let m = ControlTiming::measure(&entries, &[], &reloads, &[], end, &windows, period);
+        let mut feeds = Feeds::default();
+        for r in [t + period, t + period + 40 * MS, t + period + 50 * MS] {
+            feeds.add(r);
+        }
+        let m = ControlTiming::measure(&entries, &[], &feeds.bursts, &[], end, &windows, period);
         // The 30 ms gap was at rest; the tail (85 ms to the end) counts: the step stopped.
         assert_eq!(m.period_max_ms, Some(85.0));
         assert_eq!(m.late, 2, "15 ms and the 85 ms tail: {m:?}");
         assert_eq!(m.feeds_missed, 2, "40 ms and the 50 ms tail: {m:?}");
         assert_eq!(m.feed_gap_max_ms, Some(50.0));
         assert!((m.moving_s - 0.1).abs() < 1e-9);
+    }
+
+    #[test]
+    fn sparse_feeds_are_judged_as_events_and_a_burst_by_its_largest_gap() {
+        let windows = [(0, 1_000 * MS)];
+        let times: Vec<u64> = (1..=20).map(|k| k * 12 * MS + k * 7).collect();
+        let mut feeds = Feeds::default();
+        times.iter().for_each(|&t| feeds.add(t));
+        assert_eq!(feeds.bursts.len(), 20);
+        for resets in [&[][..], &[100 * MS]] {
+            assert_eq!(
+                judged_feed_gaps(&feeds.bursts, resets, 1_000 * MS, &windows),
+                judged_intervals(&times, resets, 1_000 * MS, &windows)
+            );
+        }
+        // A burst of reloads 48 ns apart between two feeds 12 ms apart.
+        let mut f = Feeds::default();
+        f.add(0);
+        for k in 0..1_000u64 {
+            f.add(12 * MS + k * 48_000 + k % 3);
+        }
+        f.add(30 * MS);
+        assert_eq!(f.bursts.len(), 3);
+        assert_eq!(f.bursts[1].count, 1_000);
+        assert_eq!(f.bursts[1].max_gap, 48_001);
+        let gaps = judged_feed_gaps(&f.bursts, &[], 40 * MS, &windows);
+        assert_eq!(gaps[0], 12 * MS);
+        assert_eq!(gaps[1], 48_001);
+        assert_eq!(*gaps.iter().max().unwrap(), 30 * MS - f.bursts[1].last);
+        // A run added at once is the same as its reloads one by one; a reset closes.
+        let mut g = Feeds::default();
+        g.add(0);
+        g.add_run(12 * MS, 12 * MS + 999 * 48_000, 1_000, 48_001);
+        g.add(30 * MS);
+        assert_eq!(g, f);
+        g.close();
+        g.add(30 * MS + 10);
+        assert_eq!(g.bursts.len(), 4);
     }
 
     #[test]

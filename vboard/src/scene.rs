@@ -165,6 +165,13 @@ pub struct Session {
     /// A PLC's master polling the Modbus line every 100 ms (`crate::poller`), in the
     /// scenes that time the line's replies (issue 31).
     pub poller: Option<crate::poller::Poller>,
+    /// A PLC that polls the Modbus line: this frame every `period_ps` (the replies are
+    /// not waited for), from the next millisecond on (`None`: no polling).
+    pub modbus_poll: Option<(u64, Vec<u8>)>,
+    /// When the polling PLC sends next, ps.
+    modbus_poll_next_ps: u64,
+    /// Polls sent.
+    pub modbus_polls: u64,
 }
 
 /// The control task's exception: TIM2 (IRQ 28).
@@ -216,6 +223,9 @@ impl Session {
             estop_open: false,
             estop_edges: Vec::new(),
             poller: None,
+            modbus_poll: None,
+            modbus_poll_next_ps: 0,
+            modbus_polls: 0,
         })
     }
 
@@ -231,7 +241,11 @@ impl Session {
 
     /// Run `dt_ps` more, in 1 ms steps, reading the log as it comes.
     pub fn run_for(&mut self, dt_ps: u64) -> Result<(), Halt> {
-        let end = self.now() + dt_ps;
+        let mut end = self.now() + dt_ps;
+        // Whole milliseconds end on the millisecond grid (see `run_until`).
+        if dt_ps % PS_PER_MS == 0 {
+            end -= end % PS_PER_MS;
+        }
         self.run_until(end, |_| false).map(|_| ())
     }
 
@@ -250,20 +264,34 @@ impl Session {
             if now >= deadline_ps {
                 return Ok(false);
             }
-            let step_end = (now + PS_PER_MS).min(deadline_ps);
+            // On the millisecond grid, not a millisecond after wherever the board stopped
+            // (it stops at the first instruction past the step's end): the scene's
+            // stimuli (the masters on the lines, the PLC) then come at the same instants
+            // whether or not the emulator jumped over a polling loop (`--no-skip`).
+            let step_end = ((now / PS_PER_MS + 1) * PS_PER_MS).min(deadline_ps);
             self.board.run_until(step_end)?;
             self.tick();
         }
     }
 
     /// Housekeeping every millisecond: read the log, watch MATED, poll the Modbus line
-    /// (when a master polls).
+    /// (when a master polls: `poller`, or the frame of `modbus_poll`).
     fn tick(&mut self) {
         self.board.poll_rtt();
         self.observe();
         if let Some(mut p) = self.poller.take() {
             p.tick(self);
             self.poller = Some(p);
+        }
+        if let Some((period, frame)) = &self.modbus_poll {
+            let now = self.now();
+            if now >= self.modbus_poll_next_ps && self.board.soc().usart3.far_pending() == 0 {
+                self.modbus_poll_next_ps = now + *period;
+                let frame = frame.clone();
+                if self.board.soc_mut().modbus_send(&frame) {
+                    self.modbus_polls += 1;
+                }
+            }
         }
         let out = self.plc_out();
         match (out.mated, self.mated_since_ps) {
@@ -375,6 +403,41 @@ impl Session {
         {
             self.press_dock();
         }
+    }
+
+    /// Forget what happened before `t_ps` that only reports read back (pin edges but
+    /// the last of each signal before it, the control task's entries and pends, the
+    /// watchdog's reloads, the console's output, log lines already read): a `serve`
+    /// that runs for days keeps its memory bounded. Reports over a run that forgot are
+    /// reports of what it kept.
+    pub fn forget_before(&mut self, t_ps: u64) {
+        self.observe();
+        let log = std::mem::take(&mut self.board.log);
+        self.board.log = log.into_iter().skip(self.seen.cursor).collect();
+        self.seen.cursor = 0;
+        let soc = self.board.soc_mut();
+        let mut last: Vec<(crate::world::Signal, usize)> = Vec::new();
+        for (i, e) in soc
+            .edges
+            .iter()
+            .enumerate()
+            .take_while(|(_, e)| e.t_ps < t_ps)
+        {
+            match last.iter_mut().find(|(s, _)| *s == e.signal) {
+                Some(l) => l.1 = i,
+                None => last.push((e.signal, i)),
+            }
+        }
+        let mut i = 0;
+        soc.edges.retain(|e| {
+            let keep = e.t_ps >= t_ps || last.iter().any(|&(_, j)| j == i);
+            i += 1;
+            keep
+        });
+        soc.entry_log.entries.retain(|&(_, t)| t >= t_ps);
+        soc.entry_log.pends.retain(|&(_, t)| t >= t_ps);
+        soc.feeds.forget_before(t_ps);
+        soc.console_out.retain(|&(t, _)| t >= t_ps);
     }
 
     /// Interpret new log lines.
@@ -580,7 +643,7 @@ impl Session {
         ControlTiming::measure(
             &soc.entry_log.times(CONTROL_EXCEPTION),
             &soc.entry_log.pend_times(CONTROL_EXCEPTION),
-            &soc.iwdg.reload_times,
+            &soc.feeds.bursts,
             &resets,
             end,
             &moving_windows(&soc.edges, end),
@@ -645,7 +708,8 @@ impl ModbusFlood {
     }
 
     fn tick(&mut self, s: &mut Session, rng: &mut hil_sim::rng::Rng) {
-        let now = s.now();
+        // On the millisecond grid, as the polling master (`crate::poller`).
+        let now = s.now() / PS_PER_MS * PS_PER_MS;
         if s.board.soc().usart3.far_pending() > 0 {
             self.quiet_since_ps = None;
             return;
@@ -657,7 +721,7 @@ impl ModbusFlood {
         let pieces = Self::pieces();
         let i = (rng.next_u64() % pieces.len() as u64) as usize;
         if let Some(p) = pieces.get(i) {
-            if s.board.soc_mut().modbus_send(p) {
+            if s.board.soc_mut().modbus_send_at(p, now) {
                 self.bytes += p.len() as u64;
             }
         }
@@ -1014,8 +1078,16 @@ pub struct Report {
     pub instructions: u64,
     /// Emulation speed, million instructions per wall second.
     pub mips: f64,
-    /// Virtual seconds per wall second.
+    /// Virtual seconds per wall second, over the whole run.
     pub realtime_factor: f64,
+    /// The same over the slowest window of at least 100 ms of wall time (the mean when
+    /// the run was shorter): where a client in real time would have waited.
+    pub realtime_factor_min: f64,
+    /// Instructions charged without being emulated: the polling loops skipped
+    /// ([`crate::loops`]; 0 with `--no-skip`).
+    pub skipped_instructions: u64,
+    /// [`crate::cpu::Board::trace_digest`] at the end: equal digests, equal runs.
+    pub trace_digest: u64,
     /// Flash erases per odometer sector.
     pub erase_counts: Vec<u32>,
     /// Faults the core took (HardFault, lockup).
@@ -1099,7 +1171,7 @@ impl Report {
             })
             .collect();
         let json = format!(
-            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"sample_entry_latency_mean_us\":{},\"sample_entry_latency_max_us\":{},\"sample_entry_max_at\":\"{}\",\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_input_lost\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"modbus_overruns\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{},\"moving_s\":{},\"control_period_max_ms\":{},\"control_entry_latency_max_us\":{},\"control_entry_latency_max_us_all\":{},\"control_late\":{},\"watchdog_feed_gap_max_ms\":{},\"watchdog_feeds_missed\":{},\"estop_edges_moving\":{},\"estop_off_max_us\":{},\"estop_edges_not_stopped\":{}}}",
+            "{base},\"reset_count\":{},\"reset_causes\":[{}],\"instructions_per_control_step\":{},\"cpu_load_pct\":{},\"stop_latency_pins_us\":{},\"samples_read\":{},\"sample_latency_mean_us\":{},\"sample_latency_max_us\":{},\"sample_entry_latency_mean_us\":{},\"sample_entry_latency_max_us\":{},\"sample_entry_max_at\":\"{}\",\"masked_max_us\":{},\"masked_max_at\":\"{}\",\"samples_missed\":{},\"hx711_power_downs\":{},\"console_overruns\":{},\"console_input_lost\":{},\"console_flood_bytes\":{},\"modbus_flood_bytes\":{},\"modbus_reply_bytes\":{},\"modbus_de_losses\":{},\"modbus_overruns\":{},\"cpi\":{},\"lsi_hz\":{},\"flash_timing\":\"{}\",\"tasks\":[{}],\"instructions\":{},\"mips\":{},\"realtime_factor\":{},\"realtime_factor_min\":{},\"skipped_instructions\":{},\"trace_digest\":\"{:016x}\",\"erase_counts\":{:?},\"core_faults\":[{}],\"diagnostics\":[{}],\"checks\":[{}],\"motion_before_request\":{},\"step_pulses_pos\":{},\"step_pulses_neg\":{},\"step_pulses_driver_off\":{},\"step_setup_violations\":{},\"step_width_violations\":{},\"step_min_setup_us\":{},\"step_min_high_us\":{},\"moving_s\":{},\"control_period_max_ms\":{},\"control_entry_latency_max_us\":{},\"control_entry_latency_max_us_all\":{},\"control_late\":{},\"watchdog_feed_gap_max_ms\":{},\"watchdog_feeds_missed\":{},\"estop_edges_moving\":{},\"estop_off_max_us\":{},\"estop_edges_not_stopped\":{}}}",
             self.reset_count,
             strs(&causes),
             num(self.instructions_per_control_step),
@@ -1135,6 +1207,9 @@ impl Report {
             self.instructions,
             num(self.mips),
             num(self.realtime_factor),
+            num(self.realtime_factor_min),
+            self.skipped_instructions,
+            self.trace_digest,
             self.erase_counts,
             strs(&self.core_faults),
             strs(&self.diagnostics),
@@ -1246,8 +1321,8 @@ impl Report {
             );
         }
         s += &format!(
-            "\n  emulation: {} instructions at CPI {}, {:.1} MIPS, {:.3}× real time (LSI {} Hz, flash timing {})",
-            self.instructions, self.cpi, self.mips, self.realtime_factor, self.lsi_hz, self.flash_timing
+            "\n  emulation: {} instructions at CPI {}, {:.1} MIPS, {:.3}× real time ({:.3}× in the slowest 100 ms; {} instructions in polling loops skipped) (LSI {} Hz, flash timing {})",
+            self.instructions, self.cpi, self.mips, self.realtime_factor, self.realtime_factor_min, self.skipped_instructions, self.lsi_hz, self.flash_timing
         );
         let st = &self.step;
         if st.pulses_pos + st.pulses_neg + st.pulses_disabled > 0 {
@@ -1428,16 +1503,43 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             s.poller = Some(crate::poller::Poller::new(0));
             let before = prefill.unwrap_or_default();
             let deadline = s.now() + 8 * PS_PER_S;
-            s.run_until(deadline, |x| {
+            let erased = |x: &Session| {
                 x.board
                     .soc()
                     .world
                     .flash
                     .with(|f| f.erase_counts().iter().sum::<u32>())
                     > before.erases
+            };
+            // A technician types a line while the sector erases (the master's first
+            // "busy" reply says the erase is on): the console is received by DMA
+            // meanwhile and the line answered after it (issue 31).
+            s.run_until(deadline, |x| {
+                erased(x) || x.poller.as_ref().is_some_and(|p| p.stats.busy > 0)
             })
             .map_err(|e| e.to_string())?;
+            let typed_in_erase = !erased(&s);
+            let console_from = s.board.soc().console_out.len();
+            if typed_in_erase {
+                // On the millisecond grid (see `Session::run_until`).
+                let at = s.now() / PS_PER_MS * PS_PER_MS;
+                let _ = s.board.soc_mut().console_send_at(b"echo\r\n", at);
+            }
+            s.run_until(deadline, erased).map_err(|e| e.to_string())?;
             s.run_for(PS_PER_S).map_err(|e| e.to_string())?;
+            let answer: Vec<u8> = s.board.soc().console_out[console_from..]
+                .iter()
+                .map(|&(_, b)| b)
+                .collect();
+            let answer = String::from_utf8_lossy(&answer).into_owned();
+            checks.push((
+                "a console line typed during the erase answered after it".into(),
+                typed_in_erase && answer.contains("echo=on"),
+                format!(
+                    "typed during the erase {typed_in_erase}; answer {:?}",
+                    answer.trim()
+                ),
+            ));
             let erases: u32 = flash.with(|f| f.erase_counts().iter().sum());
             checks.push((
                 "sector erased".into(),
@@ -1479,7 +1581,14 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             scripted_plc =
                 Some(maintenance_lockout(&mut s, &mut checks).map_err(|e| e.to_string())?);
         }
-        "update" => crate::update::update(&mut s, &mut checks).map_err(|e| e.to_string())?,
+        "update" => {
+            // A PLC polls the Modbus line through the whole update (issue 31: a reply
+            // within 100 ms, the DFU's erases included; issue 32: the update does not
+            // fail because the PLC polls).
+            s.poller = Some(crate::poller::Poller::new(s.now() + 50 * PS_PER_MS));
+            crate::update::update(&mut s, &mut checks).map_err(|e| e.to_string())?;
+            poll_check(&s, &mut checks, "the update, its erases included");
+        }
         "update-bad" => {
             crate::update::update_bad(&mut s, &mut checks).map_err(|e| e.to_string())?
         }
@@ -1711,6 +1820,9 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         instructions: insns,
         mips: insns as f64 / wall.max(1e-9) / 1e6,
         realtime_factor: sim_s / wall.max(1e-9),
+        realtime_factor_min: s.board.speed.min_factor.unwrap_or(sim_s / wall.max(1e-9)),
+        skipped_instructions: soc.loops.stats.insns,
+        trace_digest: s.board.trace_digest(),
         erase_counts: soc.world.flash.with(|f| f.erase_counts().to_vec()),
         core_faults: s
             .board

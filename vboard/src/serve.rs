@@ -169,8 +169,9 @@ struct Plc {
     commands: VecDeque<PlcCommand>,
     /// DOCK as the PLC drives it.
     dock: bool,
-    /// The control task's entries (their count in the log) at the last input change.
-    changed_at: Option<usize>,
+    /// When the PLC's inputs last changed, ps (the control task's entries after it
+    /// tell that the firmware has read them).
+    changed_at: Option<u64>,
 }
 
 impl Plc {
@@ -188,12 +189,10 @@ impl Plc {
             let entries = &s.board.soc().entry_log.entries;
             match c {
                 PlcCommand::Report => {
-                    let settled = self.changed_at.is_none_or(|n| {
+                    let settled = self.changed_at.is_none_or(|at| {
                         entries
-                            .get(n..)
-                            .unwrap_or(&[])
                             .iter()
-                            .filter(|&&(e, _)| e == CONTROL_EXCEPTION)
+                            .filter(|&&(e, t)| e == CONTROL_EXCEPTION && t > at)
                             .count()
                             >= SETTLE_STEPS
                     });
@@ -213,12 +212,12 @@ impl Plc {
                     let _ = out.flush();
                 }
                 PlcCommand::Dock(on) => {
-                    self.changed_at = Some(entries.len());
+                    self.changed_at = Some(s.now());
                     self.dock = on;
                     s.set_dock(on);
                 }
                 PlcCommand::Estop(open) => {
-                    self.changed_at = Some(entries.len());
+                    self.changed_at = Some(s.now());
                     s.set_estop(open);
                 }
             }
@@ -227,8 +226,76 @@ impl Plc {
     }
 }
 
+/// How far behind the wall clock the board may fall before `serve` says so, wall.
+pub const LAG_WARN: Duration = Duration::from_millis(100);
+
+/// The demo's rest between two cycles, machine time: a person may type then.
+pub const DEMO_REST_PS: u64 = 10 * PS_PER_S;
+
+/// No demo cycle starts within this much machine time of a byte typed on the console
+/// (or while the firmware is in maintenance mode): a technician commissioning the
+/// machine finds it at rest once the cycle in progress has ended.
+pub const DEMO_PAUSE_PS: u64 = 60 * PS_PER_S;
+
+/// How much history `serve` keeps for what reads it back (pin edges, the control
+/// task's entries, the log), machine time: older is forgotten every so often
+/// ([`Session::forget_before`]), so memory stays bounded however long it runs.
+pub const KEEP_PS: u64 = 10 * PS_PER_S;
+
+/// The pacing: never ahead of the wall clock (× speed); how far behind, since when.
+#[derive(Debug, Default)]
+struct Pace {
+    /// Behind by more than [`LAG_WARN`] since (wall s into the run), and the most.
+    behind: Option<(f64, f64)>,
+    /// When the last "behind" line was written (wall s).
+    said_at: f64,
+    /// The worst lag so far (wall s) and when (wall s).
+    worst: (f64, f64),
+}
+
+impl Pace {
+    /// The board stands `lag_s` of wall time behind the clock at `wall_s`: what to say
+    /// on stderr, if anything.
+    fn observe(&mut self, wall_s: f64, lag_s: f64) -> Option<String> {
+        if lag_s > self.worst.0 {
+            self.worst = (lag_s, wall_s);
+        }
+        let warn = LAG_WARN.as_secs_f64();
+        match self.behind.as_mut() {
+            None if lag_s > warn => {
+                self.behind = Some((wall_s, lag_s));
+                self.said_at = wall_s;
+                Some(format!(
+                    "vboard serve: behind real time by {lag_s:.2} s at {wall_s:.1} s (the emulation is slower than the board here)"
+                ))
+            }
+            Some((since, most)) => {
+                *most = most.max(lag_s);
+                let (since, most) = (*since, *most);
+                if lag_s < warn / 2.0 {
+                    self.behind = None;
+                    Some(format!(
+                        "vboard serve: caught up with real time at {wall_s:.1} s (behind since {since:.1} s, by {most:.2} s at most)"
+                    ))
+                } else if wall_s - self.said_at >= 1.0 {
+                    self.said_at = wall_s;
+                    Some(format!(
+                        "vboard serve: behind real time by {lag_s:.2} s since {since:.1} s"
+                    ))
+                } else {
+                    None
+                }
+            }
+            None => None,
+        }
+    }
+}
+
 /// Run until killed (or `duration_s`); the first line on stdout is the console link's
-/// address, the second (with a Modbus link) `modbus ADDRESS`.
+/// address, the second (with a Modbus link) `modbus ADDRESS`. The board runs in real
+/// time (× `speed`), never ahead of the wall clock; when the emulation cannot keep up
+/// it says so on stderr (by how much, since when, and when it caught up), and at the
+/// end the worst lag.
 pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
     if !(opts.speed.is_finite() && opts.speed > 0.0) {
         return Err(format!(
@@ -264,10 +331,24 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
     });
     let mut s = Session::new(opts.session.clone())?;
     let start = Instant::now();
-    let mut sent = 0usize;
+    let mut pace = Pace::default();
+    // The demo: when the machine came to rest, and when a byte was last typed.
+    let mut rest_since: Option<u64> = None;
+    let mut typed_at: Option<u64> = None;
+    let mut forgot_at = 0u64;
     loop {
         let wall = start.elapsed().as_secs_f64();
         if opts.duration_s.is_some_and(|d| wall >= d) {
+            let soc = s.board.soc();
+            eprintln!(
+                "vboard serve: {:.1} s of machine time in {wall:.1} s at speed {}; worst lag {:.2} s (at {:.1} s); {} instructions, {} of them in polling loops skipped",
+                s.now() as f64 / PS_PER_S as f64,
+                opts.speed,
+                pace.worst.0,
+                pace.worst.1,
+                soc.clock.insns(),
+                soc.loops.stats.insns,
+            );
             return Ok(());
         }
         if let Some(p) = plc.as_mut() {
@@ -276,28 +357,73 @@ pub fn run(opts: &ServeOptions, out: &mut dyn Write) -> Result<(), String> {
         let target = (wall * opts.speed * PS_PER_S as f64) as u64;
         let slice_end = Instant::now() + Duration::from_millis(20);
         while s.now() < target && Instant::now() < slice_end {
-            s.run_for(PS_PER_MS).map_err(|e| e.to_string())?;
+            let step = (target - s.now()).min(PS_PER_MS);
+            s.run_for(step).map_err(|e| e.to_string())?;
             if plc.is_none() {
-                s.auto_dock(u32::MAX);
+                let now = s.now();
+                if s.at_rest() {
+                    rest_since.get_or_insert(now);
+                } else {
+                    rest_since = None;
+                }
+                let rested = rest_since.is_some_and(|t| now >= t + DEMO_REST_PS);
+                let quiet = typed_at.is_none_or(|t| now >= t + DEMO_PAUSE_PS);
+                if rested && quiet && !s.plc_out().maintenance {
+                    s.auto_dock(u32::MAX);
+                }
             }
+        }
+        let lag_s = target.saturating_sub(s.now()) as f64 / PS_PER_S as f64 / opts.speed;
+        if let Some(m) = pace.observe(start.elapsed().as_secs_f64(), lag_s) {
+            eprintln!("{m}");
         }
         let bytes = bridge.read(256);
         if !bytes.is_empty() {
+            typed_at = Some(s.now());
             let _ = s.board.soc_mut().console_send(&bytes);
         }
-        let outb: Vec<u8> = s.board.soc().console_out[sent..]
-            .iter()
-            .map(|&(_, b)| b)
+        let outb: Vec<u8> = std::mem::take(&mut s.board.soc_mut().console_out)
+            .into_iter()
+            .map(|(_, b)| b)
             .collect();
-        sent = s.board.soc().console_out.len();
         bridge.write(&outb);
+        // A client that closed its side is let go once the console is quiet: the next
+        // one gets the console (it was told `busy` for the rest of the run).
+        bridge.reap(bytes.is_empty() && outb.is_empty() && s.board.soc().usart2.far_pending() == 0);
+        let _ = bridge.departed();
         if let Some(m) = modbus.as_mut() {
             m.service(&mut s);
+        }
+        if s.now() >= forgot_at + KEEP_PS {
+            forgot_at = s.now();
+            s.forget_before(forgot_at.saturating_sub(KEEP_PS));
         }
         if s.now() >= target {
             // The Modbus link is read every millisecond: t1.5 at 19 200 baud is 0.86 ms.
             let nap_ms = if modbus.is_some() { 1 } else { 2 };
             std::thread::sleep(Duration::from_millis(nap_ms));
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Pace;
+
+    #[test]
+    fn falling_behind_is_said_once_a_second_with_since_when_and_the_worst_is_kept() {
+        let mut p = Pace::default();
+        assert_eq!(p.observe(1.0, 0.05), None, "within 100 ms: nothing");
+        let m = p.observe(2.0, 0.3).unwrap();
+        assert!(m.contains("behind real time by 0.30 s at 2.0 s"), "{m}");
+        assert_eq!(p.observe(2.5, 0.8), None, "not again within a second");
+        let m = p.observe(3.1, 1.2).unwrap();
+        assert!(m.contains("by 1.20 s since 2.0 s"), "{m}");
+        let m = p.observe(4.0, 0.01).unwrap();
+        assert!(
+            m.contains("caught up") && m.contains("by 1.20 s at most"),
+            "{m}"
+        );
+        assert_eq!(p.worst, (1.2, 3.1));
     }
 }

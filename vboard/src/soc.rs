@@ -313,6 +313,33 @@ pub struct Soc {
     /// Core cycles (thousandths) spent in each exception (0: thread mode): execution
     /// and wait states, not sleep or flash-operation stalls.
     pub exc_mc: Vec<u64>,
+    /// The watchdog's reloads, with their time (kept across resets: the gaps between
+    /// them are the firmware's feeding, measured where the counter sees it).
+    pub feeds: crate::realtime::Feeds,
+    /// The last peripheral and core-peripheral accesses, in order (a ring of
+    /// [`IO_LOG`]; `io_seq` counts them all): what a polling loop's iteration read and
+    /// wrote, to check the prediction of it ([`crate::loops`]).
+    pub io_log: [IoRec; IO_LOG],
+    /// Accesses so far (the next one goes to `io_log[io_seq % IO_LOG]`).
+    pub io_seq: u64,
+    /// Polling loops found and skipped ([`crate::loops`]).
+    pub loops: crate::loops::Loops,
+}
+
+/// Accesses the ring [`Soc::io_log`] keeps.
+pub const IO_LOG: usize = 32;
+
+/// A peripheral access, as [`Soc::io_log`] keeps it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct IoRec {
+    /// Address.
+    pub addr: u32,
+    /// Bytes.
+    pub size: u8,
+    /// Value read or written.
+    pub value: u32,
+    /// A write.
+    pub write: bool,
 }
 
 /// Size of the instruction-count cache's code-flash part (sectors 0–9), halfwords.
@@ -393,7 +420,22 @@ impl Soc {
             block_at: (0, 0),
             art_timing: false,
             exc_mc: vec![0; crate::periph::nvic::SLOTS as usize],
+            feeds: Default::default(),
+            io_log: [IoRec::default(); IO_LOG],
+            io_seq: 0,
+            loops: Default::default(),
         }
+    }
+
+    #[inline]
+    fn log_io(&mut self, addr: u32, size: usize, value: u32, write: bool) {
+        self.io_log[(self.io_seq % IO_LOG as u64) as usize] = IoRec {
+            addr,
+            size: size as u8,
+            value,
+            write,
+        };
+        self.io_seq += 1;
     }
 
     /// Core cycles per instruction in exception `exc` so far (execution and flash wait
@@ -463,6 +505,7 @@ impl Soc {
         self.usart3.sync(now, self.rcc.clocks().pclk1);
         self.usart3.reset();
         self.iwdg.reset();
+        self.feeds.close();
         self.exti.reset();
         self.pwr.reset();
         self.apply_clocks();
@@ -737,6 +780,14 @@ impl Soc {
     /// collision on the bus).
     pub fn modbus_send(&mut self, bytes: &[u8]) -> bool {
         let now = self.now();
+        self.modbus_send_at(bytes, now)
+    }
+
+    /// [`Self::modbus_send`] with the first byte's start at `at_ps` (at most a step
+    /// before now: a master on a fixed time grid, whatever instruction the board
+    /// stopped at).
+    pub fn modbus_send_at(&mut self, bytes: &[u8], at_ps: u64) -> bool {
+        let now = at_ps;
         if !self.af_ok(Signal::ModbusRx, 7) {
             return false;
         }
@@ -763,6 +814,14 @@ impl Soc {
     /// `false` when they are lost at once: PA3 is not (yet) USART2's RX.
     pub fn console_send(&mut self, bytes: &[u8]) -> bool {
         let now = self.now();
+        self.console_send_at(bytes, now)
+    }
+
+    /// [`Self::console_send`] with the first byte's start at `at_ps` (at most a step
+    /// before now: a sender on a fixed time grid, whatever instruction the board
+    /// stopped at).
+    pub fn console_send_at(&mut self, bytes: &[u8], at_ps: u64) -> bool {
+        let now = at_ps;
         if !self.af_ok(Signal::ConsoleRx, 7) {
             self.console_pin_losses += bytes.len() as u64;
             return false;
@@ -839,6 +898,51 @@ impl Soc {
         self.stop = true;
     }
 
+    /// What a read of the peripheral register at `addr` would return if read again at
+    /// any instant from now until the board's next event, and the instant (ps, at or
+    /// before which it stops being so: `u64::MAX` when only an event can change it).
+    /// Such a read changes nothing a second read would not (the flash's `SR` while it is
+    /// busy, the RCC's registers, a USART's `SR` once read and its control registers,
+    /// the IWDG's `SR`/`PR`/`RLR`, `PWR`; `DWT_CTRL`). `None`: any other register, for
+    /// which a polling loop is not skipped.
+    pub fn peek(&self, addr: u32, size: usize) -> Option<(u32, u64)> {
+        if addr == 0xE000_1000 {
+            let cycles = self.clock.cycles();
+            return self.dwt.read(0, size, cycles).ok().map(|v| (v, u64::MAX));
+        }
+        let (base, p, en) = Self::lookup(addr)?;
+        if let Some((bus, bit)) = en {
+            if !self.rcc.enabled(bus, bit) {
+                return None;
+            }
+        }
+        let off = addr - base;
+        let now = self.now();
+        match p {
+            Periph::Flash => self.flash.peek(off, size).map(|v| (v, u64::MAX)),
+            Periph::Rcc => self
+                .rcc
+                .peek(off, size, now)
+                .ok()
+                .map(|v| (v, self.rcc.next_ready_after(now))),
+            Periph::Usart2 => self.usart2.peek(off, size).map(|v| (v, u64::MAX)),
+            Periph::Usart3 => self.usart3.peek(off, size).map(|v| (v, u64::MAX)),
+            Periph::Iwdg => self.iwdg.peek(off, size).map(|v| (v, u64::MAX)),
+            Periph::Pwr => self.pwr.read(off, size).ok().map(|v| (v, u64::MAX)),
+            _ => None,
+        }
+    }
+
+    /// Whether the cycle counter counts (its reads follow the core's cycles).
+    pub fn cyccnt_counting(&self) -> bool {
+        self.dwt.counting()
+    }
+
+    /// `DWT_CYCCNT` at core cycle `cycles`.
+    pub fn cyccnt_at(&self, cycles: u64) -> u32 {
+        self.dwt.cyccnt(cycles)
+    }
+
     /// A peripheral read (0x4000_0000–0x5FFF_FFFF).
     pub fn bus_read(&mut self, addr: u32, size: usize) -> u32 {
         self.accesses.0 += 1;
@@ -891,15 +995,18 @@ impl Soc {
         // A read can only clear flags (lower lines) or notice what time already brought:
         // no new event to schedule, no new interrupt to take.
         self.update_lines();
-        r.unwrap_or_else(|Unmodelled { .. }| {
+        let v = r.unwrap_or_else(|Unmodelled { .. }| {
             self.unmodelled_at(addr, false);
             0
-        })
+        });
+        self.log_io(addr, size, v, false);
+        v
     }
 
     /// A peripheral write.
     pub fn bus_write(&mut self, addr: u32, size: usize, value: u32) {
         self.accesses.1 += 1;
+        self.log_io(addr, size, value, true);
         let pending_before = self.nvic.pending_enabled();
         let Some((base, p, en)) = Self::lookup(addr) else {
             self.unmodelled_at(addr, true);
@@ -916,11 +1023,18 @@ impl Soc {
                 let clk = self.tim_clk(i);
                 self.tims[i].write(off, size, value, now, clk)
             }
-            Periph::Iwdg => self.iwdg.write(off, value, now).map(|started| {
-                if started {
-                    self.rcc.force_lsi(now);
+            Periph::Iwdg => {
+                let reloads = self.iwdg.reloads;
+                let r = self.iwdg.write(off, value, now).map(|started| {
+                    if started {
+                        self.rcc.force_lsi(now);
+                    }
+                });
+                if self.iwdg.reloads != reloads {
+                    self.feeds.add(now);
                 }
-            }),
+                r
+            }
             Periph::Usart2 => {
                 self.sync_usart2(now);
                 let r = self.usart2.write(off, size, value, now, c.pclk1);
@@ -986,14 +1100,17 @@ impl Soc {
                 write: false,
             }),
         };
-        r.unwrap_or_else(|_| {
+        let v = r.unwrap_or_else(|_| {
             self.unmodelled_at(addr, false);
             0
-        })
+        });
+        self.log_io(addr, size, v, false);
+        v
     }
 
     /// A write of the private peripheral bus.
     pub fn ppb_write(&mut self, addr: u32, size: usize, value: u32) {
+        self.log_io(addr, size, value, true);
         // Any write to the NVIC/SCB may change what can be taken (enables, priorities).
         let pending_before = if (0xE000_E100..0xE000_EF00).contains(&addr) {
             0

@@ -92,6 +92,13 @@ impl Clock {
         self.mc += n * self.cpi_milli;
     }
 
+    /// Account `insns` instructions and `mc` milli-cycles at once (a skipped polling
+    /// loop's iterations: their execution and wait states).
+    pub fn skip(&mut self, insns: u64, mc: u64) {
+        self.insns += insns;
+        self.mc += mc;
+    }
+
     /// The core waits `mc` milli-cycles (wait states: stalled, clock running).
     #[inline]
     pub fn add_mc(&mut self, mc: u64) {
@@ -125,6 +132,11 @@ impl Clock {
         self.hclk_hz = hz.max(1);
     }
 
+    /// The clock's base: the time and milli-cycle count of its last rebase, and HCLK.
+    pub fn base(&self) -> (u64, u64, u64) {
+        (self.base_ps, self.base_mc, self.hclk_hz)
+    }
+
     /// The time at milli-cycle count `mc` (after the last rebase), ps.
     pub fn time_at_mc(&self, mc: u64) -> u64 {
         self.base_ps
@@ -146,6 +158,38 @@ impl Clock {
     #[inline]
     pub fn mc(&self) -> u64 {
         self.mc
+    }
+}
+
+/// How fast the emulation runs against the host's clock (reports only: nothing the
+/// board does depends on it): virtual time per wall time over consecutive windows of
+/// at least [`SpeedMeter::WINDOW`] of wall time, the slowest window kept.
+#[derive(Clone, Debug, Default)]
+pub struct SpeedMeter {
+    /// The open window: its start (wall) and the virtual time then, ps.
+    window: Option<(std::time::Instant, u64)>,
+    /// The slowest complete window so far: virtual s per wall s.
+    pub min_factor: Option<f64>,
+}
+
+impl SpeedMeter {
+    /// Length of a window, wall time.
+    pub const WINDOW: std::time::Duration = std::time::Duration::from_millis(100);
+
+    /// The board has run to virtual time `now_ps`.
+    pub fn tick(&mut self, now_ps: u64) {
+        let wall = std::time::Instant::now();
+        match self.window {
+            None => self.window = Some((wall, now_ps)),
+            Some((w0, v0)) => {
+                let dt = wall.duration_since(w0);
+                if dt >= Self::WINDOW {
+                    let f = now_ps.saturating_sub(v0) as f64 / PS_PER_S as f64 / dt.as_secs_f64();
+                    self.min_factor = Some(self.min_factor.map_or(f, |m| m.min(f)));
+                    self.window = Some((wall, now_ps));
+                }
+            }
+        }
     }
 }
 

@@ -95,6 +95,45 @@ pub struct Transfer {
     /// Code-flash sectors erased from `update` to the reply (the DFU pages; none for a
     /// file refused by its first block).
     pub erases: u64,
+    /// The pace (issue 35): the first data block sent → the last block's ACK, ps.
+    pub blocks_ps: u64,
+    /// Bytes of the data blocks the sender put on the line (1029 B each, repeats too).
+    pub wire_bytes: u64,
+    /// Each data block's wait: its last byte at the board → its ACK leaving it, ps.
+    pub ack_waits_ps: Vec<u64>,
+    /// Packets the sender sent again.
+    pub retries: u32,
+}
+
+/// Picoseconds of one 8N1 character at 115 200 Bd (the console's line).
+pub const CHAR_PS: u64 = 10 * crate::time::PS_PER_S / 115_200;
+
+impl Transfer {
+    /// The transfer's pace against the line's limit, one line (issue 35;
+    /// tools/figures.sh puts it in docs/measurements.md).
+    pub fn pace(&self, file_len: usize) -> String {
+        let s = |ps: u64| ps as f64 / PS_PER_S as f64;
+        let total = s(self.blocks_ps);
+        let wire = s(self.wire_bytes * CHAR_PS);
+        let waits: u64 = self.ack_waits_ps.iter().sum();
+        let mut sorted = self.ack_waits_ps.clone();
+        sorted.sort_unstable();
+        let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0);
+        let longest = sorted.last().copied().unwrap_or(0);
+        let blocks = self.wire_bytes / 1029;
+        format!(
+            "{file_len} B in {total:.2} s from the first block to the last ACK: {:.0} B/s, {:.1} % of the line's 11 520 B/s; on the wire {wire:.2} s ({} B: {blocks} blocks, 5 B of framing each, 0.49 %, and {} B of the last one's padding), the board's ACK waits {:.2} s ({} blocks: median {:.1} ms, the longest {:.3} s), the rest {:.2} s (the sender's replies, within 1 ms each here)",
+            file_len as f64 / total.max(1e-9),
+            100.0 * file_len as f64 / total.max(1e-9) / 11_520.0,
+            self.wire_bytes,
+            (blocks * 1024).saturating_sub(file_len as u64),
+            s(waits),
+            self.ack_waits_ps.len(),
+            median as f64 / PS_PER_MS as f64,
+            s(longest),
+            (total - wire - s(waits)).max(0.0),
+        )
+    }
 }
 
 /// Type `update` and send `file` by YMODEM-1K; `cut_at_bytes`: pull the power once the
@@ -118,6 +157,11 @@ pub fn transfer(
     let deadline = s.now() + 300 * PS_PER_S;
     let mut text_from: Option<usize> = None;
     let mut gap_done = false;
+    // The pace: when the last packet's last byte reaches the board, the first data
+    // block, the last block's ACK.
+    let mut arrived = 0u64;
+    let mut first_block: Option<u64> = None;
+    let mut last_ack = 0u64;
     while s.now() < deadline {
         s.run_for(PS_PER_MS)?;
         let m = s.machine();
@@ -160,14 +204,30 @@ pub fn transfer(
             }
         }
         if !sender.finished() {
-            for b in bytes {
+            let stamped: Vec<(u64, u8)> =
+                s.board.soc().console_out[seen - bytes.len()..seen].to_vec();
+            for (at, b) in stamped {
                 if std::env::var_os("VBOARD_TRACE_UPDATE").is_some()
                     && !matches!(sender.state, hil_sim::update::SendState::Block(_))
                 {
                     eprintln!("  board → {b:#04x} in {:?}", sender.state);
                 }
+                let was = sender.state;
                 let reply = sender.on_byte(b);
+                if let (hil_sim::update::SendState::Block(_), docking_logic::ymodem::ACK) = (was, b)
+                {
+                    out.ack_waits_ps.push(at.saturating_sub(arrived));
+                    last_ack = at;
+                }
                 if !reply.is_empty() {
+                    let now = s.now();
+                    if matches!(sender.state, hil_sim::update::SendState::Block(_)) {
+                        first_block.get_or_insert(now);
+                        out.wire_bytes += reply.len() as u64;
+                    }
+                    // At line rate after whatever is still on its way (as the UART model
+                    // queues it).
+                    arrived = arrived.max(now) + reply.len() as u64 * CHAR_PS;
                     let _ = s.board.soc_mut().console_send(&reply);
                 }
             }
@@ -218,6 +278,8 @@ pub fn transfer(
         }
     }
     s.set_dock(false);
+    out.blocks_ps = first_block.map_or(0, |f| last_ack.saturating_sub(f));
+    out.retries = sender.retries;
     out.seconds = (s.now() - t0) as f64 / PS_PER_S as f64;
     out.erases = s.board.soc().code_erases - erases0;
     if std::env::var_os("VBOARD_TRACE_UPDATE").is_some() {
@@ -308,11 +370,20 @@ pub fn update(s: &mut Session, checks: &mut Checks) -> Result<(), Halt> {
     let app = app_bytes(&s.board.image);
     let file = update_file(&app, NEW_VERSION);
     let boots = s.seen.boots;
+    let t0 = s.now();
     let t = transfer(s, &file, None, Some(file.len() / 2))?;
     checks.push((
         "the update verified".into(),
         t.reply.starts_with("ok: update verified: version 0.1.1"),
         format!("{} ({:.1} s)", t.reply, t.seconds),
+    ));
+    // Issue 35: the pace against the line's limit; no block sent twice and every ACK
+    // within a sender's 10 s (lrzsz's sb) even while a DFU page erases.
+    let longest = t.ack_waits_ps.iter().copied().max().unwrap_or(u64::MAX);
+    checks.push((
+        "the transfer's pace: no block sent twice, every ACK within sb's 10 s".into(),
+        t.retries == 0 && longest < 10 * PS_PER_S && !t.ack_waits_ps.is_empty(),
+        t.pace(file.len()),
     ));
     checks.push((
         "update's reply whole on the line before the first 'C' (no pause over 20 ms in it)".into(),
@@ -375,7 +446,67 @@ pub fn update(s: &mut Session, checks: &mut Checks) -> Result<(), Halt> {
         erases_after == erases_before,
         format!("{erases_before:?} → {erases_after:?}"),
     ));
+    let (ok, detail) = one_erase_a_window(s, t0);
+    checks.push((
+        "one flash erase a service window, the trial's confirmation included (a control step between any two)".into(),
+        ok,
+        detail,
+    ));
     Ok(())
+}
+
+/// Whether every two sector erases the application started after `after_ps` have a
+/// control step (TIM2's entry) between them: one erase a service window (issue 31, fix
+/// 2: the control step's deadline and the watchdog keep their margins). The bootloader's
+/// swap, which has no control step, is left out: its erases are between the update's
+/// reset and the new image's first instruction in ACTIVE.
+pub fn one_erase_a_window(s: &Session, after_ps: u64) -> (bool, String) {
+    let steps = s
+        .board
+        .soc()
+        .entry_log
+        .times(crate::scene::CONTROL_EXCEPTION);
+    let erases: Vec<(u64, u64, u32)> = s
+        .board
+        .soc()
+        .flash
+        .erase_log()
+        .iter()
+        .copied()
+        .filter(|&(start, _, _)| start >= after_ps)
+        .collect();
+    let resets: Vec<u64> = s.board.resets.iter().map(|&(t, _)| t).collect();
+    let mut worst = String::new();
+    let mut ok = true;
+    for w in erases.windows(2) {
+        let ((_, end, a), (start, _, b)) = (w[0], w[1]);
+        // In the bootloader (a reset since the last control step before the erase):
+        // the swap has no control step at all; left out.
+        let last_step = steps.iter().copied().filter(|&t| t < start).max();
+        let last_reset = resets.iter().copied().filter(|&t| t < start).max();
+        let in_boot = match (last_step, last_reset) {
+            (_, None) => false,
+            (None, Some(_)) => true,
+            (Some(st), Some(r)) => r > st,
+        };
+        let between = steps.iter().any(|&t| t >= end && t <= start);
+        if !in_boot && !between {
+            ok = false;
+            worst = format!("sector {a} then sector {b} with no control step between");
+        }
+    }
+    (
+        ok,
+        format!(
+            "{} erases after the transfer began{}",
+            erases.len(),
+            if worst.is_empty() {
+                String::new()
+            } else {
+                format!(": {worst}")
+            }
+        ),
+    )
 }
 
 /// A bad file of `update-bad`.
@@ -1043,6 +1174,77 @@ pub fn update_from_marked(
         "no cut: confirmed (STATE says BOOT)".into(),
         state_word(&s) == update_layout::state::BOOT,
         format!("{:#010x}", state_word(&s)),
+    ));
+    Ok(s)
+}
+
+/// Issue 31, fix 1: from the marked flash `m`, the new image's trial whose confirmation
+/// cannot be written (STATE, sector 1, write-protected once the bootloader has swapped:
+/// the first word program fails with WRPERR). It is tried again at later rests, three
+/// attempts in all, each logged; after the last, `version --json` and Modbus device
+/// identification (object 0x84) say `failed`, STATE still says SWAP, and the next reset,
+/// the protection gone, rolls the image back.
+pub fn update_confirm_fails(
+    opts: &Options,
+    m: &Marked,
+    checks: &mut Checks,
+) -> Result<Session, String> {
+    let mut s = from_marked(opts, m)?;
+    // The swap first (it writes STATE's progress words), then the protection.
+    let deadline = s.now() + 120 * PS_PER_S;
+    s.run_until(deadline, |x| {
+        logged(x, "trial boot, confirmed once the load cell answers")
+    })
+    .map_err(|e| e.to_string())?;
+    s.board.soc_mut().flash.write_protect(1, true);
+    let deadline = s.now() + 10 * PS_PER_S;
+    s.run_until(deadline, |x| logged(x, "attempt 3 of 3"))
+        .map_err(|e| e.to_string())?;
+    s.run_for(PS_PER_S).map_err(|e| e.to_string())?;
+    let attempts: Vec<String> = s
+        .board
+        .log
+        .iter()
+        .filter(|l| l.msg.contains("trial boot not confirmed"))
+        .map(|l| l.msg.clone())
+        .collect();
+    checks.push((
+        "a failed confirmation: three attempts, each logged".into(),
+        attempts.len() == 3
+            && (1..=3).all(|n| {
+                attempts
+                    .iter()
+                    .any(|a| a.contains(&format!("attempt {n} of 3")))
+            }),
+        attempts.join(" | "),
+    ));
+    let v = version(&mut s).map_err(|e| e.to_string())?;
+    let ident = s
+        .modbus(&crate::scene::rtu(1, &[0x2B, 0x0E, 0x04, 0x84]), PS_PER_S)
+        .map_err(|e| e.to_string())?;
+    // The one object's value: unit, 2B, 0E, 04, conformity, more, next, count, id, len.
+    let value = ident.get(10..ident.len().saturating_sub(2)).unwrap_or(&[]);
+    checks.push((
+        "then version and Modbus identification say trial failed, STATE still SWAP".into(),
+        json_field(&v, "trial").as_deref() == Some("failed")
+            && value == b"failed"
+            && state_word(&s) == update_layout::state::SWAP,
+        format!(
+            "{} | object 0x84 {:?} | STATE {:#010x}",
+            v.trim(),
+            String::from_utf8_lossy(value),
+            state_word(&s)
+        ),
+    ));
+    s.board.soc_mut().flash.write_protect(1, false);
+    s.seen.boots = 0;
+    s.board.reset_pin();
+    let booted = run_to_boot(&mut s, 1, 120 * PS_PER_S).map_err(|e| e.to_string())?;
+    let img = which(&s, &m.old, &m.new);
+    checks.push((
+        "the next reset rolls it back".into(),
+        booted && img == "old",
+        format!("ACTIVE {img}"),
     ));
     Ok(s)
 }

@@ -39,6 +39,8 @@ fn the_board_and_the_host_estimate_the_same_wear() {
         "estimate_low_mm",
         "estimate_high_mm",
         "remaining_estimate_cycles",
+        "remaining_estimate_low_cycles",
+        "remaining_estimate_high_cycles",
         "baseline_bore_mm",
         "baseline_assumed",
         "readings",

@@ -58,6 +58,17 @@ fn overload_stop_during_a_flood(rate_sps: u32) {
         r.sample_entry_max_at,
         r.masked_max_us
     );
+    // The board's masked-window meter missed `msr primask, lr` (the compiler keeps the
+    // saved PRIMASK in lr in `clock::now_us`): a window opened there looked as long as
+    // the time to the next unmask anywhere (42 µs under a Modbus flood). This run is
+    // the one that showed it (`a_critical_section_restored_from_lr_was_measured_as_still_masked`
+    // ran it a second time, 30 s of CI, until issue 33's CI budget).
+    assert!(
+        r.masked_max_us < 20.0,
+        "longest all-masked window {} µs in {}",
+        r.masked_max_us,
+        r.masked_max_at
+    );
     assert_eq!(r.samples_missed, 0);
     assert!(r.scene.motors_disabled);
     assert!(r.core_faults.is_empty(), "{:?}", r.core_faults);
@@ -66,20 +77,6 @@ fn overload_stop_during_a_flood(rate_sps: u32) {
     assert!(r.modbus_flood_bytes > 1_000, "{}", r.modbus_flood_bytes);
     assert!(r.modbus_reply_bytes > 0);
     assert_eq!(r.modbus_de_losses, 0);
-}
-
-/// The board's masked-window meter missed `msr primask, lr` (the compiler keeps the
-/// saved PRIMASK in lr in `clock::now_us`): a window opened there looked as long as the
-/// time to the next unmask anywhere (42 µs under a Modbus flood).
-#[test]
-fn a_critical_section_restored_from_lr_was_measured_as_still_masked() {
-    let r = run("overload", &flooded(80)).expect("board runs");
-    assert!(
-        r.masked_max_us < 20.0,
-        "longest all-masked window {} µs in {}",
-        r.masked_max_us,
-        r.masked_max_at
-    );
 }
 
 #[test]

@@ -56,9 +56,18 @@ fn a_terminal_reads_the_version_over_tcp() {
     s.set_read_timeout(Some(Duration::from_millis(200)))
         .unwrap();
     let reply = ask(&mut s, "version", "docking-controller ");
+    // Then the unit: the chip's 96-bit unique ID (issue 35), in hex.
+    let (head, unit) = reply
+        .trim()
+        .rsplit_once(" unit=")
+        .expect("the unit at the end");
     assert_eq!(
-        reply.trim(),
-        "docking-controller 0.1.0 (test key) previous=none rolled_back=no"
+        head,
+        "docking-controller 0.1.0 (test key) previous=none rolled_back=no trial=no"
+    );
+    assert!(
+        unit.len() == 24 && unit.bytes().all(|c| c.is_ascii_hexdigit()),
+        "{reply}"
     );
     let _ = child.kill();
     let _ = child.wait();
@@ -107,6 +116,109 @@ fn a_terminal_reads_wear_as_json_over_a_pty() {
         .unwrap_or_else(|| panic!("no wear reply; got {got:?}"));
     let v: serde_json::Value = serde_json::from_str(line).expect("JSON");
     assert_eq!(v["material"], "zqsn5-2");
+    let _ = child.kill();
+    let _ = child.wait();
+}
+
+/// A console client that closed its connection cleanly was never let go: its socket
+/// stayed in CLOSE-WAIT and every later client was told `busy: another terminal is
+/// connected` for the rest of the run.
+#[test]
+fn a_terminal_that_closed_cleanly_left_the_console_busy_for_the_rest_of_the_run() {
+    let (mut child, addr) = start(&["--tcp", "127.0.0.1:0"]);
+    let greeting = |s: &mut std::net::TcpStream| {
+        s.set_read_timeout(Some(Duration::from_millis(200)))
+            .unwrap();
+        let deadline = Instant::now() + Duration::from_secs(30);
+        let mut got = Vec::new();
+        while !got.ends_with(b"> ") && !got.ends_with(b"\n") && Instant::now() < deadline {
+            let mut buf = [0u8; 256];
+            match s.read(&mut buf) {
+                Ok(0) => break,
+                Ok(n) => got.extend_from_slice(&buf[..n]),
+                Err(_) => {}
+            }
+        }
+        String::from_utf8_lossy(&got).into_owned()
+    };
+    let mut first = std::net::TcpStream::connect(&addr).expect("connect");
+    first
+        .set_read_timeout(Some(Duration::from_millis(200)))
+        .unwrap();
+    let reply = ask(&mut first, "version", "docking-controller ");
+    assert!(reply.starts_with("docking-controller 0.1.0"), "{reply}");
+    drop(first);
+    // The next terminal gets the console (once the first is let go: 0.5 s of quiet).
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        std::thread::sleep(Duration::from_millis(700));
+        let mut next = std::net::TcpStream::connect(&addr).expect("connect");
+        let g = greeting(&mut next);
+        if g.starts_with("# docking-controller ") {
+            break;
+        }
+        assert!(g.starts_with("busy"), "{g:?}");
+        assert!(Instant::now() < deadline, "still busy: {g:?}");
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+}
+
+/// Commissioning on the live board was a race lost every time: `pin set` is refused
+/// while a docking moves, and the demo docked again as soon as the machine was home
+/// (none of 120 tries over two minutes found a rest). The demo rests between cycles and
+/// pauses while a terminal types: a technician's `pin set` goes through once the cycle
+/// in progress has ended.
+#[test]
+fn a_technician_could_not_commission_the_live_board_between_demo_cycles() {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_vboard"))
+        .args([
+            "serve",
+            "--for",
+            "300",
+            "--tcp",
+            "127.0.0.1:0",
+            "--speed",
+            "10",
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("vboard runs");
+    let mut line = String::new();
+    BufReader::new(child.stdout.as_mut().unwrap())
+        .read_line(&mut line)
+        .expect("first line: the address");
+    let mut s = std::net::TcpStream::connect(line.trim()).expect("connect");
+    s.set_read_timeout(Some(Duration::from_millis(200)))
+        .unwrap();
+    // Let the demo start a cycle (10 s of rest after the boot, then it docks: 3 s of
+    // wall time at speed 10 is 30 s of machine time where the machine keeps up), then
+    // commission: refused while it moves, through once the cycle has ended.
+    std::thread::sleep(Duration::from_secs(3));
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let mut got = String::new();
+    let mut tries = 0;
+    let mut sent = Instant::now() - Duration::from_secs(10);
+    let done = loop {
+        assert!(
+            Instant::now() < deadline,
+            "no PIN set after {tries} tries; got {got:?}"
+        );
+        if sent.elapsed() > Duration::from_secs(2) {
+            s.write_all(b"pin set 2468\r\n").unwrap();
+            sent = Instant::now();
+            tries += 1;
+        }
+        let mut buf = [0u8; 512];
+        if let Ok(n) = s.read(&mut buf) {
+            got.push_str(&String::from_utf8_lossy(&buf[..n]));
+        }
+        if let Some(l) = got.split("\r\n").find(|l| l.starts_with("ok: PIN set")) {
+            break l.to_string();
+        }
+    };
+    assert!(done.starts_with("ok: PIN set"), "{done}");
     let _ = child.kill();
     let _ = child.wait();
 }

@@ -76,7 +76,20 @@ pub trait Fields {
     ) -> fmt::Result;
     /// `n` records: `item(i, sink)` writes record `i`'s fields.
     fn records(&mut self, key: &str, n: usize, item: &mut Record<'_>) -> fmt::Result;
+    /// A topic of the report's own fields starts (`status`'s and `wear`'s): a person's
+    /// terminal shows each topic on a line of its own, its name first
+    /// ([`TextFields::grouped`]); a script's text and JSON are as without it.
+    fn group(&mut self, _name: &str) -> fmt::Result {
+        Ok(())
+    }
 }
+
+/// Where a grouped line's fields start (after the topic's name), columns.
+const GROUP_INDENT: usize = 10;
+/// A grouped line wraps before a field that would end past this column (its value
+/// guessed at [`VALUE_GUESS`] characters); the next line starts at [`GROUP_INDENT`].
+const GROUP_WIDTH: usize = 78;
+const VALUE_GUESS: usize = 8;
 
 /// `key=value` text: the report's fields on the first line, each object and record on
 /// a line of its own.
@@ -89,17 +102,38 @@ pub struct TextFields<'w> {
     /// The current line is an object's or a record's: a field of the report's own
     /// written after it starts a line of its own.
     nested: bool,
+    /// Topics on lines of their own, wrapped at [`GROUP_WIDTH`] (a person's terminal).
+    grouped: bool,
+    /// The column the line stands at (grouped only).
+    col: usize,
 }
 
 impl<'w> TextFields<'w> {
-    /// Text into `w`.
+    /// Text into `w`: a script's `key=value` lines.
     pub fn new(w: &'w mut dyn Sink) -> Self {
         Self {
             w,
             on_line: false,
             started: false,
             nested: false,
+            grouped: false,
+            col: 0,
         }
+    }
+
+    /// Text for a person (issue 35: `status` and `wear` were single lines of 370
+    /// characters): each topic ([`Fields::group`]) on a line of its own, its name
+    /// first, its `key=value` fields after, wrapped at 78 columns under the first:
+    ///
+    /// ```text
+    /// motion    force_n=0.003 limit_n=300.000 pos_mm=0.000 cycles_completed=3
+    /// plc       in_dock=no in_estop_open=no out_ready=yes out_mated=no
+    ///           out_fault=no out_maintenance=no
+    /// ```
+    pub fn grouped(w: &'w mut dyn Sink) -> Self {
+        let mut t = Self::new(w);
+        t.grouped = true;
+        t
     }
 
     fn new_line(&mut self) -> fmt::Result {
@@ -109,6 +143,15 @@ impl<'w> TextFields<'w> {
         self.on_line = false;
         self.started = true;
         self.nested = false;
+        self.col = 0;
+        Ok(())
+    }
+
+    /// `n` spaces.
+    fn pad(&mut self, n: usize) -> fmt::Result {
+        for _ in 0..n {
+            fmt::Write::write_str(self, " ")?;
+        }
         Ok(())
     }
 
@@ -121,19 +164,34 @@ impl<'w> TextFields<'w> {
     }
 }
 
+/// What a grouped line writes goes through here: its column counted.
+impl fmt::Write for TextFields<'_> {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        self.col += s.len();
+        self.w.put(s)
+    }
+}
+
 impl Fields for TextFields<'_> {
     fn value(&mut self, key: &str) -> Result<&mut dyn Sink, fmt::Error> {
         if self.nested {
             self.new_line()?;
         }
+        if self.grouped && self.on_line && self.col + 1 + key.len() + 1 + VALUE_GUESS > GROUP_WIDTH
+        {
+            self.new_line()?;
+            self.pad(GROUP_INDENT)?;
+        }
         if self.on_line {
             self.w.put(" ")?;
+            self.col += 1;
         }
         self.on_line = true;
         self.started = true;
+        self.col += key.len() + 1;
         self.w.put(key)?;
         self.w.put("=")?;
-        Ok(&mut *self.w)
+        Ok(self)
     }
 
     fn str(&mut self, key: &str, v: &str) -> fmt::Result {
@@ -144,6 +202,15 @@ impl Fields for TextFields<'_> {
         let w = self.value(key)?;
         w.put("0x")?;
         write_hex(w, v, 8)
+    }
+
+    fn group(&mut self, name: &str) -> fmt::Result {
+        if !self.grouped {
+            return Ok(());
+        }
+        self.new_line()?;
+        fmt::Write::write_str(self, name)?;
+        self.pad(GROUP_INDENT.saturating_sub(name.len()))
     }
 
     fn bool(&mut self, key: &str, v: bool) -> fmt::Result {
@@ -333,6 +400,46 @@ mod tests {
         let (t, j) = both(&|f| f.records("history", 0, &mut |_, _| Ok(())));
         assert_eq!(t, "");
         assert_eq!(j, r#"{"history":[]}"#);
+    }
+
+    /// Issue 35: a person's terminal shows each topic on a line of its own, wrapped
+    /// under its first field; the script's text and the JSON are as without topics.
+    #[test]
+    fn topics_on_lines_of_their_own_for_a_person_and_nothing_else_changes() {
+        let report = |f: &mut dyn Fields| -> fmt::Result {
+            f.group("state")?;
+            f.str("state", "idle")?;
+            f.none("phase")?;
+            f.group("plc")?;
+            for k in [
+                "in_dock",
+                "in_estop_open",
+                "out_ready",
+                "out_mated",
+                "out_fault",
+                "out_maintenance",
+            ] {
+                f.bool(k, false)?;
+            }
+            Ok(())
+        };
+        let (t, j) = both(&report);
+        assert_eq!(
+            t,
+            "state=idle phase=none in_dock=no in_estop_open=no out_ready=no out_mated=no out_fault=no out_maintenance=no\r\n"
+        );
+        assert!(j.starts_with(r#"{"state":"idle","phase":null,"in_dock":false"#));
+        let mut g = String::new();
+        let mut w = TextFields::grouped(&mut g);
+        report(&mut w).unwrap();
+        w.finish().unwrap();
+        assert_eq!(
+            g,
+            "state     state=idle phase=none\r\n\
+             plc       in_dock=no in_estop_open=no out_ready=no out_mated=no\r\n          \
+             out_fault=no out_maintenance=no\r\n"
+        );
+        assert!(g.split("\r\n").all(|l| l.len() <= GROUP_WIDTH));
     }
 
     #[test]

@@ -132,15 +132,19 @@ pub(super) fn status_fields(f: &mut dyn Fields, v: &StatusView) -> fmt::Result {
         stack,
         maint,
     } = *v;
+    f.group("state")?;
     f.str("state", s.state.name())?;
     phase_field(f, s.phase)?;
+    f.group("motion")?;
     f.fixed("force_n", s.force_mn as i64, 3)?;
     f.fixed("limit_n", s.limit_mn as i64, 3)?;
     f.fixed("pos_mm", s.pos_um as i64, 3)?;
     f.u64("cycles_completed", s.cycles_completed as u64)?;
+    f.group("fault")?;
     opt(f, "fault", s.fault.map(|x| x.name()))?;
     f.bool("warning", s.warning)?;
     f.fixed("peak_force_n", s.peak_force_mn as i64, 3)?;
+    f.group("board")?;
     f.bool("maintenance", maint)?;
     f.bool("calibrated", calibrated)?;
     opt(f, "reset", reset.map(|r| r.name()))?;
@@ -155,6 +159,7 @@ pub(super) fn status_fields(f: &mut dyn Fields, v: &StatusView) -> fmt::Result {
         }
     }
     let h = s.handshake;
+    f.group("plc")?;
     f.bool("in_dock", h.dock)?;
     f.bool("in_estop_open", h.estop)?;
     f.bool("out_ready", h.ready)?;
@@ -181,22 +186,33 @@ pub(super) fn wear_fields(f: &mut dyn Fields, v: &WearView) -> fmt::Result {
         readings,
         ref sig,
     } = *v;
+    f.group("cone")?;
     f.u64("cone", cone.id as u64)?;
     f.str("material", cone.material.name())?;
-    f.str("serial", cone.serial_str())?;
+    // An unset serial is `none` / null, as every missing value (issue 35: it was
+    // `serial=` and `"serial":""`).
+    opt(
+        f,
+        "serial",
+        Some(cone.serial_str()).filter(|s| !s.is_empty()),
+    )?;
     f.u64("cycles", cone.cycles as u64)?;
+    f.group("odometer")?;
     f.fixed("load_distance_nmm", cone_nmm_milli, 3)?;
     f.fixed("load_distance_in_cycle_nmm", in_cycle_nmm_milli, 3)?;
     f.fixed("wear_mm", wear_nm as i64, 6)?;
     f.u64("remaining_cycles", remaining as u64)?;
+    f.group("level")?;
     f.str("level", level.name())?;
     f.fixed("limit_mm", limit_nm as i64, 6)?;
     f.fixed("warn_mm", warn_nm, 6)?;
+    f.group("lifetime")?;
     f.u64("lifetime_cycles", life.cycles as u64)?;
     f.u64("cones_installed", life.cones_installed as u64)?;
     f.u64("overload_events", life.overload_events as u64)?;
     f.u64("faults", life.faults as u64)?;
     f.fixed("peak_force_n", life.peak_force_mn as i64, 3)?;
+    f.group("estimate")?;
     match measured {
         Some(m) => f.fixed("wear_measured_mm", m, 6)?,
         None => f.none("wear_measured_mm")?,
@@ -205,6 +221,15 @@ pub(super) fn wear_fields(f: &mut dyn Fields, v: &WearView) -> fmt::Result {
     f.fixed("estimate_low_mm", est.low_nm as i64, 6)?;
     f.fixed("estimate_high_mm", est.high_nm as i64, 6)?;
     f.u64("remaining_estimate_cycles", est.remaining_cycles as u64)?;
+    f.u64(
+        "remaining_estimate_low_cycles",
+        est.remaining_low_cycles as u64,
+    )?;
+    f.u64(
+        "remaining_estimate_high_cycles",
+        est.remaining_high_cycles as u64,
+    )?;
+    f.group("readings")?;
     f.fixed("baseline_bore_mm", base as i64, 3)?;
     f.bool("baseline_assumed", cone.baseline().is_none())?;
     f.u64("readings", readings as u64)?;

@@ -276,8 +276,11 @@ struct TermState {
     esc: u8,
     /// The previous byte was CR (the LF of a CR LF echoes nothing).
     after_cr: bool,
-    /// The previous line run (Up recalls it); never one holding a PIN.
-    recall: String<LINE_MAX>,
+    /// The last lines run, oldest first (Up recalls them, Down comes back); never one
+    /// holding a PIN.
+    recall: Deque<String<LINE_MAX>, RECALL_LINES>,
+    /// How far back Up went: 0 the line being typed, n the n-th newest of `recall`.
+    recall_at: u8,
     /// The machine's state for the prompt, as last seen (`None`: not yet).
     state: Option<&'static str>,
     /// Maintenance mode, as last seen (the prompt ends `#` instead of `>`).
@@ -285,7 +288,14 @@ struct TermState {
     /// The host runs `update`'s session ([`Console::enable_updater`]: the board); the
     /// simulators have no DFU partition and refuse `update`.
     updater: bool,
+    /// The unit's serial number (the chip's unique ID in hex, as Modbus device
+    /// identification's object 0x80), `unit_len` bytes of it ([`Console::set_unit`]).
+    unit: [u8; UNIT_MAX],
+    unit_len: u8,
 }
+
+/// The longest unit serial `version` reports (the chip's 96-bit ID in hex: 24).
+pub const UNIT_MAX: usize = 24;
 
 /// Ctrl-C: abandon the line.
 const CTRL_C: u8 = 0x03;
@@ -294,9 +304,18 @@ const CTRL_U: u8 = 0x15;
 /// What erases one character on a terminal.
 const RUB_OUT: &[u8] = b"\x08 \x08";
 
-/// A line whose rest is a PIN: echoed as `*`, never recalled.
+/// Lines Up recalls (issue 35: it recalled one).
+const RECALL_LINES: usize = 4;
+
+/// A line whose rest is a PIN: echoed as `*`, never recalled. `maint exit`, and what is
+/// typed on the way to it, is not one (issue 35: it was echoed `maint ****`).
 fn is_secret(line: &[u8]) -> bool {
-    line.starts_with(b"maint ") || line.starts_with(b"pin set ")
+    match line.strip_prefix(b"maint ") {
+        Some(rest) => !(b"exit".starts_with(rest) || rest.starts_with(b"exit")),
+        None => line
+            .strip_prefix(b"pin set ")
+            .is_some_and(|rest| !rest.is_empty()),
+    }
 }
 
 /// What a command leaves for after the controller is released.
@@ -311,6 +330,9 @@ struct Deferred {
     pin_set: bool,
     pin_rec: [u8; PinRecord::LEN],
     pin_rec_ready: bool,
+    /// A login's PIN checked out: maintenance mode waits to be granted to the controller
+    /// ([`Console::store`]) before the reply says so.
+    grant: bool,
     /// A report waits to be written (`report_json`: as JSON).
     report: Report,
     report_json: bool,
@@ -357,6 +379,7 @@ impl Console {
                 pin_set: false,
                 pin_rec: [0; PinRecord::LEN],
                 pin_rec_ready: false,
+                grant: false,
                 report: Report::None,
                 report_json: false,
                 update: false,
@@ -365,10 +388,13 @@ impl Console {
                 quiet: false,
                 esc: 0,
                 after_cr: false,
-                recall: String::new(),
+                recall: Deque::new(),
+                recall_at: 0,
                 state: None,
                 maint: false,
                 updater: false,
+                unit: [0; UNIT_MAX],
+                unit_len: 0,
             },
         }
     }
@@ -457,19 +483,27 @@ impl Console {
             2 if (0x20..=0x3F).contains(&byte) => return None,
             2 | 3 => {
                 self.term.esc = 0;
-                match byte {
-                    b'A' => {
-                        self.erase_shown();
-                        let recall = self.term.recall.clone();
-                        self.reader.replace_pending(recall.as_bytes());
-                        self.echo(recall.as_bytes());
-                    }
-                    b'B' => {
-                        self.erase_shown();
-                        self.reader.reset();
-                    }
-                    _ => {}
-                }
+                let n = self.term.recall.len();
+                let at = match byte {
+                    b'A' if usize::from(self.term.recall_at) < n => self.term.recall_at + 1,
+                    b'B' => self.term.recall_at.saturating_sub(1),
+                    _ => return None,
+                };
+                self.term.recall_at = at;
+                self.erase_shown();
+                // Newest last: the n-th newest at len - n (none at 0: a clear line).
+                let line = match usize::from(at) {
+                    0 => String::new(),
+                    k => self
+                        .term
+                        .recall
+                        .iter()
+                        .nth(n.saturating_sub(k))
+                        .cloned()
+                        .unwrap_or_default(),
+                };
+                self.reader.replace_pending(line.as_bytes());
+                self.echo(line.as_bytes());
                 return None;
             }
             _ => {}
@@ -482,6 +516,7 @@ impl Console {
             CTRL_C => {
                 self.echo(b"^C\r\n");
                 self.reader.reset();
+                self.term.recall_at = 0;
                 self.prompt();
                 None
             }
@@ -598,7 +633,6 @@ impl Console {
                 false => byte,
             };
             let shown = self.reader.pending().len();
-            let secret = is_secret(self.reader.pending());
             // The end of a line: CR, LF, or the first of CR LF.
             let ends = (byte == CR || byte == LF) && !(byte == LF && self.term.after_cr);
             self.term.after_cr = byte == CR;
@@ -611,6 +645,8 @@ impl Console {
                         if ends {
                             self.prompt(); // a blank line
                         } else {
+                            // Masked by what the line is with this byte in it.
+                            let secret = is_secret(self.reader.pending());
                             self.echo_typed(byte, shown, secret);
                         }
                     }
@@ -622,8 +658,13 @@ impl Console {
                 Some(LineEvent::Line(l)) => {
                     let mut line: String<LINE_MAX> = String::new();
                     let _ = line.push_str(l);
-                    if !is_secret(line.as_bytes()) {
-                        self.term.recall = line.clone();
+                    self.term.recall_at = 0;
+                    let newest = self.term.recall.back().map(|l| l.as_str());
+                    if !is_secret(line.as_bytes()) && newest != Some(line.as_str()) {
+                        if self.term.recall.is_full() {
+                            self.term.recall.pop_front();
+                        }
+                        let _ = self.term.recall.push_back(line.clone());
                     }
                     st.commands = 1;
                     return (Some(line), st);
@@ -635,9 +676,10 @@ impl Console {
 
     /// Phase 3, without the controller: the work a command left for after the
     /// controller is released (a maintenance login's PIN check). Returns the PIN hashes
-    /// computed. The controller learns the new maintenance mode from
-    /// [`Self::maintenance_active`] (the board and [`Self::poll`] tell it after each
-    /// command).
+    /// computed. A login that checks out is granted to the controller by
+    /// [`Self::store`] (phase 4, [`Self::store_due`]), which replies; the session's end
+    /// by its idle timeout reaches it through [`Self::maintenance_active`] (the board
+    /// and [`Self::poll`] tell it).
     #[inline(never)]
     pub fn finish(&mut self, now_ms: u64) -> u32 {
         let json = self.deferred.report_json;
@@ -679,15 +721,23 @@ impl Console {
         1
     }
 
-    /// Whether a command's record waits for [`Self::store`] (with the controller).
+    /// Whether a command's record, or a login's grant, waits for [`Self::store`] (with
+    /// the controller).
     pub fn store_due(&self) -> bool {
-        self.deferred.pin_rec_ready
+        self.deferred.pin_rec_ready || self.deferred.grant
     }
 
-    /// Phase 4, with the controller again: store what [`Self::finish`] prepared (a new
-    /// PIN record: written at rest only, else refused), then the prompt.
+    /// Phase 4, with the controller again: what [`Self::finish`] prepared — a login's
+    /// grant of maintenance mode (in force in the controller before the reply says so:
+    /// a DOCK edge or a Modbus command from then on is refused, and the prompt shows
+    /// the state the grant found: docs/board.md, "What holds between the steps", rule
+    /// 2), a new PIN record (written at rest only, else refused) — then the prompt.
     #[inline(never)]
     pub fn store(&mut self, ctrl: &mut dyn Machine, now_ms: u64) {
+        if core::mem::take(&mut self.deferred.grant) {
+            ctrl.set_maintenance_mode(self.auth.is_active(now_ms));
+            self.ok(&"maintenance mode (ends after 10 min idle or `maint exit`)");
+        }
         if core::mem::take(&mut self.deferred.pin_rec_ready) {
             let rec = self.deferred.pin_rec;
             match ctrl.store_record(kind::PIN, &rec) {
@@ -715,7 +765,8 @@ impl Console {
         match self.auth.try_enter(now_ms, &pin, rec.as_ref()) {
             Ok(()) => {
                 info!("maintenance mode entered");
-                self.ok(&"maintenance mode (ends after 10 min idle or `maint exit`)");
+                // Granted to the controller, and only then said, by `store`.
+                self.deferred.grant = true;
             }
             Err(e) => {
                 warn!("maintenance login refused");
@@ -793,6 +844,21 @@ impl Console {
     /// Whether `update` is taken here.
     pub(super) fn has_updater(&self) -> bool {
         self.term.updater
+    }
+
+    /// The unit's serial number `version` reports (issue 35: `dockctl export` names the
+    /// machine by it): printable ASCII, at most [`UNIT_MAX`] bytes (more are cut).
+    pub fn set_unit(&mut self, serial: &str) {
+        let b = serial.as_bytes();
+        let n = b
+            .iter()
+            .take(UNIT_MAX)
+            .take_while(|c| c.is_ascii_graphic())
+            .count();
+        if let (Some(dst), Some(src)) = (self.term.unit.get_mut(..n), b.get(..n)) {
+            dst.copy_from_slice(src);
+        }
+        self.term.unit_len = n as u8;
     }
 
     /// Whether an `update` waits for its session (asked once: it is cleared).
@@ -920,8 +986,15 @@ impl Console {
             self.err(&"maintenance mode required (maint <pin>)");
             return 0;
         }
-        if gated && cmd.needs_rest() && !ctrl.is_quiet() {
-            self.err(&"refused while a docking is moving");
+        let rest = cmd.needs_rest() || matches!(cmd, Command::Measure { .. });
+        if gated && rest && !ctrl.is_quiet() {
+            // Say what it is (issue 35: a machine holding mated was "moving").
+            self.err(&match ctrl.state() {
+                crate::sequencer::State::Holding { .. } => {
+                    "refused while mated: at rest only (undock first)"
+                }
+                _ => "refused while a docking is moving",
+            });
             return 0;
         }
         match cmd {
@@ -1131,6 +1204,7 @@ impl Console {
             }
             Command::MaintExit => {
                 self.auth.exit();
+                ctrl.set_maintenance_mode(false);
                 self.ok(&"maintenance mode ended");
             }
             Command::PinSet { pin } => {
@@ -1194,9 +1268,9 @@ impl Console {
     /// `version`: the running image (its header's version; the build's without one),
     /// `(test key)` when the built-in key is the test key, the image it replaced, a
     /// rollback (issue 21), and whether it runs on trial (issue 31: `trial=yes|failed`,
-    /// then what to do, on a line of its own). Fields added to 927460b's reply, none
-    /// renamed: the text's first two words and the JSON's `name` and `version` are as
-    /// they were.
+    /// then what to do, on a line of its own), and the unit's serial (issue 35: `unit=`,
+    /// `none` when the host gave none). Fields added to 927460b's reply, none renamed:
+    /// the text's first two words and the JSON's `name` and `version` are as they were.
     #[inline(never)]
     fn version(&mut self, r: &crate::update::ImageReport, json: bool) {
         use super::update::version_text;
@@ -1207,6 +1281,9 @@ impl Console {
         );
         let v = running_text(r, &mut a);
         let previous = version_text(r.previous, &mut b);
+        let n = usize::from(self.term.unit_len).min(UNIT_MAX);
+        let unit_bytes = self.term.unit;
+        let unit = core::str::from_utf8(unit_bytes.get(..n).unwrap_or(&[])).unwrap_or("");
         let rolled = match (r.rolled_back, r.rolled_back_version) {
             (false, _) => "no",
             (true, None) => "yes",
@@ -1228,8 +1305,12 @@ impl Console {
                 };
                 f.str("trial", r.trial.word())?;
                 match r.trial.advice() {
-                    Some(a) => f.str("trial_advice", a),
-                    None => f.none("trial_advice"),
+                    Some(a) => f.str("trial_advice", a)?,
+                    None => f.none("trial_advice")?,
+                };
+                match unit {
+                    "" => f.none("unit"),
+                    u => f.str("unit", u),
                 }
             });
         } else {
@@ -1247,6 +1328,8 @@ impl Console {
                         rolled,
                         " trial=",
                         r.trial.word(),
+                        " unit=",
+                        if unit.is_empty() { "none" } else { unit },
                         "\r\n",
                     ],
                 )?;
@@ -1267,6 +1350,16 @@ impl Console {
 
     /// A report: `fields` written once, rendered as text or as one JSON line.
     fn report(&mut self, json: bool, fields: &mut dyn FnMut(&mut dyn Fields) -> fmt::Result) {
+        self.report_as(json, false, fields);
+    }
+
+    /// [`Self::report`]; `grouped`: its text in topics, for a person (echo on).
+    fn report_as(
+        &mut self,
+        json: bool,
+        grouped: bool,
+        fields: &mut dyn FnMut(&mut dyn Fields) -> fmt::Result,
+    ) {
         self.reply(|o| {
             if json {
                 let mut j = JsonFields::new(o)?;
@@ -1274,19 +1367,25 @@ impl Console {
                 j.finish()?;
                 o.write_str("\r\n")
             } else {
-                let mut t = TextFields::new(o);
+                let mut t = if grouped {
+                    TextFields::grouped(o)
+                } else {
+                    TextFields::new(o)
+                };
                 fields(&mut t)?;
                 t.finish()
             }
         });
     }
 
+    /// `status` and `wear` as a person reads them with echo on: a topic a line (issue
+    /// 35); a script's (`echo off`) the `key=value` line of docs/console.md.
     fn render_status(&mut self, v: &StatusView, json: bool) {
-        self.report(json, &mut |f| status_fields(f, v));
+        self.report_as(json, !self.term.quiet, &mut |f| status_fields(f, v));
     }
 
     fn render_wear(&mut self, v: &WearView, json: bool) {
-        self.report(json, &mut |f| wear_fields(f, v));
+        self.report_as(json, !self.term.quiet, &mut |f| wear_fields(f, v));
     }
 
     fn render_history(&mut self, entries: &HistoryEntries, sig: &HistorySig, json: bool) {
@@ -1340,6 +1439,10 @@ impl Console {
             kv_fixed(o, "estimate_high_mm", est.high_nm as i64, 6)?;
             kv(o, "remaining_estimate_cycles")?;
             write_u64(o, u64::from(est.remaining_cycles))?;
+            kv(o, "remaining_estimate_low_cycles")?;
+            write_u64(o, u64::from(est.remaining_low_cycles))?;
+            kv(o, "remaining_estimate_high_cycles")?;
+            write_u64(o, u64::from(est.remaining_high_cycles))?;
             kv_fixed(o, "baseline_bore_mm", base as i64, 3)?;
             if assumed {
                 o.write_str(

@@ -66,6 +66,8 @@ pub struct RtuFramer {
     len: usize,
     rx: Rx,
     last_us: Option<u64>,
+    /// When the frame in progress (or the last) began: its first character's start.
+    start_us: u64,
     char_us: u64,
     t1_5_us: u64,
     t3_5_us: u64,
@@ -82,6 +84,7 @@ impl RtuFramer {
             len: 0,
             rx: Rx::Idle,
             last_us: None,
+            start_us: 0,
             char_us: 0,
             t1_5_us: 0,
             t3_5_us: 0,
@@ -96,6 +99,7 @@ impl RtuFramer {
             len: 0,
             rx: Rx::Idle,
             last_us: None,
+            start_us: 0,
             char_us: settings.char_us() as u64,
             t1_5_us: settings.t1_5_us() as u64,
             t3_5_us: settings.t3_5_us() as u64,
@@ -132,6 +136,7 @@ impl RtuFramer {
         if silence.is_none_or(|s| s >= self.t3_5_us) {
             self.close();
             self.rx = Rx::Receiving;
+            self.start_us = t_us.saturating_sub(self.char_us);
         } else if silence.is_some_and(|s| s > self.t1_5_us) || self.rx == Rx::Idle {
             // A gap inside the frame, or a byte too soon after a frame already ended.
             self.rx = Rx::Discarding;
@@ -189,6 +194,12 @@ impl RtuFramer {
             }
             Rx::Idle => None,
         }
+    }
+
+    /// When the frame [`Self::poll`] returned last (or the one in progress) began: its
+    /// first character's start, µs (a request is issued then: issue 32).
+    pub fn frame_start_us(&self) -> u64 {
+        self.start_us
     }
 
     /// Frames discarded: a silence over t1.5 inside, over 256 bytes, under 4 bytes, a

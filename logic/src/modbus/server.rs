@@ -179,6 +179,13 @@ impl Server {
         self.reply.get(..n)
     }
 
+    /// When the request [`Self::poll`] handles (or handled last) began on the line: its
+    /// first character's start, µs — when the PLC issued it
+    /// ([`crate::controller::Controller::issued_at`]).
+    pub fn request_start_us(&self) -> u64 {
+        self.framer.frame_start_us()
+    }
+
     /// The last command written (its code, [`Command::code`](super::Command::code); 0 none since boot) and
     /// its result (0 accepted, else [`crate::controller::Refusal::code`]): input
     /// registers 8 and 9.

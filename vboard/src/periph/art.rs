@@ -214,6 +214,63 @@ pub struct ArtStats {
     pub erases_unflushed: u64,
 }
 
+/// The accelerator's state at the start of a loop iteration, as far as an iteration
+/// changes it: to tell that iterations repeat, and to advance it over the skipped ones
+/// ([`Art::advance_loop`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LoopMark {
+    stats: ArtStats,
+    i_now: u64,
+    d_now: u64,
+    cur_line: u32,
+    prefetch: (u32, u64),
+}
+
+impl ArtStats {
+    fn sub(&self, o: &Self) -> Self {
+        Self {
+            i_lines: self.i_lines - o.i_lines,
+            i_hits: self.i_hits - o.i_hits,
+            i_prefetched: self.i_prefetched - o.i_prefetched,
+            i_misses: self.i_misses - o.i_misses,
+            d_lines: self.d_lines - o.d_lines,
+            d_hits: self.d_hits - o.d_hits,
+            stall_mc: self.stall_mc - o.stall_mc,
+            stale_hits: self.stale_hits - o.stale_hits,
+            i_resets: self.i_resets - o.i_resets,
+            d_resets: self.d_resets - o.d_resets,
+            resets_refused: self.resets_refused - o.resets_refused,
+            erases: self.erases - o.erases,
+            lines_made_stale: self.lines_made_stale - o.lines_made_stale,
+            erases_unflushed: self.erases_unflushed - o.erases_unflushed,
+        }
+    }
+
+    fn add_times(&mut self, d: &Self, k: u64) {
+        self.i_lines += k * d.i_lines;
+        self.i_hits += k * d.i_hits;
+        self.i_prefetched += k * d.i_prefetched;
+        self.i_misses += k * d.i_misses;
+        self.d_lines += k * d.d_lines;
+        self.d_hits += k * d.d_hits;
+        self.stall_mc += k * d.stall_mc;
+        self.stale_hits += k * d.stale_hits;
+    }
+}
+
+impl LineCache {
+    /// The lines touched since the counter stood at `since` move on by `k` touches of
+    /// `per` each (a loop's iterations touch the same lines in the same order).
+    fn advance(&mut self, since: u64, per: u64, k: u64) {
+        for st in self.stamps.iter_mut() {
+            if *st > since {
+                *st += k * per;
+            }
+        }
+        self.now += k * per;
+    }
+}
+
 /// The accelerator.
 #[derive(Clone, Debug)]
 pub struct Art {
@@ -263,6 +320,53 @@ impl Art {
             stats: ArtStats::default(),
             unflushed: (false, false),
             ignore_cache_resets: false,
+        }
+    }
+
+    /// The state a loop iteration starts from, at milli-cycle `mc`.
+    pub fn loop_mark(&self) -> LoopMark {
+        LoopMark {
+            stats: self.stats,
+            i_now: self.icache.now,
+            d_now: self.dcache.now,
+            cur_line: self.cur_line,
+            prefetch: self.prefetch,
+        }
+    }
+
+    /// Whether an iteration from `a` to `b` (`d_mc` milli-cycles apart) can be repeated
+    /// from `b` and give the same: no line read from the array (a miss fills or
+    /// evicts), no cache reset or erase, the same line executing and the prefetch buffer
+    /// as far ahead in time.
+    pub fn loop_repeats(a: &LoopMark, b: &LoopMark, d_mc: u64) -> bool {
+        let d = b.stats.sub(&a.stats);
+        // The buffer moves on with the fetches of a loop in flash, and stands still for
+        // one in SRAM.
+        let prefetch_same = a.prefetch.0 == b.prefetch.0
+            && (a.prefetch.0 == NONE
+                || b.prefetch.1 == a.prefetch.1 + d_mc
+                || b.prefetch.1 == a.prefetch.1);
+        d.i_misses == 0
+            && d.d_lines == d.d_hits
+            && d.i_resets == 0
+            && d.d_resets == 0
+            && d.resets_refused == 0
+            && d.erases == 0
+            && d.lines_made_stale == 0
+            && d.erases_unflushed == 0
+            && a.cur_line == b.cur_line
+            && prefetch_same
+    }
+
+    /// `k` more iterations like the one from `a` to `b`, as they would have left the
+    /// caches, the buffer and the counters.
+    pub fn advance_loop(&mut self, a: &LoopMark, b: &LoopMark, k: u64) {
+        let d = b.stats.sub(&a.stats);
+        self.stats.add_times(&d, k);
+        self.icache.advance(a.i_now, b.i_now - a.i_now, k);
+        self.dcache.advance(a.d_now, b.d_now - a.d_now, k);
+        if self.prefetch.0 != NONE {
+            self.prefetch.1 += k * (b.prefetch.1 - a.prefetch.1);
         }
     }
 

@@ -35,7 +35,8 @@ impl Dwt {
         };
     }
 
-    fn counting(&self) -> bool {
+    /// Whether CYCCNT counts (`CYCCNTENA` and `TRCENA`).
+    pub fn counting(&self) -> bool {
         self.ctrl & 1 != 0 && self.demcr & (1 << 24) != 0
     }
 

@@ -182,6 +182,8 @@ pub struct FlashCtl {
     pub timing: FlashTiming,
     /// Operations started.
     pub ops_started: u64,
+    /// Sector erases started (see [`FlashCtl::erase_log`]).
+    erases: Vec<(u64, u64, u32)>,
     /// The ART accelerator's caches and buffers (`ACR`'s enables, resets and wait
     /// states); the board times reads through it under [`crate::cpu::Timing::Art`].
     pub art: Art,
@@ -203,6 +205,7 @@ impl FlashCtl {
             done: None,
             timing,
             ops_started: 0,
+            erases: Vec::new(),
             art: Art::new(),
         };
         f.reset_regs();
@@ -300,6 +303,15 @@ impl FlashCtl {
         };
         self.busy = Some((op, now, now + d));
         self.ops_started += 1;
+        if let Op::Erase { sector } = op {
+            self.erases.push((now, now + d, sector));
+        }
+    }
+
+    /// Every sector erase started since power-on: (start, end as timed, sector), ps (an
+    /// erase a reset cut ends at the cut).
+    pub fn erase_log(&self) -> &[(u64, u64, u32)] {
+        &self.erases
     }
 
     /// Write-protected sector? (nWRP bit clear)
@@ -330,6 +342,20 @@ impl FlashCtl {
         }
         self.start(Op::Program { addr, size, value }, now);
         true
+    }
+
+    /// What a read at `off` returns before the operation in progress ends (it does not
+    /// change with time until then: the end is an event of the board). `None`: a
+    /// register a polling loop is not skipped over.
+    pub fn peek(&self, off: u32, size: usize) -> Option<u32> {
+        let v = match off & !3 {
+            0x00 => self.acr,
+            0x0C => self.sr | if self.busy.is_some() { sr::BSY } else { 0 },
+            0x10 => self.cr,
+            0x14 => self.optcr,
+            _ => return None,
+        };
+        Some(lane(v, off, size))
     }
 
     /// Read at `off`.

@@ -38,11 +38,9 @@ pub struct Iwdg {
     /// Counter value at `t_ref`.
     count_ref: u64,
     t_ref: u64,
-    /// Reloads so far.
+    /// Reloads since the last reset (the board notes when each was written:
+    /// `Soc::feeds`).
     pub reloads: u64,
-    /// When each reload (`KR` = 0xAAAA) was written, ps; kept across resets (the gaps
-    /// between them are the firmware's feeding, measured where the counter sees it).
-    pub reload_times: Vec<u64>,
 }
 
 impl Iwdg {
@@ -61,16 +59,12 @@ impl Iwdg {
             count_ref: 0xFFF,
             t_ref: 0,
             reloads: 0,
-            reload_times: Vec::new(),
         }
     }
 
     /// A system reset stops it (the option bytes select the software watchdog).
     pub fn reset(&mut self) {
-        let lsi = self.lsi_hz;
-        let times = std::mem::take(&mut self.reload_times);
-        *self = Self::new(lsi);
-        self.reload_times = times;
+        *self = Self::new(self.lsi_hz);
     }
 
     /// Whether it runs.
@@ -127,6 +121,18 @@ impl Iwdg {
         self.expiry().is_some_and(|t| now >= t)
     }
 
+    /// What a read at `off` returns until the next event (a pending `PR`/`RLR` landing
+    /// is one). `None`: `KR`, and offsets not modelled.
+    pub fn peek(&self, off: u32, size: usize) -> Option<u32> {
+        let v = match off & !3 {
+            0x04 => self.pr,
+            0x08 => self.rlr,
+            0x0C => u32::from(self.pr_lands.is_some()) | (u32::from(self.rlr_lands.is_some()) << 1),
+            _ => return None,
+        };
+        Some(lane(v, off, size))
+    }
+
     /// Read at `off`.
     pub fn read(&mut self, off: u32, size: usize, now: u64) -> Access<u32> {
         self.land(now);
@@ -159,7 +165,6 @@ impl Iwdg {
                     self.count_ref = self.rlr_active as u64;
                     self.t_ref = now;
                     self.reloads += 1;
-                    self.reload_times.push(now);
                     self.unlocked = false;
                 }
                 0x5555 => self.unlocked = true,

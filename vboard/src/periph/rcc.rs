@@ -293,8 +293,26 @@ impl Rcc {
         self.csr & csr::ALL
     }
 
-    /// Read at `off`.
+    /// The next instant after `now` at which a ready bit changes (an oscillator or the
+    /// PLL becomes ready), ps (`u64::MAX`: none).
+    pub fn next_ready_after(&self, now: u64) -> u64 {
+        let startup = [HSI_STARTUP_PS, HSE_STARTUP_PS, PLL_LOCK_PS, LSI_STARTUP_PS];
+        self.on_since
+            .iter()
+            .zip(startup)
+            .filter_map(|(on, s)| on.map(|t| t + s))
+            .filter(|&t| t > now)
+            .min()
+            .unwrap_or(u64::MAX)
+    }
+
+    /// Read at `off` (reads change nothing: the ready bits follow time).
     pub fn read(&mut self, off: u32, size: usize, now: u64) -> Access<u32> {
+        self.peek(off, size, now)
+    }
+
+    /// Read at `off` at `now`, changing nothing.
+    pub fn peek(&self, off: u32, size: usize, now: u64) -> Access<u32> {
         let v = match off & !3 {
             0x00 => self.cr_value(now),
             0x04 => self.pllcfgr,

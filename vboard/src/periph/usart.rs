@@ -323,6 +323,26 @@ impl Usart {
             || (self.cr3 & 1 != 0 && self.dmar() && self.sr & (bit::FE | bit::NF | bit::ORE) != 0)
     }
 
+    /// What a read at `off` returns until the line's next event, read again and again
+    /// after a first read (`SR`: its error flags are then already noted as seen; the
+    /// control registers). `None`: `DR` (a read takes the byte) and the rest.
+    pub fn peek(&self, off: u32, size: usize) -> Option<u32> {
+        let v = match off & !3 {
+            0x00 if self.sr_read
+                && self.sr_seen == self.sr & (bit::ORE | bit::FE | bit::NF | bit::PE) =>
+            {
+                self.sr
+            }
+            0x08 => self.brr,
+            0x0C => self.cr1,
+            0x10 => self.cr2,
+            0x14 => self.cr3,
+            0x18 => self.gtpr,
+            _ => return None,
+        };
+        Some(lane(v, off, size))
+    }
+
     /// Read at `off`.
     pub fn read(&mut self, off: u32, size: usize, now: u64, pclk: u64) -> Access<u32> {
         self.sync(now, pclk);
