@@ -10,7 +10,7 @@
 //! sampler stores anyway) with the position the control step counted for it, and the
 //! stroke the sequencer is in. Nothing was added to the sampler or to the control step:
 //! their instructions, the stop latency and the E-STOP's reaction do not change
-//! (`docs/board.md`, "The docking signature's cost").
+//! (`docs/physics.md` §10.4, "Its cost on the Cortex-M4").
 //!
 //! # Fixed point
 //!
