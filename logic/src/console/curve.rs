@@ -203,16 +203,18 @@ fn json(o: &mut dyn Sink, v: &CurveView) -> fmt::Result {
         if i > 0 {
             o.put(",")?;
         }
-        newtons(o, cfg.band_mn(i).0)?;
+        newtons(o, cfg.band_moved_mn(i, v.shift).0)?;
     }
     o.put("]")?;
-    array(o, "band_high_n", &mut |o, i| newtons(o, cfg.band_mn(i).1))?;
+    array(o, "band_high_n", &mut |o, i| {
+        newtons(o, cfg.band_moved_mn(i, v.shift).1)
+    })?;
     o.put(",\"entry\":{\"to_mm\":")?;
     mm(o, cfg.entry_max_um)?;
     o.put(",\"force_n\":")?;
     dn(o, cfg.entry_dn(), "null")?;
-    let bins = n.plateau_bins();
-    let pn = cfg.plateau_nominal_mn();
+    let bins = cfg.plateau_bins_moved(v.shift).0;
+    let pn = cfg.plateau_nominal_moved_mn(v.shift);
     let pt = pn.abs() * i32::from(cfg.plateau_pct) / 100;
     o.put("},\"plateau\":{\"from_mm\":")?;
     mm(o, lo_um(bins.start))?;
@@ -222,7 +224,7 @@ fn json(o: &mut dyn Sink, v: &CurveView) -> fmt::Result {
     newtons(o, pn - pt)?;
     o.put(",\"high_n\":")?;
     newtons(o, pn + pt)?;
-    let en = cfg.end_nominal_mn();
+    let en = cfg.end_nominal_moved_mn(v.shift);
     let et = en.abs() * i32::from(cfg.end_pct) / 100 + cfg.end_abs_mn;
     o.put("},\"end\":{\"from_mm\":")?;
     mm(o, lo_um(BINS - 1))?;
@@ -233,6 +235,7 @@ fn json(o: &mut dyn Sink, v: &CurveView) -> fmt::Result {
     o.put(",\"high_n\":")?;
     newtons(o, en + et)?;
     let (pk, at) = cfg.peak_nominal();
+    let at = at + lo_um(v.shift);
     let kt = pk.abs() * i32::from(cfg.peak_pct) / 100 + cfg.peak_abs_mn;
     o.put("},\"ext_peak\":{\"from_mm\":")?;
     mm(o, at - cfg.peak_pos_um)?;
@@ -263,7 +266,7 @@ fn csv(o: &mut dyn Sink, v: &CurveView) -> fmt::Result {
             o.put(",")?;
             write_u64(o, u64::from(c.count.get(i).copied().unwrap_or(0)))?;
         }
-        let (lo, hi) = v.cfg.band_mn(i);
+        let (lo, hi) = v.cfg.band_moved_mn(i, v.shift);
         o.put(",")?;
         newtons(o, lo)?;
         o.put(",")?;
@@ -373,8 +376,9 @@ fn text(o: &mut dyn Sink, v: &CurveView) -> fmt::Result {
             o.put("  ")?;
             dn(o, p, "-")?;
         }
-        let lo = (i..i + ROW).map(|k| v.cfg.band_mn(k).0).min().unwrap_or(0);
-        let hi = (i..i + ROW).map(|k| v.cfg.band_mn(k).1).max().unwrap_or(0);
+        let band = |k: usize| v.cfg.band_moved_mn(k, v.shift);
+        let lo = (i..i + ROW).map(|k| band(k).0).min().unwrap_or(0);
+        let hi = (i..i + ROW).map(|k| band(k).1).max().unwrap_or(0);
         o.put("  ")?;
         newtons(o, lo)?;
         o.put("..")?;

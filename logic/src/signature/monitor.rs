@@ -318,7 +318,8 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
             }
             Stroke::Extraction => {
                 let f = figures::extraction(bins);
-                let fail = cfg.judge_extraction(bins, &f);
+                let step = self.ins.and_then(|(_, fi)| fi.step_um);
+                let fail = cfg.judge_extraction(bins, &f, step);
                 self.ext = Some((fail, f));
                 fail
             }

@@ -391,6 +391,13 @@ pub struct SignatureConfig {
     pub peak_pos_um: i32,
     /// Dockings averaged into a cone's reference curve after `cone replace`.
     pub reference_n: u8,
+    /// How much deeper than the design the 3→4 step may lie, µm: the bore's growth
+    /// over the cone's life moves it (docs/physics.md §10.5: 6.05 µm of depth a µm of
+    /// wear on Eq. 7's machine, 4.8 mm at the 0.8 mm limit). A step found within this
+    /// of the design's boundary moves the objects of phases 3–4 with it (the bands from
+    /// the step on, the plateau, the end force, the extraction's peak), so a worn cone
+    /// is judged against its own step, not the new cone's.
+    pub step_travel_um: i32,
 }
 
 impl SignatureConfig {
@@ -410,7 +417,67 @@ impl SignatureConfig {
         peak_abs_mn: 8_000,
         peak_pos_um: 1_000,
         reference_n: 20,
+        step_travel_um: 5_000,
     };
+
+    /// Bins the objects of phases 3–4 move by for a stroke whose 3→4 step was found
+    /// at `step_um`: its depth past the design's boundary (0 if shallower, none
+    /// found, or deeper than [`Self::step_travel_um`]: then the objects stay and
+    /// judge it), in whole bins.
+    pub fn shift_bins(&self, step_um: Option<i32>) -> usize {
+        let Some(st) = step_um else {
+            return 0;
+        };
+        let d = st - self.nominal.boundaries_um[2];
+        if d <= 0 || d > self.step_travel_um {
+            return 0;
+        }
+        ((d * BINS as i32 + STROKE_UM / 2) / STROKE_UM) as usize
+    }
+
+    /// The first bin the objects' move applies to: the first starting at or after half
+    /// a tolerance before the design's step (`bins_within`'s start, without its
+    /// search).
+    fn moved_from(&self) -> usize {
+        // ≤ 30 000 · 128: fits i32.
+        let x = (self.nominal.boundaries_um[2] - POS_TOL_UM).clamp(0, STROKE_UM);
+        ((x * BINS as i32 + STROKE_UM - 1) / STROKE_UM) as usize
+    }
+
+    /// The design's bin that bin `i` is judged as when the objects move by `shift`
+    /// bins: from [`Self::moved_from`] on, `shift` bins back.
+    fn moved(&self, i: usize, shift: usize) -> usize {
+        moved_at(i, shift, self.moved_from())
+    }
+
+    /// The band of bin `i` with the objects moved by `shift` bins
+    /// ([`Self::shift_bins`]): `(low, high)`, mN.
+    pub fn band_moved_mn(&self, i: usize, shift: usize) -> (i32, i32) {
+        self.band_mn(self.moved(i, shift))
+    }
+
+    /// The phase-4 plateau's bins with the objects moved by `shift` bins: where the
+    /// stroke's plateau is taken, and the design's bins it is compared with.
+    pub fn plateau_bins_moved(
+        &self,
+        shift: usize,
+    ) -> (core::ops::Range<usize>, core::ops::Range<usize>) {
+        let b = self.nominal.plateau_bins();
+        let shift = shift.min(b.len().saturating_sub(1));
+        (b.start + shift..b.end, b.start..b.end - shift)
+    }
+
+    /// The nominal plateau over the design's bins of [`Self::plateau_bins_moved`], mN.
+    pub fn plateau_nominal_moved_mn(&self, shift: usize) -> i32 {
+        figures::mean_mn(&self.nominal.mean_dn, self.plateau_bins_moved(shift).1)
+    }
+
+    /// The nominal end force with the objects moved by `shift` bins, mN: the design's
+    /// force that much before the end.
+    pub fn end_nominal_moved_mn(&self, shift: usize) -> i32 {
+        let i = (BINS - 1).saturating_sub(shift);
+        i32::from(self.nominal.mean_dn.get(i).copied().unwrap_or(0)) * 100
+    }
 
     /// The band of bin `i`: `(low, high)`, mN.
     pub fn band_mn(&self, i: usize) -> (i32, i32) {
@@ -456,19 +523,28 @@ impl SignatureConfig {
         (i32::from(peak) * 100, mid_um(best.1))
     }
 
-    /// The insertion's figures.
+    /// The insertion's figures (the plateau over the bins the objects moved to with
+    /// the step: [`Self::shift_bins`]).
     pub fn insertion_figures(&self, s: &StrokeBins) -> InsertionFigures {
-        figures::insertion(
+        let mut f = figures::insertion(
             s,
             self.entry_dn(),
             self.nominal.plateau_bins(),
             self.nominal.boundaries_um[1] + POS_TOL_UM,
             self.nominal.step_dn,
-        )
+        );
+        let shift = self.shift_bins(f.step_um);
+        if shift > 0 {
+            let bins = self.plateau_bins_moved(shift).0;
+            f.plateau_mn = figures::mean_mn(&figures::filled_means(s), bins);
+        }
+        f
     }
 
-    /// Judge an insertion: the first object it failed, if any.
+    /// Judge an insertion: the first object it failed, if any (the objects of phases
+    /// 3–4 moved with its step: [`Self::shift_bins`]).
     pub fn judge_insertion(&self, s: &StrokeBins, f: &InsertionFigures) -> Option<Failure> {
+        let shift = self.shift_bins(f.step_um);
         match f.entry_um {
             Some(e) if e <= self.entry_max_um => {}
             other => {
@@ -482,11 +558,11 @@ impl SignatureConfig {
             }
         }
         for p in 1..=3 {
-            if let Some(fail) = self.bands(s, p, false) {
+            if let Some(fail) = self.bands(s, p, false, shift) {
                 return Some(fail);
             }
         }
-        let nom = self.plateau_nominal_mn();
+        let nom = self.plateau_nominal_moved_mn(shift);
         let tol = nom.abs() * i32::from(self.plateau_pct) / 100;
         if (f.plateau_mn - nom).abs() > tol {
             let limit = if f.plateau_mn > nom {
@@ -494,7 +570,7 @@ impl SignatureConfig {
             } else {
                 nom - tol
             };
-            let bins = self.nominal.plateau_bins();
+            let bins = self.plateau_bins_moved(shift).0;
             return Some(Failure {
                 object: Object::Plateau,
                 figure: f.plateau_mn,
@@ -503,10 +579,10 @@ impl SignatureConfig {
                 depth_um: (lo_um(bins.start) + lo_um(bins.end)) / 2,
             });
         }
-        if let Some(fail) = self.bands(s, 4, false) {
+        if let Some(fail) = self.bands(s, 4, false, shift) {
             return Some(fail);
         }
-        let nom = self.end_nominal_mn();
+        let nom = self.end_nominal_moved_mn(shift);
         let tol = nom.abs() * i32::from(self.end_pct) / 100 + self.end_abs_mn;
         if (f.end_mn - nom).abs() > tol {
             return Some(Failure {
@@ -520,14 +596,23 @@ impl SignatureConfig {
         None
     }
 
-    /// Judge an extraction: the first object it failed, if any.
-    pub fn judge_extraction(&self, s: &StrokeBins, f: &ExtractionFigures) -> Option<Failure> {
+    /// Judge an extraction: the first object it failed, if any; the objects of phases
+    /// 3–4 moved with the 3→4 step its docking's insertion found (`step_um`:
+    /// [`Self::shift_bins`]).
+    pub fn judge_extraction(
+        &self,
+        s: &StrokeBins,
+        f: &ExtractionFigures,
+        step_um: Option<i32>,
+    ) -> Option<Failure> {
+        let shift = self.shift_bins(step_um);
         for p in (1..=4).rev() {
-            if let Some(fail) = self.bands(s, p, true) {
+            if let Some(fail) = self.bands(s, p, true, shift) {
                 return Some(fail);
             }
         }
         let (nom, at) = self.peak_nominal();
+        let at = at + lo_um(shift);
         let tol = nom.abs() * i32::from(self.peak_pct) / 100 + self.peak_abs_mn;
         if (f.peak_mn - nom).abs() > tol {
             return Some(Failure {
@@ -558,15 +643,19 @@ impl SignatureConfig {
         None
     }
 
-    /// The first bin of phase `p` outside its band, in the stroke's direction.
-    fn bands(&self, s: &StrokeBins, p: u8, extraction: bool) -> Option<Failure> {
+    /// The first bin of phase `p` outside its band, in the stroke's direction, with
+    /// the objects moved by `shift` bins (a bin the step's move puts in phase 3 is
+    /// judged by phase 3's band).
+    fn bands(&self, s: &StrokeBins, p: u8, extraction: bool, shift: usize) -> Option<Failure> {
+        let from = self.moved_from();
         let check = |i: usize| -> Option<Failure> {
+            let j = moved_at(i, shift, from);
             // The last bin is the end object's (the mated position).
-            if self.nominal.phase_of(i) != p || (i == BINS - 1 && !extraction) {
+            if self.nominal.phase_of(j) != p || (i == BINS - 1 && !extraction) {
                 return None;
             }
             let m = i32::from(s.bin(i).mean_dn()?) * 100;
-            let (lo, hi) = self.band_mn(i);
+            let (lo, hi) = self.band_mn(j);
             (m < lo || m > hi).then(|| Failure {
                 object: Object::band(p, extraction),
                 figure: m,
@@ -580,6 +669,15 @@ impl SignatureConfig {
         } else {
             (0..BINS).find_map(check)
         }
+    }
+}
+
+/// Bin `i` moved `shift` bins back if it is at or after bin `from`.
+const fn moved_at(i: usize, shift: usize, from: usize) -> usize {
+    if i >= from {
+        i.saturating_sub(shift)
+    } else {
+        i
     }
 }
 
@@ -636,7 +734,100 @@ mod tests {
         assert!((step - 14_934).abs() <= 15, "{step}");
         let ext = stroke(Stroke::Extraction, eq7);
         let fe = figures::extraction(&ext);
-        assert_eq!(c.judge_extraction(&ext, &fe), None, "{fe:?}");
+        assert_eq!(c.judge_extraction(&ext, &fe, f.step_um), None, "{fe:?}");
+    }
+
+    impl SignatureConfig {
+        /// The insertion's figures with its step hidden: judged where a new cone's
+        /// objects sit.
+        fn unmoved(&self, s: &StrokeBins) -> InsertionFigures {
+            let mut f = figures::insertion(
+                s,
+                self.entry_dn(),
+                self.nominal.plateau_bins(),
+                self.nominal.boundaries_um[1] + POS_TOL_UM,
+                self.nominal.step_dn,
+            );
+            f.step_um = None;
+            f
+        }
+    }
+
+    /// Eq. 7 with its 3→4 step `shift_um` deeper (phase 3 continued up to it, phase 4
+    /// from it on): a worn cone's curve (docs/physics.md §10.5).
+    fn worn(shift_um: i32) -> impl Fn(i32) -> f64 {
+        move |d| {
+            let b = BOUNDARY_UM[2];
+            if d < b {
+                eq7(d)
+            } else if d < b + shift_um {
+                eq7(b - 1)
+            } else {
+                eq7(d - shift_um)
+            }
+        }
+    }
+
+    /// The defect: the objects sat on the new cone's step, and a cone worn 100–200 µm
+    /// (its step 0.6–1.2 mm deeper) failed band4 at every docking. They now move with
+    /// the step, as far as a cone's life moves it; a step deeper still, or a fault on
+    /// a worn cone, is NOK as before.
+    #[test]
+    fn a_worn_cones_deeper_step_moves_the_objects_with_it() {
+        let c = SignatureConfig::DEFAULT;
+        for shift in [300, 600, 1_200, 2_400, 4_800] {
+            let ins = stroke(Stroke::Insertion, worn(shift));
+            let f = c.insertion_figures(&ins);
+            let step = f.step_um.unwrap();
+            assert!((step - 14_934 - shift).abs() <= 60, "{shift}: {step}");
+            assert_eq!(c.judge_insertion(&ins, &f), None, "{shift}: {f:?}");
+            let ext = stroke(Stroke::Extraction, worn(shift));
+            let fe = figures::extraction(&ext);
+            assert_eq!(c.judge_extraction(&ext, &fe, f.step_um), None, "{shift}");
+            // Judged as the new cone's, a step past the position tolerance fails (what
+            // the objects did before).
+            if shift > 2 * POS_TOL_UM {
+                assert_ne!(c.judge_insertion(&ins, &c.unmoved(&ins)), None, "{shift}");
+                assert_ne!(c.judge_extraction(&ext, &fe, None), None, "{shift}");
+            }
+        }
+        // Beyond the cone's life: the objects stay, and phase 4's band fails.
+        let ins = stroke(Stroke::Insertion, worn(6_000));
+        let f = c.insertion_figures(&ins);
+        assert_eq!(c.shift_bins(f.step_um), 0);
+        assert_eq!(
+            c.judge_insertion(&ins, &f).map(|x| x.object),
+            Some(Object::Band4)
+        );
+        // Debris in phase 3 of a worn cone is still band3's, a dry guide the plateau's.
+        let debris = |d: i32| {
+            worn(1_200)(d)
+                + if (10_500..11_500).contains(&d) {
+                    30.0
+                } else {
+                    0.0
+                }
+        };
+        let ins = stroke(Stroke::Insertion, debris);
+        assert_eq!(
+            c.judge_insertion(&ins, &c.insertion_figures(&ins))
+                .map(|x| x.object),
+            Some(Object::Band3)
+        );
+        let low = |d: i32| {
+            let f = worn(1_200)(d);
+            if d >= 14_934 + 1_200 {
+                f * 0.88
+            } else {
+                f
+            }
+        };
+        let ins = stroke(Stroke::Insertion, low);
+        assert_eq!(
+            c.judge_insertion(&ins, &c.insertion_figures(&ins))
+                .map(|x| x.object),
+            Some(Object::Plateau)
+        );
     }
 
     #[test]
@@ -681,10 +872,20 @@ mod tests {
                     0.0
                 }
         });
-        let fail = c.judge_extraction(&s, &figures::extraction(&s)).unwrap();
+        let fail = c
+            .judge_extraction(&s, &figures::extraction(&s), Some(14_934))
+            .unwrap();
         assert_eq!(fail.object, Object::ExtBand4);
         assert!((21_500..22_500).contains(&fail.depth_um), "{fail:?}");
         assert!(fail.figure > fail.limit);
+    }
+
+    #[test]
+    fn the_moved_objects_start_where_bins_within_says() {
+        let c = SignatureConfig::DEFAULT;
+        let from = bins_within(BOUNDARY_UM[2] - POS_TOL_UM, STROKE_UM).start;
+        assert_eq!(c.moved(from, 3), from - 3);
+        assert_eq!(c.moved(from - 1, 3), from - 1);
     }
 
     #[test]

@@ -111,6 +111,9 @@ pub struct CurveView {
     pub cycle: u32,
     /// A reference: dockings in it.
     pub reference_n: u8,
+    /// Bins the objects of phases 3–4 moved with the curve's 3→4 step
+    /// ([`SignatureConfig::shift_bins`]; a reference's: its mean step).
+    pub shift: usize,
     /// The objects' settings (the bands, the nominal curve).
     pub cfg: SignatureConfig,
 }
@@ -125,6 +128,7 @@ impl CurveView {
             summary: None,
             cycle: 0,
             reference_n: 0,
+            shift: 0,
             cfg,
         }
     }
@@ -155,6 +159,7 @@ impl CurveView {
                 ];
                 self.cycle = m.docking().lifetime_cycle;
                 self.summary = m.last().filter(|s| s.lifetime_cycle == self.cycle).copied();
+                self.shift = cfg.shift_bins(ji.and_then(|j| j.1.step_um));
                 true
             }
             Which::Reference => {
@@ -163,6 +168,8 @@ impl CurveView {
                     return false;
                 }
                 self.reference_n = r.n;
+                self.shift = cfg
+                    .shift_bins((r.step_n > 0).then(|| (r.step_sum / i64::from(r.step_n)) as i32));
                 for (k, curve) in self.curves.iter_mut().enumerate() {
                     for i in 0..BINS {
                         let v = r.mean_dn(k, i).unwrap_or(EMPTY_DN);
@@ -198,6 +205,7 @@ impl CurveView {
                             nok(s.insertion_nok, true),
                             nok(s.extraction_nok, !s.insertion_nok),
                         ];
+                        self.shift = cfg.shift_bins(s.step_um);
                         self.summary = Some(s);
                         true
                     }
