@@ -62,6 +62,7 @@ fn main() {
     println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rerun-if-changed=odometer-guard.x");
     println!("cargo:rerun-if-changed=persist.x");
+    println!("cargo:rerun-if-changed=ccm.x");
     println!("cargo:rerun-if-changed=hot.x");
     println!("cargo:rerun-if-changed=build.rs");
     if env::var("CARGO_CFG_TARGET_OS").as_deref() != Ok("none") {
@@ -71,6 +72,7 @@ fn main() {
     fs::copy("memory.x", out.join("memory.x")).expect("copy memory.x");
     fs::copy("odometer-guard.x", out.join("odometer-guard.x")).expect("copy odometer-guard.x");
     fs::copy("persist.x", out.join("persist.x")).expect("copy persist.x");
+    fs::copy("ccm.x", out.join("ccm.x")).expect("copy ccm.x");
     fs::write(out.join("active.x"), active_x()).expect("write active.x");
     fs::write(out.join("image-header.x"), image_header_x()).expect("write image-header.x");
     fs::copy("hot.x", out.join("hot.x")).expect("copy hot.x");
@@ -83,6 +85,7 @@ fn main() {
     println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
     println!("cargo:rustc-link-arg-bins=-Todometer-guard.x");
     println!("cargo:rustc-link-arg-bins=-Tpersist.x");
+    println!("cargo:rustc-link-arg-bins=-Tccm.x");
     println!("cargo:rustc-link-arg-bins=-Timage-header.x");
     // Identical code folding (issue 20): functions with the same bytes are kept once
     // (closures' vtable shims, compiler_builtins' aligned memclr/memcpy entry points):

@@ -35,6 +35,8 @@ use docking_logic::hx711::{Calibration, Gain, Hx711};
 use docking_logic::safety::{
     EstopEdges, GatedEn, GatedHigh, GatedPulses, KernelEvent, SafetyKernel,
 };
+use docking_logic::signature::monitor::SignatureMem;
+use docking_logic::signature::Signature;
 use stm32f4xx_hal::gpio::{
     Input, Output, PinState, PB0, PB1, PC0, PC1, PC2, PC3, PC4, PC5, PD0, PD1, PD12, PD13, PD2,
     PD3, PE10, PE11,
@@ -218,6 +220,41 @@ impl Bsp for Board {
     type Wdg = BoardWatchdog;
     type Flash = OdometerFlash;
     type Options = options::BoardOptions;
+    type SigFlash = flash::SigFlash;
+    type SigMem = &'static mut SignatureMem;
+    type Sig = &'static mut Signature<flash::SigFlash, &'static mut SignatureMem>;
+}
+
+/// The docking signature's buffers, in the CCM RAM (`ccm.x`): zeroed in place by init
+/// (all-zero is an empty [`SignatureMem`], which its `FromZeros` derive proves), never
+/// built on a stack.
+#[link_section = ".ccmram.SIGNATURE_MEM"]
+static mut SIGNATURE_MEM: MaybeUninit<SignatureMem> = MaybeUninit::uninit();
+
+/// The docking signature (its monitor and store), in the CCM RAM as its buffers: the
+/// controller holds only a reference, so its own layout (and the control step's code)
+/// does not change with it.
+#[link_section = ".ccmram.SIGNATURE"]
+static mut SIGNATURE: MaybeUninit<Signature<flash::SigFlash, &'static mut SignatureMem>> =
+    MaybeUninit::uninit();
+
+/// The signature, its store opened over sectors 2-4: call once, from init.
+fn signature() -> &'static mut Signature<flash::SigFlash, &'static mut SignatureMem> {
+    let sig = Signature::new(flash::SigFlash, signature_mem());
+    // SAFETY: called once, from init, before anything else can reach the static.
+    unsafe { (*core::ptr::addr_of_mut!(SIGNATURE)).write(sig) }
+}
+
+/// The signature's buffers, zeroed: call once, from init.
+fn signature_mem() -> &'static mut SignatureMem {
+    // SAFETY: called once, from init, before anything else can reach the static; the
+    // zeroed bytes are a valid `SignatureMem` (it derives `zerocopy::FromZeros`, which
+    // the compiler checks field by field), so the reference made is to a valid value.
+    unsafe {
+        let p = (*core::ptr::addr_of_mut!(SIGNATURE_MEM)).as_mut_ptr();
+        p.write_bytes(0, 1);
+        &mut *p
+    }
 }
 
 /// The PLC handshake's pins.
@@ -445,6 +482,7 @@ mod app {
             stop: BoardStop,
             wdg: BoardWatchdog(iwdg),
             options: options::BoardOptions,
+            sig: signature(),
         };
         let mut cfg = ControllerConfig::new(DEFAULT_SAMPLE_RATE_SPS, DEFAULT_CALIBRATION);
         // Another machine's guard envelope, hold force and nominal load-distance, if the
@@ -711,7 +749,13 @@ mod app {
     fn service(mut cx: service::Context) {
         let now_low = clock::now_us_low();
         let kernel = &mut cx.shared.kernel;
+        // The docking signature's capture of the step's sample, first and outside the
+        // window (it must see every sample; a few hundred instructions): the kernel's
+        // newest sample time, read under its lock (the sampler's priority for a few
+        // instructions, right after the step that took the sample).
+        let sample_us = kernel.lock(|k| k.last_sample_us());
         cx.shared.ctrl.lock(|ctrl| {
+            ctrl.capture(sample_us);
             let period_us = 1_000_000 / ctrl.sample_rate_sps().max(1);
             if !owner::in_window(now_low, period_us, tim2_left_us()) {
                 return; // `control` pends us again after its next step

@@ -171,6 +171,21 @@ scene_row() { # model args...: one table row from `vboard scene overload --flood
     echo "## Keeping up with real clients (issue 33: \`bash tools/keep-up.sh\`; \`--slow\` with \`--sweep\`)"
     echo
     if [ "$sweep" = 1 ]; then bash tools/keep-up.sh --slow; else bash tools/keep-up.sh; fi
+    echo
+    echo "## The docking signature (issue 34; docs/physics.md §10)"
+    echo
+    echo "Its cost on the image (\`vboard signature-cost\`, at 80 and 10 SPS):"
+    echo
+    echo '```'
+    $vb signature-cost 2>&1
+    $vb signature-cost --rate 10 2>&1
+    echo '```'
+    echo
+    echo "Can it see wear? (\`hil-sim signature-study\`):"
+    echo
+    echo '```'
+    $hil signature-study 2>&1
+    echo '```'
     if [ "$sweep" = 1 ]; then
         echo
         echo "The worst case over seeds 1–10 and every model (\`vboard sweep --flood\`):"

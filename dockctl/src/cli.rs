@@ -104,7 +104,8 @@ pub enum Cmd {
     /// Update the firmware: check FILE, maintenance mode, send it by YMODEM-1K, wait
     /// through the restart, say what happened
     Update(crate::update::UpdateArgs),
-    /// A stroke's force curve as SVG (not yet: the board keeps no docking signatures)
+    /// A stroke's force curve as SVG (not yet: `export` carries the board's curves, and
+    /// `hil-sim plot-curve` draws one)
     Curve {
         /// Where the SVG would go
         file: Option<PathBuf>,
@@ -190,7 +191,7 @@ pub fn dispatch(cli: &Cli, ctx: &mut Ctx) -> Result<i32, Error> {
             Ok(0)
         }
         Cmd::Curve { .. } => Err(Error::NotYet(
-            "curve: not yet: the board keeps no docking signatures (issue 34); `dockctl export` will carry them once it does".into(),
+            "curve: not yet in dockctl: `dockctl export` carries the board's docking signatures (`curve --json` on the console), and `hil-sim plot-curve` draws one".into(),
         )),
         Cmd::Status(f) => r::report(&cli.line, ctx, "status", *f),
         Cmd::Wear(f) => r::report(&cli.line, ctx, "wear", *f),

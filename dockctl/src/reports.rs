@@ -85,8 +85,9 @@ pub fn now_text() -> String {
 /// document: the tool and the time, the line, the firmware (`version`), the machine's
 /// state (`status`), the cone's wear with the estimate and its band (`wear`), the last
 /// 100 cycles (`history`), the faults, the micrometer readings; the docking signatures
-/// once the board keeps them (issue 34: `null` with a note until then). Each report is
-/// the board's own JSON, its numbers as it wrote them.
+/// (issue 34: `signatures`: the newest docking's curve since the board's boot, the
+/// cone's reference, the NOK curves kept, newest first; `null` where the board has
+/// none). Each report is the board's own JSON, its numbers as it wrote them.
 pub fn export(line: &LineArgs, ctx: &mut Ctx, file: &Path) -> Result<i32, Error> {
     let mut s = session(line, ctx)?;
     let link = s.link_name();
@@ -131,10 +132,27 @@ pub fn export(line: &LineArgs, ctx: &mut Ctx, file: &Path) -> Result<i32, Error>
     ));
     doc.push(("faults".into(), s.json("faults")?));
     doc.push(("measurements".into(), s.json("measurements")?));
-    doc.push(("signatures".into(), J::Null));
+    // A curve the board does not have is its one-line error: null here.
+    let mut curve = |which: &str| match s.json(&format!("curve {which}")) {
+        Err(Error::Board(_)) => Ok(J::Null),
+        r => r,
+    };
+    let last = curve("last")?;
+    let reference = curve("ref")?;
+    let mut nok = Vec::new();
+    for n in 1..=4 {
+        match curve(&format!("nok {n}"))? {
+            J::Null => break,
+            j => nok.push(j),
+        }
+    }
     doc.push((
-        "signatures_note".into(),
-        J::Str("not yet: the board keeps no docking signatures (issue 34)".into()),
+        "signatures".into(),
+        J::Obj(vec![
+            ("last".into(), last),
+            ("reference".into(), reference),
+            ("nok".into(), J::Arr(nok)),
+        ]),
     ));
     let left = s.close();
     let text = J::Obj(doc).to_pretty();

@@ -233,14 +233,26 @@ fn every_reading_command_as_a_table_as_json_and_as_csv() {
     );
     let csv = ok(&a, &["history", "3", "--csv"]);
     let mut lines = csv.lines();
+    // The board's columns, the docking signature's (issue 34) after the odometer's.
     assert_eq!(
         lines.next(),
-        Some("cycle,cone,cone_cycle,load_distance_nmm,wear_mm")
+        Some("cycle,cone,cone_cycle,load_distance_nmm,wear_mm,signature,failed,work_nmm,plateau_n,drift_work_pct,drift_plateau_pct")
     );
     let row: Vec<&str> = lines.next().unwrap().split(',').collect();
-    assert_eq!(row.len(), 5, "{csv}");
+    assert_eq!(row.len(), 11, "{csv}");
     // The board's digits, not a float's: six decimals of mm.
     assert_eq!(row[4].split('.').nth(1).map(str::len), Some(6), "{csv}");
+    // A docking done: `export` carries its curve and the cone's reference as the board
+    // wrote them (issue 34).
+    let path = std::env::temp_dir().join(format!("dockctl-sigs-{}.json", std::process::id()));
+    let o = dockctl(&["--tcp", &a, "export", path.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let doc: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    let _ = std::fs::remove_file(&path);
+    let sig = &doc["signatures"];
+    assert_eq!(sig["last"]["curve"], "last", "{sig}");
+    assert_eq!(sig["last"]["bins"], 128, "{sig}");
+    assert_eq!(sig["reference"]["curve"], "ref", "{sig}");
     let csv = ok(&a, &["wear", "--csv", "--no-header"]);
     assert_eq!(csv.lines().count(), 1, "{csv}");
     assert!(csv.starts_with("1,zqsn5-2,"), "{csv}");
@@ -267,8 +279,13 @@ fn export_writes_one_machines_record_and_watch_stops_on_ctrl_c() {
     }
     assert!(doc["history"].is_array());
     assert!(doc["wear"]["estimate_high_mm"].is_number());
+    // The docking signatures (issue 34): nothing docked yet on this fresh simulator.
     assert!(
-        doc["signatures"].is_null() && doc["signatures_note"].as_str().unwrap().contains("not yet")
+        doc["signatures"]["last"].is_null()
+            && doc["signatures"]["reference"].is_null()
+            && doc["signatures"]["nok"].as_array().unwrap().is_empty(),
+        "{}",
+        doc["signatures"]
     );
     // `watch` piped: a JSON line per reading, until Ctrl-C (SIGINT), then exit 0.
     let mut child = Command::new(env!("CARGO_BIN_EXE_dockctl"))

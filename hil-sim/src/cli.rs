@@ -16,7 +16,7 @@ impl std::fmt::Display for UsageError {
 }
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] [--plot FILE.svg] [--model eq7|plant] [--mass-kg M] [--mu1 X] [--mu2 X] [--gamma-deg G] [--theta0-deg T] [--v-model MM_PER_S] [--t3-s S] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] [--plot FILE.svg] [--model eq7|plant (plant options as for profile)] [--config default|matching] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--readings FILE.csv] [--json] [--plot FILE.svg] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] [--plot FILE.svg] | commission --model plant [plant options] [--vendor NAME] [--product NAME] (Rust source for DOCKING_TUNING) | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS] (stdin: dock on|off, estop open|close, plc)";
+pub const USAGE: &str = "usage: hil-sim profile [--rate HZ] [--stroke insert|extract] [--plot FILE.svg] [--model eq7|plant] [--mass-kg M] [--mu1 X] [--mu2 X] [--gamma-deg G] [--theta0-deg T] [--v-model MM_PER_S] [--t3-s S] | scene NAME [--cycles N] [--rate 10|80] [--seed S] [--json] [--plot FILE.svg] [--model eq7|plant (plant options as for profile)] [--config default|matching] | bench [--cycles N] [--rate SPS] | life --cycles N [--material NAME] [--at m1,m2,...] [--rate SPS] [--readings FILE.csv] [--json] [--plot FILE.svg] | endurance --cycles N [--material NAME] [--rate SPS] | accuracy [--json] [--plot FILE.svg] | plot-curve DUMP.json [--ref REF.json] --plot FILE.svg | signature-study [--dockings N] [--rate 10|80] [--seed S] [--json] | commission --model plant [plant options] [--vendor NAME] [--product NAME] (Rust source for DOCKING_TUNING) | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--scene NAME] [--speed X] [--rate SPS] [--for SECONDS] (stdin: dock on|off, estop open|close, plc)";
 
 /// Parse `--rate` as one of the HX711 rates.
 fn hx_rate(o: &Opts) -> Result<u32, UsageError> {
@@ -526,7 +526,7 @@ fn commission(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
 }
 
 /// Each command's help (`hil-sim COMMAND --help`): what it does, then one option a line.
-pub const COMMAND_HELP: [(&str, &str); 9] = [
+pub const COMMAND_HELP: [(&str, &str); 11] = [
     ("profile", "hil-sim profile [OPTIONS]: the nominal force against insertion depth (Eq. 7, or the plant model)
   --rate HZ                 sample rate of the printed profile
   --stroke insert|extract   which stroke (default insert)
@@ -576,6 +576,14 @@ pub const COMMAND_HELP: [(&str, &str); 9] = [
   --speed X                 machine time per wall time (default 1)
   --rate SPS                sample rate
   --for SECONDS             stop after this long"),
+    ("plot-curve", "hil-sim plot-curve DUMP.json [OPTIONS]: a `curve --json` dump against its objects (SVG)
+  --plot FILE.svg           the chart (required)
+  --ref REF.json            the cone's reference (a `curve ref --json` dump), drawn beside it"),
+    ("signature-study", "hil-sim signature-study [OPTIONS]: can the docking signature see wear? (the plant's worn bore, the firmware's figures)
+  --dockings N              dockings a point (default 40)
+  --rate 10|80              one sample rate (default both)
+  --seed S                  the noise's and the frictions' seed (default 1)
+  --json                    one JSON object"),
     ("odometer-reference", "hil-sim odometer-reference [--cycles N]: the odometer's integer workload (compared with QEMU in CI)
   --cycles N                cycles (default 300)"),
 ];
@@ -591,6 +599,46 @@ fn overview() -> String {
         s += "\n";
     }
     s
+}
+
+/// `hil-sim signature-study [--dockings N] [--rate 10|80] [--seed S] [--json]`.
+fn signature_study(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
+    let o = Opts::parse(args, &["dockings", "rate", "seed"], &["json"])?;
+    let dockings = o.num("dockings", 40u32, 2, 10_000)?;
+    let rates: Vec<u32> = match o.get("rate") {
+        None => vec![10, 80],
+        Some(_) => vec![hx_rate(&o)?],
+    };
+    let seed = o.num("seed", 1u64, 0, u64::MAX)?;
+    let r = crate::sigstudy::run(dockings, &rates, seed);
+    let text = if o.flag("json") {
+        crate::sigstudy::to_json(&r, dockings)
+    } else {
+        crate::sigstudy::to_text(&r, dockings)
+    };
+    let _ = writeln!(out, "{text}");
+    Ok(())
+}
+
+/// `hil-sim plot-curve DUMP.json [--ref REF.json] --plot FILE.svg`.
+fn plot_curve(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
+    let (file, rest) = match args.split_first() {
+        Some((f, rest)) if !f.starts_with("--") => (f, rest),
+        _ => return err("plot-curve needs a dump: hil-sim plot-curve DUMP.json --plot FILE.svg"),
+    };
+    let o = Opts::parse(rest, &["plot", "ref"], &[])?;
+    let read = |p: &str| -> Result<crate::curvedump::CurveDump, UsageError> {
+        let text = std::fs::read_to_string(p).map_err(|e| UsageError(format!("{p}: {e}")))?;
+        crate::curvedump::CurveDump::parse(&text).map_err(|e| UsageError(format!("{p}: {e}")))
+    };
+    let dump = read(file)?;
+    let reference = o.get("ref").map(read).transpose()?;
+    let Some(path) = o.get("plot") else {
+        return err("plot-curve needs --plot FILE.svg");
+    };
+    crate::plot::curve(path.as_ref(), &dump, reference.as_ref())?;
+    let _ = writeln!(out, "wrote {path}");
+    Ok(())
 }
 
 /// A one-line progress bar on stderr (`endurance  [#####.....]  52 %  5 200 000 / 10 000 000
@@ -678,6 +726,8 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), UsageError> {
         "accuracy" => accuracy(rest, out),
         "serve" => serve(rest, out),
         "commission" => commission(rest, out),
+        "plot-curve" => plot_curve(rest, out),
+        "signature-study" => signature_study(rest, out),
         // The odometer's integer workload, for comparison with the same code on a
         // Cortex-M4 under QEMU (.ci/run, qemu-check/).
         "odometer-reference" => {

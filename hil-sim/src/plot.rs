@@ -920,3 +920,160 @@ pub fn accuracy(path: &Path, r: &crate::accuracy::AccuracyReport) -> Result<(), 
         &[("insertion stroke", ins), ("extraction stroke", ext)],
     )
 }
+
+/// `hil-sim plot-curve`: a `curve --json` dump (the firmware's, issue 34) against its
+/// evaluation objects and, when given, its cone's reference (a `curve ref --json`
+/// dump): force against insertion depth, the phases shaded, each bin's band as a box
+/// (the phase bands), the entry window, the phase-4 plateau, the end force and the
+/// extraction's peak as boxes, the insertion's and the extraction's bin means (and
+/// peaks, thin), the reference's insertion, and the first failed object marked.
+pub fn curve(
+    path: &Path,
+    dump: &crate::curvedump::CurveDump,
+    reference: Option<&crate::curvedump::CurveDump>,
+) -> Result<(), PlotError> {
+    const BOX: RGBColor = RGBColor(214, 39, 40);
+    const REFERENCE: RGBColor = RGBColor(90, 90, 90);
+    let verdict = |k: usize| {
+        let s = &dump.strokes[k];
+        match (&s.verdict, &s.failed) {
+            (Some(v), Some((o, _, _))) => format!("{v} ({o})"),
+            (Some(v), None) => v.clone(),
+            (None, _) => "not judged".into(),
+        }
+    };
+    let title = match dump.which.as_str() {
+        "ref" => "docking signature: the cone's reference".to_string(),
+        w => format!(
+            "docking signature ({w}): cycle {}, insertion {}, extraction {}",
+            dump.cycle,
+            verdict(0),
+            verdict(1)
+        ),
+    };
+    let n = dump.band_low_n.len();
+    let centre = |i: usize| (dump.edge_mm(i) + dump.edge_mm(i + 1)) / 2.0;
+    let all = dump
+        .strokes
+        .iter()
+        .flat_map(|s| s.peak_n.iter().chain(s.mean_n.iter()))
+        .filter_map(|x| *x)
+        .chain(dump.band_high_n.iter().copied())
+        .chain([dump.ext_peak.high_n]);
+    let fmax = all.fold(0.0f64, f64::max);
+    let y = (-5.0, fmax * 1.12 + 5.0);
+    let x = (-0.5, dump.stroke_mm + 0.5);
+    render(path, &title, |root, legend| {
+        let mut chart = ChartBuilder::on(root)
+            .margin(12)
+            .x_label_area_size(45)
+            .y_label_area_size(60)
+            .build_cartesian_2d(x.0..x.1, y.0..y.1)?;
+        chart
+            .configure_mesh()
+            .disable_mesh()
+            .x_desc("insertion depth (mm)")
+            .y_desc("force (N)")
+            .axis_desc_style(font(15))
+            .x_label_formatter(&|v| tick(*v))
+            .y_label_formatter(&|v| tick(*v))
+            .draw()?;
+        let mut edges = vec![0.0];
+        edges.extend(dump.phases_mm.iter().copied());
+        edges.push(dump.stroke_mm);
+        let bands: Vec<(f64, f64, u8)> = edges
+            .windows(2)
+            .zip(1u8..)
+            .map(|(w, p)| (w[0], w[1], p))
+            .collect();
+        shade_phases(&mut chart, &bands, y)?;
+        // The phase bands: one box per bin.
+        chart.draw_series((0..n).map(|i| {
+            Rectangle::new(
+                [
+                    (dump.edge_mm(i), dump.band_low_n[i]),
+                    (dump.edge_mm(i + 1), dump.band_high_n[i]),
+                ],
+                BOX.mix(0.12).filled(),
+            )
+        }))?;
+        legend.add("phase bands (per bin)", Mark::Band(RGBColor(250, 215, 215)));
+        // The boxes: entry window, plateau, end, extraction peak.
+        let boxes = [
+            (
+                "entry",
+                crate::curvedump::Box4 {
+                    from_mm: 0.0,
+                    to_mm: dump.entry.0,
+                    low_n: dump.entry.1,
+                    high_n: dump.band_high_n.first().copied().unwrap_or(dump.entry.1),
+                },
+            ),
+            ("plateau", dump.plateau),
+            ("end", dump.end),
+            ("ext. peak", dump.ext_peak),
+        ];
+        for (name, b) in boxes {
+            chart.draw_series(std::iter::once(Rectangle::new(
+                [(b.from_mm, b.low_n), (b.to_mm, b.high_n)],
+                BOX.stroke_width(2),
+            )))?;
+            chart.draw_series(std::iter::once(
+                EmptyElement::at((b.from_mm, b.high_n))
+                    + Text::new(name.to_string(), (2, -16), font(13).color(&BOX)),
+            ))?;
+        }
+        legend.add(
+            "objects (entry, plateau, end, extraction peak)",
+            Mark::Line(BOX, 2),
+        );
+        for (k, colour, name) in [(0, INSERTION, "insertion"), (1, EXTRACTION, "extraction")] {
+            let s = &dump.strokes[k];
+            let series = |v: &[Option<f64>]| -> Vec<(f64, f64)> {
+                (0..n)
+                    .filter_map(|i| v.get(i).copied().flatten().map(|f| (centre(i), f)))
+                    .collect()
+            };
+            chart.draw_series(LineSeries::new(
+                series(&s.peak_n),
+                colour.mix(0.4).stroke_width(1),
+            ))?;
+            chart.draw_series(LineSeries::new(series(&s.mean_n), colour.stroke_width(2)))?;
+            legend.add(
+                format!("{name}: bin mean (peak, thin)"),
+                Mark::Line(colour, 2),
+            );
+            if let Some((object, figure, at)) = &s.failed {
+                if figure.is_finite() && at.is_finite() && *figure > y.0 && *figure < y.1 {
+                    chart.draw_series(std::iter::once(
+                        EmptyElement::at((*at, *figure))
+                            + Cross::new((0, 0), 9, TRIP.stroke_width(3))
+                            + Text::new(
+                                format!("{name} NOK: {object}"),
+                                (10, -24),
+                                font(14).color(&TRIP),
+                            ),
+                    ))?;
+                }
+            }
+        }
+        if let Some(r) = reference {
+            let pts: Vec<(f64, f64)> = (0..n)
+                .filter_map(|i| {
+                    r.strokes[0]
+                        .mean_n
+                        .get(i)
+                        .copied()
+                        .flatten()
+                        .map(|f| (centre(i), f))
+                })
+                .collect();
+            chart.draw_series(DashedLineSeries::new(pts, 6, 4, REFERENCE.stroke_width(2)))?;
+            legend.add("reference (insertion, mean)", Mark::Dashed(REFERENCE, 2));
+        }
+        if dump.strokes.iter().any(|s| s.failed.is_some()) {
+            legend.add("first failed object", Mark::Cross(TRIP));
+        }
+        Ok(())
+    })
+}

@@ -260,6 +260,76 @@ impl Bsp for SimBsp {
     type Wdg = SimWatchdog;
     type Flash = BoardFlash;
     type Options = SimOptions;
+    type SigFlash = SigBoardFlash;
+    type SigMem = Box<docking_logic::signature::monitor::SignatureMem>;
+    type Sig = Box<docking_logic::signature::Signature<SigBoardFlash, Self::SigMem>>;
+}
+
+/// The signature store's sectors (2–4) as the board's driver drives them: 16, 16 and
+/// 64 KiB, every operation charged its datasheet time in virtual time (×32: a word
+/// 100 µs, a 16 KiB sector 500 ms, the 64 KiB sector 1.1 s, at most), the watchdog
+/// fed through an erase as the board's wait from SRAM feeds it. The array is a
+/// [`SimFlash`] of six 16 KiB sectors (the 64 KiB sector is its last four, erased
+/// together).
+#[derive(Clone, Debug)]
+pub struct SigBoardFlash {
+    /// The flash array.
+    pub flash: SharedFlash,
+    clock: SimClock,
+    wdg: SimWatchdog,
+    /// Operations take their time ([`RigOptions::timed_signature_flash`]).
+    timed: bool,
+}
+
+/// The signature store's region: sectors 2–4, as six 16 KiB simulated sectors.
+pub fn sig_flash_array() -> SimFlash {
+    SimFlash::new(6, 16 * 1024)
+}
+
+impl embedded_storage::nor_flash::ErrorType for SigBoardFlash {
+    type Error = crate::flash::SimFlashError;
+}
+
+impl embedded_storage::nor_flash::ReadNorFlash for SigBoardFlash {
+    const READ_SIZE: usize = 1;
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        self.flash.read(offset, bytes)
+    }
+    fn capacity(&self) -> usize {
+        self.flash.capacity()
+    }
+}
+
+impl embedded_storage::nor_flash::NorFlash for SigBoardFlash {
+    const WRITE_SIZE: usize = 4;
+    const ERASE_SIZE: usize = 16 * 1024;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        // Sector 4 (64 KiB, from 32 KiB on): 1.1 s; sectors 2 and 3: 0.5 s each.
+        let ns: u64 = if !self.timed {
+            0
+        } else if from >= 32 * 1024 {
+            1_100_000_000
+        } else {
+            500_000_000 * u64::from(to.saturating_sub(from)).div_ceil(16 * 1024)
+        };
+        let mut waited = 0;
+        while waited < ns {
+            let d = (ns - waited).min(50_000_000);
+            self.clock.advance_ns(d);
+            waited += d;
+            self.wdg.feed();
+        }
+        self.flash.erase(from, to)
+    }
+
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        if self.timed {
+            self.clock
+                .advance_ns(bytes.len().div_ceil(4) as u64 * FlashTimes::MAX.word_ns);
+        }
+        self.flash.write(offset, bytes)
+    }
 }
 
 /// The simulated option bytes: the BOR level (factory default off), programmed only
@@ -384,6 +454,27 @@ pub struct ForceScript {
     pub pull_n_per_s: f64,
     /// When the pull began (set by the force source), ns.
     pub pull_from_ns: Option<u64>,
+    /// The rod meets the cone this much later than the engagement point (a lateral
+    /// misalignment): the profile is shifted deeper, and before it the load is 0, µm.
+    pub entry_delay_um: f64,
+    /// A local bump of force (debris in the bore, a catch), on one stroke.
+    pub bump: Option<Bump>,
+    /// Another machine's contact force replaces the profile, N per step of insertion
+    /// depth (a dry guide: the plant with another µ2).
+    pub profile_n: Option<Rc<Vec<f64>>>,
+}
+
+/// A force bump between two depths, on the insertion (`forward`) or the extraction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Bump {
+    /// From this insertion depth, µm.
+    pub from_um: f64,
+    /// To this insertion depth, µm.
+    pub to_um: f64,
+    /// Added force, N.
+    pub add_n: f64,
+    /// On the insertion (the axis going forward); else on the extraction.
+    pub forward: bool,
 }
 
 impl ForceScript {
@@ -394,6 +485,9 @@ impl ForceScript {
             && self.offset_n == 0.0
             && !self.reversed
             && self.pull_n_per_s == 0.0
+            && self.entry_delay_um == 0.0
+            && self.bump.is_none()
+            && self.profile_n.is_none()
     }
 }
 
@@ -533,11 +627,22 @@ impl ForceSource for ProfileForce {
         } else {
             0.0
         };
-        let mut f = match usize::try_from(depth_steps) {
+        let table = s.profile_n.as_deref().unwrap_or(&self.table);
+        let delay_steps = (s.entry_delay_um / self.um_per_step).round() as i64;
+        let mut f = match usize::try_from(depth_steps - delay_steps) {
             Err(_) => 0.0, // before contact
-            Ok(k) => self.table.get(k).copied().unwrap_or(self.n3_end),
+            Ok(k) => table
+                .get(k)
+                .copied()
+                .unwrap_or_else(|| table.last().copied().unwrap_or(self.n3_end)),
         } + s.offset_n
             + pull;
+        if let Some(b) = s.bump {
+            let depth = depth_steps as f64 * self.um_per_step;
+            if (b.from_um..b.to_um).contains(&depth) && self.axis.forward() == b.forward {
+                f += b.add_n;
+            }
+        }
         if let Some(j) = s.jam_from_um {
             let depth = depth_steps as f64 * self.um_per_step;
             if depth > j {
@@ -673,6 +778,10 @@ pub struct RigOptions {
     pub tuning: Option<crate::machine::Tuning>,
     /// Device identification's names (a commissioning file's `cfg.identity`).
     pub identity: docking_logic::controller::Identity,
+    /// The signature store's flash takes its datasheet times (the board's). `false`
+    /// only for the tests that replay a recording made before the store existed: its
+    /// writes at rest take flash time, which moves every later sample of a run.
+    pub timed_signature_flash: bool,
 }
 
 impl RigOptions {
@@ -688,6 +797,7 @@ impl RigOptions {
             force_model: crate::machine::ForceModel::Eq7,
             tuning: None,
             identity: docking_logic::controller::Identity::DEFAULT,
+            timed_signature_flash: true,
         }
     }
 }
@@ -739,6 +849,8 @@ pub struct Rig {
     pub conversions: Rc<Cell<u64>>,
     /// The odometer flash (shared: cut power on it, reboot on it).
     pub flash: SharedFlash,
+    /// The signature store's flash (sectors 2–4; shared likewise).
+    pub sig_flash: SharedFlash,
     /// Sample period, ns.
     period_ns: u64,
     /// The technician console and its serial link (polled after the controller when
@@ -809,8 +921,14 @@ impl Rig {
         r
     }
 
-    /// The machine booting on an existing odometer flash (a reboot: parked at home).
+    /// The machine booting on an existing odometer flash (a reboot: parked at home),
+    /// with an erased signature store.
     pub fn with_flash(opts: RigOptions, flash: SharedFlash) -> Self {
+        Self::with_flashes(opts, flash, SharedFlash::new(sig_flash_array()))
+    }
+
+    /// The machine booting on existing odometer and signature flashes.
+    pub fn with_flashes(opts: RigOptions, flash: SharedFlash, sig_flash: SharedFlash) -> Self {
         let Machine {
             clock,
             axis,
@@ -825,7 +943,15 @@ impl Rig {
         if opts.commissioned {
             commission(&flash, &hx_cfg);
         }
-        let mcu = Mcu::on(&opts, &clock, &axis, &lock, &hx, &hx_cfg, &flash);
+        let mcu = Mcu::on(
+            &opts,
+            &clock,
+            &axis,
+            &lock,
+            &hx,
+            &hx_cfg,
+            (&flash, &sig_flash),
+        );
         Self {
             clock,
             axis,
@@ -838,6 +964,7 @@ impl Rig {
             stop: mcu.stop,
             conversions,
             flash,
+            sig_flash,
             period_ns: 1_000_000_000 / opts.rate_sps.max(1) as u64,
             console: mcu.console,
             term: SimConsole::new(),
@@ -853,7 +980,7 @@ impl Rig {
     }
 
     /// A reset of the MCU (`cause`: a pin reset, the watchdog…) with the machine where
-    /// it is: the axis, the lock, the load cell, the lines and the odometer flash stay;
+    /// it is: the axis, the lock, the load cell, the lines and the flashes stay;
     /// the controller, its kernel and the console start again, and take back from the RAM
     /// journal the counters the flash does not hold yet (as the board's journal, which
     /// a reset does not clear: `src/board/crash.rs`). The E-STOP interrupt's record
@@ -869,7 +996,7 @@ impl Rig {
             &self.lock,
             &self.hx,
             &hx_cfg,
-            &self.flash,
+            (&self.flash, &self.sig_flash),
         );
         mcu.ctrl.boot(cause, None, &[journal]);
         mcu.options = self.options.clone();
@@ -896,7 +1023,8 @@ struct Mcu {
 }
 
 impl Mcu {
-    /// Built at the clock's now, on the devices of a machine.
+    /// Built at the clock's now, on the devices of a machine and its odometer and
+    /// signature flashes.
     fn on(
         opts: &RigOptions,
         clock: &SimClock,
@@ -904,7 +1032,7 @@ impl Mcu {
         lock: &SimLock,
         hx: &SimHx711<ProfileForce>,
         hx_cfg: &Hx711Config,
-        flash: &SharedFlash,
+        (flash, sig_flash): (&SharedFlash, &SharedFlash),
     ) -> Self {
         let (clock, axis, lock, hx, hx_cfg, flash) = (clock, axis, lock, hx, *hx_cfg, flash);
         let now_us = clock.now_ns() / 1_000;
@@ -937,6 +1065,15 @@ impl Mcu {
                 times: FlashTimes::MAX,
             },
             options: options.clone(),
+            sig: Box::new(docking_logic::signature::Signature::new(
+                SigBoardFlash {
+                    flash: sig_flash.clone(),
+                    clock: clock.clone(),
+                    wdg: wdg.clone(),
+                    timed: opts.timed_signature_flash,
+                },
+                Box::new(docking_logic::signature::monitor::SignatureMem::zeroed()),
+            )),
         };
         let mut cfg = ControllerConfig::new(opts.rate_sps, sim_calibration(&hx_cfg));
         cfg.default_material = opts.material;
@@ -1000,6 +1137,8 @@ impl Rig {
             docking_logic::controller::PollResult::default()
         };
         self.kernel.configure(self.ctrl.kernel_config(), now_us);
+        // The board's service, after the step: the signature's capture, then the flash.
+        self.ctrl.capture(self.kernel.last_sample_us());
         self.ctrl.background();
         if self.console_enabled {
             self.poll_console();

@@ -217,7 +217,11 @@ mod tests {
         assert_eq!(line.waiting(), req.len());
         assert_eq!(line.room(), RX_WINDOW - req.len());
         let (reply, at) = run(&mut rig, &mut line, 100);
-        assert_eq!(reply, frame(&[1, 0x04, 2, 0, 2]), "map version 2");
+        assert_eq!(
+            reply,
+            frame(&[1, 0x04, 2, 0, docking_logic::modbus::MAP_VERSION as u8]),
+            "the map version"
+        );
         let silent_from = t0 + req.len() as u64 * 573;
         assert!(at >= silent_from + 2_006, "{at} {silent_from}");
         assert!(at <= silent_from + 2_006 + 12_500, "{at} {silent_from}");
@@ -238,7 +242,10 @@ mod tests {
         let now = rig.clock.now_ns() / 1_000;
         line.receive(&req, now);
         let (reply, _) = run(&mut rig, &mut line, 20);
-        assert_eq!(reply, frame(&[1, 0x04, 2, 0, 2]));
+        assert_eq!(
+            reply,
+            frame(&[1, 0x04, 2, 0, docking_logic::modbus::MAP_VERSION as u8])
+        );
     }
 
     #[test]
@@ -284,7 +291,7 @@ mod tests {
         // One long tick covering both.
         let r = line.service(50_000, &mut rig.ctrl, UNIT_SERIAL);
         replies.extend(r);
-        let one = frame(&[1, 0x04, 2, 0, 2]);
+        let one = frame(&[1, 0x04, 2, 0, docking_logic::modbus::MAP_VERSION as u8]);
         assert_eq!(replies, [one.clone(), one].concat());
         assert_eq!(line.stats().overruns, 0);
     }

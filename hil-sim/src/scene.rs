@@ -19,6 +19,10 @@
 //! | `heavy-default` | the 18 kg machine (µ2 0.1) on the default configuration, one test cycle | one `overload`, the back-off done (2 mm), and out of the cone (home) after a clear-fault |
 //! | `maintenance-lockout` | a technician enters maintenance mode at the console (`pin set`, `maint <pin>`); the PLC asks to dock over Modbus (coil 0) and with the DOCK pin; then `maint exit` | READY low, status bit 11 and input register 10 show the mode, the Modbus dock is exception 01 (the wrong state), the pin is ignored and nothing moves; after `maint exit` the PLC docks |
 //!
+//! | `late-entry`, `dry-guide`, `debris`, `catch` | the docking signature's: a misalignment, a dry guide, debris, a catch ([`crate::sigscene`]) | the disturbed dockings NOK with the right object, the others OK; no fault |
+//!
+//! Every scene's report lists each stroke's signature verdict (`signatures`).
+//!
 //! `dock-hold`, `vehicle-pull`, `estop`, `estop-bounce` and `maintenance-lockout` are
 //! driven by the PLC's lines (DOCK asserted when READY, released to undock) and its
 //! Modbus commands; the others by test-cycle requests.
@@ -37,7 +41,7 @@ use crate::rig::{AdcMode, ProfileForce, Rig, RigOptions, SharedScript};
 use crate::rng::Rng;
 
 /// Scene names.
-pub const SCENES: [&str; 15] = [
+pub const SCENES: [&str; 19] = [
     "nominal",
     "overload",
     "spike",
@@ -53,6 +57,11 @@ pub const SCENES: [&str; 15] = [
     "estop-bounce",
     "heavy-default",
     "maintenance-lockout",
+    // The docking signature's (issue 34): `crate::sigscene`.
+    "late-entry",
+    "dry-guide",
+    "debris",
+    "catch",
 ];
 
 /// The in-service scenes: the PLC docks with the DOCK line and undocks by releasing it.
@@ -217,6 +226,8 @@ pub struct SceneReport {
     /// `heavy-default`: after a clear-fault the machine went home, out of the cone (idle,
     /// locked, driver off).
     pub recovered_after_clear: Option<bool>,
+    /// Every stroke's signature verdict, in order.
+    pub signatures: Vec<crate::sigscene::SignatureSeen>,
 }
 
 /// A scene's verdict: what it was expected to show, and what it did not.
@@ -575,6 +586,14 @@ impl SceneDriver {
             }
             "estop" if in_cycle && inserting && p.depth_um >= ESTOP_DEPTH_UM => {
                 dev.estop.set(true);
+                true
+            }
+            n if crate::sigscene::SCENES.contains(&n)
+                && p.stage == Stage::PreAlign
+                && crate::sigscene::disturbed(n, self.in_cycle)
+                    .contains(&(p.cycles_completed + 1)) =>
+            {
+                crate::sigscene::disturb(n, &mut dev.script.borrow_mut());
                 true
             }
             _ => false,
@@ -987,6 +1006,7 @@ fn run_inner(
     let mut spikes = SpikeTally::new(rig.devices(), rig.conversions.get());
 
     let mut insertion_phases: Vec<Vec<u8>> = Vec::new();
+    let mut signatures = Vec::new();
     let mut faults = Vec::new();
     let mut episode_start_ns: Option<u64> = None;
     let mut stop_latency_s = None;
@@ -1041,6 +1061,7 @@ fn run_inner(
         }
 
         while let Some(ev) = rig.ctrl.next_event() {
+            signatures.extend(crate::sigscene::SignatureSeen::of_event(&ev.event));
             match ev.event {
                 Event::Seq(SeqEvent::CycleStarted(_)) => insertion_phases.push(Vec::new()),
                 Event::Phase(p) if matches!(st.state, State::Inserting { .. }) => {
@@ -1124,6 +1145,7 @@ fn run_inner(
         watchdog_bit: rig.wdg.check(),
         plc: plc.map(|p| p.rep),
         recovered_after_clear,
+        signatures,
     })
 }
 
@@ -1138,6 +1160,7 @@ struct Stepper<'a> {
     insertion_phases: Vec<Vec<u8>>,
     /// E-STOP edges the controller reported ([`Event::EstopEdges`]).
     estop_edges_latched: u32,
+    signatures: Vec<crate::sigscene::SignatureSeen>,
 }
 
 impl<'a> Stepper<'a> {
@@ -1156,6 +1179,7 @@ impl<'a> Stepper<'a> {
             steps: 0,
             insertion_phases: Vec::new(),
             estop_edges_latched: 0,
+            signatures: Vec::new(),
         }
     }
 
@@ -1166,6 +1190,8 @@ impl<'a> Stepper<'a> {
         }
         let inserting = matches!(self.rig.ctrl.state(), State::Inserting { .. });
         while let Some(ev) = self.rig.ctrl.next_event() {
+            self.signatures
+                .extend(crate::sigscene::SignatureSeen::of_event(&ev.event));
             match ev.event {
                 Event::Seq(SeqEvent::CycleStarted(_)) => self.insertion_phases.push(Vec::new()),
                 Event::Phase(p) if inserting => {
@@ -1275,6 +1301,7 @@ impl<'a> Stepper<'a> {
             watchdog_bit: rig.wdg.check(),
             plc: Some(plc),
             recovered_after_clear: None,
+            signatures: self.signatures,
         }
     }
 }
@@ -1463,7 +1490,7 @@ impl SceneReport {
             .collect();
         let opt = |x: Option<f64>| x.map_or("null".to_string(), num);
         format!(
-            "{{\"scene\":\"{}\",\"plc\":{},\"rate_sps\":{},\"seed\":{},\"cycles_completed\":{},\"faults\":[{}],\"peak_force_n\":{},\"stop_latency_s\":{},\"final_state\":\"{}\",\"motors_disabled\":{},\"insertion_phases\":[{}],\"forward_after_trip_um\":{},\"backed_off_um\":{},\"spikes_injected\":{},\"spikes_rejected\":{},\"control_steps\":{},\"sim_time_s\":{},\"wall_time_s\":{},\"watchdog_bit\":{},\"recovered_after_clear\":{}}}",
+            "{{\"scene\":\"{}\",\"plc\":{},\"rate_sps\":{},\"seed\":{},\"cycles_completed\":{},\"faults\":[{}],\"peak_force_n\":{},\"stop_latency_s\":{},\"final_state\":\"{}\",\"motors_disabled\":{},\"insertion_phases\":[{}],\"forward_after_trip_um\":{},\"backed_off_um\":{},\"spikes_injected\":{},\"spikes_rejected\":{},\"control_steps\":{},\"sim_time_s\":{},\"wall_time_s\":{},\"watchdog_bit\":{},\"recovered_after_clear\":{},\"signatures\":[{}]}}",
             self.scene,
             self.plc
                 .as_ref()
@@ -1486,7 +1513,12 @@ impl SceneReport {
             num(self.wall_time_s),
             self.watchdog_bit,
             self.recovered_after_clear
-                .map_or("null".to_string(), |b| b.to_string())
+                .map_or("null".to_string(), |b| b.to_string()),
+            self.signatures
+                .iter()
+                .map(crate::sigscene::SignatureSeen::to_json)
+                .collect::<Vec<_>>()
+                .join(",")
         )
     }
 
@@ -1568,6 +1600,13 @@ impl SceneReport {
                 "stopped within one sample".into(),
             );
         }
+        crate::sigscene::check(
+            &self.scene,
+            &self.signatures,
+            cycles_requested,
+            1,
+            &mut check,
+        );
         if let Some(p) = &self.plc {
             let failed: Vec<&str> = p
                 .flags()
@@ -1618,6 +1657,24 @@ impl SceneReport {
         }
         if let Some(p) = &self.plc {
             s += &format!("  plc: {}\n", p.to_text());
+        }
+        if !self.signatures.is_empty() {
+            let nok: Vec<String> = self
+                .signatures
+                .iter()
+                .filter(|x| !x.ok)
+                .map(|x| format!("{} {} {}", x.cycle, x.stroke, x.failed.unwrap_or("?")))
+                .collect();
+            s += &format!(
+                "  signatures: {} strokes judged, {} NOK{}\n",
+                self.signatures.len(),
+                nok.len(),
+                if nok.is_empty() {
+                    String::new()
+                } else {
+                    format!(" ({})", nok.join("; "))
+                }
+            );
         }
         s += &format!(
             "  motors disabled: {}; {} control steps, {:.1} s simulated in {:.3} s",

@@ -203,7 +203,10 @@ fn endurance_shows_progress_on_a_terminal_only() {
 }
 
 /// What a life run computes does not change when it is made faster (issue 20): its
-/// JSON, `wall_time_s` aside, as b859484 printed it, with and without readings.
+/// JSON, `wall_time_s` aside, as b859484 printed it, with and without readings — and as
+/// issue 34 changed it: the signature store's writes after each docking take flash time
+/// at rest (a part of a record a turn), which moves every later sample (by cycle 100 4
+/// nm more wear, by cycle 250 1, by cycle 500 none; 1.6 s more simulated time).
 /// `tools/life-ratio.sh` checks the full `life --cycles 45270` against
 /// `tools/life-45270.json` the same way.
 #[test]
@@ -219,7 +222,7 @@ fn life_computes_what_it_computed_before_the_speed_up() {
                 "1,10,100,250,500",
                 "--json",
             ][..],
-            r#"{"material":"zqsn5-2","points":[{"cycle":1,"wear_mm":0.003018,"remaining_cycles":45267},{"cycle":10,"wear_mm":0.017609,"remaining_cycles":45258},{"cycle":100,"wear_mm":0.062275,"remaining_cycles":45168},{"cycle":250,"wear_mm":0.095236,"remaining_cycles":45018},{"cycle":500,"wear_mm":0.129194,"remaining_cycles":44768}],"not_reached":[],"life_cycles":45268,"limit_reached":false,"cycles_run":500,"erases_per_sector_max":0,"faults":0,"sim_time_s":29118.8}"#,
+            r#"{"material":"zqsn5-2","points":[{"cycle":1,"wear_mm":0.003018,"remaining_cycles":45267},{"cycle":10,"wear_mm":0.017609,"remaining_cycles":45258},{"cycle":100,"wear_mm":0.062279,"remaining_cycles":45168},{"cycle":250,"wear_mm":0.095237,"remaining_cycles":45018},{"cycle":500,"wear_mm":0.129194,"remaining_cycles":44768}],"not_reached":[],"life_cycles":45268,"limit_reached":false,"cycles_run":500,"erases_per_sector_max":0,"faults":0,"sim_time_s":29120.4}"#,
         ),
         (
             &[
@@ -232,7 +235,7 @@ fn life_computes_what_it_computed_before_the_speed_up() {
                 readings,
                 "--json",
             ][..],
-            r#"{"material":"zqsn5-2","points":[{"cycle":1,"wear_mm":0.003018,"remaining_cycles":45267,"wear_estimate_mm":0.003018,"estimate_low_mm":0.000000,"estimate_high_mm":0.048755,"remaining_estimate_cycles":45267,"remaining_estimate_low_cycles":6299,"remaining_estimate_high_cycles":1642125},{"cycle":1000,"wear_mm":0.173506,"remaining_cycles":44268,"wear_estimate_mm":0.225901,"estimate_low_mm":0.218358,"estimate_high_mm":0.233685,"remaining_estimate_cycles":23043,"remaining_estimate_low_cycles":6687,"remaining_estimate_high_cycles":4294967295}],"not_reached":[],"life_cycles":45268,"limit_reached":false,"cycles_run":1000,"erases_per_sector_max":0,"faults":0,"sim_time_s":58237.6}"#,
+            r#"{"material":"zqsn5-2","points":[{"cycle":1,"wear_mm":0.003018,"remaining_cycles":45267,"wear_estimate_mm":0.003018,"estimate_low_mm":0.000000,"estimate_high_mm":0.048755,"remaining_estimate_cycles":45267,"remaining_estimate_low_cycles":6299,"remaining_estimate_high_cycles":1642125},{"cycle":1000,"wear_mm":0.173505,"remaining_cycles":44268,"wear_estimate_mm":0.225902,"estimate_low_mm":0.218359,"estimate_high_mm":0.233686,"remaining_estimate_cycles":23043,"remaining_estimate_low_cycles":6687,"remaining_estimate_high_cycles":4294967295}],"not_reached":[],"life_cycles":45268,"limit_reached":false,"cycles_run":1000,"erases_per_sector_max":0,"faults":0,"sim_time_s":58240.3}"#,
         ),
     ] {
         let (code, out, err) = run(args);

@@ -350,3 +350,67 @@ fn plots_of_different_runs_have_different_titles() {
         "the life title names its readings"
     );
 }
+
+/// `plot-curve` (issue 34): a `curve --json` dump of a NOK docking drawn against its
+/// objects (boxes) and its cone's reference, the phases shaded, the axes labelled, the
+/// failed object marked; the same dump, the same bytes.
+#[test]
+fn a_curve_dump_is_drawn_against_its_objects_and_the_reference() {
+    use docking_logic::sequencer::{Request, State};
+    use hil_sim::rig::{Rig, RigOptions};
+    let d = dir("curve");
+    let mut rig = Rig::booted(RigOptions::new(80));
+    for k in 0..2 {
+        if k == 1 {
+            rig.devices().script.borrow_mut().bump = Some(hil_sim::sigscene::DEBRIS);
+        }
+        let done = rig.ctrl.status().cycles_completed;
+        rig.ctrl.request(Request::StartCycle);
+        while !(rig.ctrl.state() == State::Idle && rig.ctrl.status().cycles_completed > done) {
+            rig.tick();
+            while rig.ctrl.next_event().is_some() {}
+        }
+    }
+    for _ in 0..50 {
+        rig.tick();
+    }
+    let last = d.join("last.json");
+    let reference = d.join("ref.json");
+    std::fs::write(&last, rig.command("curve last --json", 400)).unwrap();
+    std::fs::write(&reference, rig.command("curve ref --json", 400)).unwrap();
+    let args = [
+        "plot-curve",
+        last.to_str().unwrap(),
+        "--ref",
+        reference.to_str().unwrap(),
+    ];
+    let (out, svg) = plot(&d, "curve.svg", &args);
+    assert!(out.starts_with("wrote "), "{out}");
+    assert_svg(&svg);
+    assert_has(
+        &svg,
+        &[
+            "insertion depth (mm)",
+            "force (N)",
+            "phase 1",
+            "phase 4",
+            "\nentry\n</text>",
+            "\nplateau\n</text>",
+            "\nend\n</text>",
+            "\next. peak\n</text>",
+            "reference (insertion, mean)",
+            "insertion NOK: band3",
+            "insertion nok (band3), extraction ok",
+        ],
+    );
+    assert_eq!(plot(&d, "again.svg", &args).1, svg, "the same bytes");
+    // A file that is no dump: one line, exit 2.
+    let (code, _, err) = run(&[
+        "plot-curve",
+        reference.to_str().unwrap().replace("ref", "nope").as_str(),
+        "--plot",
+        "/tmp/x.svg",
+    ]);
+    assert_eq!(code, 2);
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+}

@@ -665,7 +665,7 @@ fn parse_error_messages_are_one_printable_line() {
         ("status --x", "unknown option; only --json is accepted"),
         (
             "clear-fault --json",
-            "--json only applies to help, version, status, wear, history, measurements, faults",
+            "--json only applies to help, version, status, wear, history, curve, measurements, faults",
         ),
     ];
     for (line, text) in expected {

@@ -496,8 +496,8 @@ fn input_registers_match_status_and_odometer() {
         .collect();
     assert_eq!(regs[64..67], v[..]);
     assert_eq!(
-        regs[67], 2,
-        "map version (2: maintenance mode, register 10 and bit 11)"
+        regs[67], 3,
+        "map version (2: maintenance mode, register 10 and bit 11; 3: the docking signature, 68-92 and bit 12)"
     );
     // Reserved addresses read 0; handle_frame keeps no last command.
     for a in [8, 9, 11, 15, 36, 39, 45, 47, 60, 63] {
@@ -508,7 +508,7 @@ fn input_registers_match_status_and_odometer() {
         read_inputs(&mut r, ir::CONE_SERIAL, 10).unwrap(),
         regs[50..60]
     );
-    assert_eq!(read_inputs(&mut r, 67, 1).unwrap(), [2]);
+    assert_eq!(read_inputs(&mut r, 67, 1).unwrap(), [3]);
 }
 
 #[test]
@@ -613,7 +613,7 @@ fn bad_address_is_exception_2() {
     let cases = [
         pdu(0x04, ir::COUNT, 1),
         pdu(0x04, ir::COUNT - 1, 2),
-        pdu(0x04, 60, 10),
+        pdu(0x04, ir::COUNT - 5, 10),
         pdu(0x04, 0xFFFF, 2),
         pdu(0x04, 0xFFFF, 1),
         pdu(0x03, 1, 1),

@@ -56,6 +56,12 @@ use crate::profile::{ContactPhase, BOUNDARY_UM, STROKE_UM};
 use crate::propulsion::Propulsion;
 use crate::safety::{EstopEvents, GuardMode, KernelConfig, KernelEvent, BACKOFF_RISE_MN};
 use crate::sequencer::{AxisCmd, FaultKind, Inputs, Request, SeqEvent, Sequencer, State, Switches};
+use crate::signature::monitor::{Docking, HistoryCols, Monitor, SignatureMem, StrokeVerdict};
+use crate::signature::objects::SignatureConfig;
+use crate::signature::store::SigStore;
+use crate::signature::view::{CurveView, SignatureStatus, Which};
+use crate::signature::Signature;
+use crate::signature::Stroke;
 use crate::storage::{OpenReport, RecordLog, PAYLOAD_MAX};
 
 /// The hardware a controller runs on (board support package).
@@ -86,6 +92,12 @@ pub trait Bsp {
     type Flash: NorFlash;
     /// The option bytes (brown-out reset level).
     type Options: OptionBytes;
+    /// The flash sectors of the docking signature's store (2–4 on the board).
+    type SigFlash: NorFlash;
+    /// Where the signature's buffers live (the board's CCM RAM).
+    type SigMem: core::ops::DerefMut<Target = SignatureMem>;
+    /// The signature, monitor and store, where the board placed it (the CCM RAM).
+    type Sig: core::ops::DerefMut<Target = Signature<Self::SigFlash, Self::SigMem>>;
 }
 
 /// The hardware parts, handed over at start.
@@ -116,6 +128,8 @@ pub struct Parts<B: Bsp> {
     pub flash: B::Flash,
     /// Option bytes.
     pub options: B::Options,
+    /// The docking signature ([`Signature::new`]: its store opened, its buffers).
+    pub sig: B::Sig,
 }
 
 /// Controller configuration.
@@ -142,6 +156,9 @@ pub struct ControllerConfig {
     /// Who made the machine and what it is called: Modbus device identification's
     /// VendorName and ProductName (a machine builder's, from its commissioning file).
     pub identity: Identity,
+    /// The docking signature's evaluation objects (Eq. 7's by default; another
+    /// machine's from its commissioning file).
+    pub signature: SignatureConfig,
 }
 
 /// Device identification's names (Modbus objects 0 and 4).
@@ -174,6 +191,7 @@ impl ControllerConfig {
             default_material: Material::ZQSn5_2,
             hold_expected_mn: HOLD_EXPECTED_MN,
             identity: Identity::DEFAULT,
+            signature: SignatureConfig::DEFAULT,
         }
     }
 }
@@ -252,6 +270,8 @@ pub enum Event {
     PhaseMismatch(ContactPhase),
     /// A cycle completed and was counted by the wear odometer.
     CycleCounted(CycleSummary),
+    /// A stroke of a docking was judged by its signature (OK, or NOK and why).
+    Signature(StrokeVerdict),
     /// A start was refused: the cone has reached its wear limit.
     WearLimitRefusal,
     /// A start was refused: the load cell has no stored calibration.
@@ -452,6 +472,8 @@ pub struct Controller<B: Bsp> {
     store: StoreState<B::Flash>,
     /// What the console and the log report: faults, events, resets, crashes, the stack.
     diag: DiagState,
+    /// The docking signature: capture, verdicts, reference, counts, and its store.
+    sig: B::Sig,
 }
 
 /// Stage 2, guard: the force, the limit and what the kernel's verdicts left.
@@ -990,6 +1012,7 @@ impl<B: Bsp> Controller<B> {
             odo.lifetime().cycles
         );
         let me = place(Self {
+            sig: parts.sig,
             cfg,
             prop,
             lock,
@@ -1085,6 +1108,11 @@ impl<B: Bsp> Controller<B> {
         me.load_readings();
         me.load_history();
         me.load_cached_records();
+        let cone_id = me.odo.cone().id;
+        let sig = &mut *me.sig;
+        if let Some(st) = sig.store.as_mut() {
+            sig.monitor.load(st, cone_id);
+        }
         // The switches as they are now: the filter starts from them.
         if let (Ok(home), Ok(end), Ok(locked), Ok(released)) = (
             closed(&mut me.home),
@@ -1118,12 +1146,19 @@ impl<B: Bsp> Controller<B> {
         }
     }
 
-    /// Background work, off the control step: count the load–distance of a cycle cut
-    /// short, write the pending counter snapshot and pre-erase the next odometer sector
-    /// if due — only at rest (power-up, idle, faulted) with every motor off: a flash
+    /// Background work, off the control step: judge a stroke the signature's capture
+    /// ended; count the load–distance of a cycle cut short, write the pending counter
+    /// snapshot and the signature's records, pre-erase the next sector if due — the
+    /// flash only at rest (power-up, idle, faulted) with every motor off: a flash
     /// erase stalls the CPU for up to 2 s. The board runs it at its lowest priority; the
     /// rig after each step.
     pub fn background(&mut self) {
+        // The docking signature's judgement of a stroke that ended (the service's window:
+        // thousands of instructions, which the capture of a sample does not carry).
+        if let Some(v) = self.sig.monitor.judge_due(&self.cfg.signature) {
+            let t_ms = self.last_step_us.unwrap_or(0) / 1000;
+            self.push_event(t_ms, Event::Signature(v));
+        }
         // The wear level the handshake reports, when what it depends on changed at rest
         // (a cycle's unfinished load-distance counted, a reading, a baseline): here,
         // not in the control step (the estimate's evaluation costs ~53 k instructions on
@@ -1145,10 +1180,106 @@ impl<B: Bsp> Controller<B> {
                 );
                 self.store.persist_pending = true;
             }
+            // The odometer first; the signature's store only in a turn the odometer
+            // left unused (one flash job, and at most one erase, a turn), and not
+            // after a queued record failed (one failed write per rest).
+            let odometer_busy = !queue_written
+                || self.store.persist_pending
+                || self
+                    .store
+                    .log
+                    .as_ref()
+                    .is_some_and(|l| l.needs_maintenance());
             if queue_written {
                 self.persist();
             }
+            if !odometer_busy && !self.plc.updating {
+                self.persist_signature();
+            }
         }
+    }
+
+    /// The signature's turn at the flash: a part of a record (the store's
+    /// `WRITE_BUDGET`), or one pre-erase.
+    // Out of line: `vboard signature-cost` meters it by its symbol.
+    #[inline(never)]
+    fn persist_signature(&mut self) {
+        let sig = &mut *self.sig;
+        let Some(st) = sig.store.as_mut() else {
+            return;
+        };
+        if sig.monitor.persist_pending() {
+            sig.monitor
+                .persist(st, crate::signature::store::WRITE_BUDGET);
+        } else if st.needs_maintenance() && st.maintain().is_err() {
+            error!("signature: sector pre-erase failed");
+        }
+    }
+
+    /// The docking signature's capture of the newest sample, off the control step: the
+    /// board's service task calls it after each step, the rig after each tick.
+    /// `sample_us` is when the safety kernel read its newest sample
+    /// ([`crate::safety::SafetyKernel::last_sample_us`]); a sample no step has taken
+    /// yet waits for the next call, one seen already is ignored. The force is the one
+    /// the step judged, the depth the position it counted.
+    // Out of line: `vboard signature-cost` meters it by its symbol (one call a service
+    // turn; with this and `persist_signature` out of line the image is 232 B smaller).
+    #[inline(never)]
+    pub fn capture(&mut self, sample_us: Option<u64>) {
+        let Some(t_us) = sample_us else {
+            return;
+        };
+        if self.last_step_us.is_none_or(|s| t_us > s) {
+            return;
+        }
+        let stroke = match self.seq.state() {
+            State::Inserting { .. } => Some(Stroke::Insertion),
+            State::Extracting { .. } => Some(Stroke::Extraction),
+            _ => None,
+        };
+        let docking = Docking {
+            lifetime_cycle: self.odo.lifetime().cycles.saturating_add(1),
+            cone_cycle: self.odo.cone().cycles.saturating_add(1),
+            cone_id: self.odo.cone().id,
+        };
+        let depth_um = self.prop.position_um() - self.cfg.machine.engage_um;
+        let force_mn = self.guard.force_mn;
+        if let Some(v) = self.sig.monitor.tap(
+            &self.cfg.signature,
+            t_us,
+            depth_um,
+            force_mn,
+            stroke,
+            docking,
+        ) {
+            self.push_event(t_us / 1000, Event::Signature(v));
+        }
+    }
+
+    /// The docking signature's monitor (verdicts, counts, the newest capture).
+    pub fn signature(&self) -> &Monitor<B::SigMem> {
+        &self.sig.monitor
+    }
+
+    /// The signature's state for the PLC and `wear`.
+    pub fn signature_status(&self) -> SignatureStatus {
+        SignatureStatus::of(&self.sig.monitor, &self.cfg.signature)
+    }
+
+    /// Copy curve `which` into `out` (`curve`); `false`: there is none.
+    pub fn curve(&mut self, which: Which, out: &mut CurveView) -> bool {
+        let sig = &mut *self.sig;
+        out.fill(which, &sig.monitor, sig.store.as_mut(), &self.cfg.signature)
+    }
+
+    /// `history`'s signature columns of lifetime cycle `cycle`.
+    pub fn signature_history(&self, cycle: u32) -> Option<HistoryCols> {
+        self.sig.monitor.history_cols(cycle)
+    }
+
+    /// The signature's store, if its flash could be read.
+    pub fn signature_store(&mut self) -> Option<&mut SigStore<B::SigFlash>> {
+        self.sig.store.as_mut()
     }
 
     /// Write the pending counter snapshot, and pre-erase the next sector if due. A
@@ -2482,6 +2613,7 @@ impl<B: Bsp> Controller<B> {
             }
         }
         self.odo = next;
+        self.sig.monitor.on_cone(self.odo.cone().id);
         self.readings.clear();
         self.refit();
         info!(

@@ -74,7 +74,7 @@ const fn nibbles16_msb(poly: u16) -> [u16; 16] {
 }
 
 /// A CRC-32/ISO-HDLC over bytes given in pieces.
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Debug)]
 pub struct Crc32(u32);
 
 impl Default for Crc32 {

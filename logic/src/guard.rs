@@ -143,7 +143,7 @@ pub const ENVELOPE_WINDOW_UM: i32 = 500;
 /// Eq. 7's N3 at insertion depth `depth_um` (clamped to the stroke), N: a `const fn`
 /// twin of [`crate::profile::forces_at_depth_um`] (tested bit-equal) so the envelope is
 /// computed at build time and the firmware carries no floating-point code for it.
-const fn n3_at_depth_n(depth_um: i32) -> f64 {
+pub(crate) const fn n3_at_depth_n(depth_um: i32) -> f64 {
     let d = if depth_um < 0 {
         0
     } else if depth_um > STROKE_UM {
@@ -420,6 +420,11 @@ impl SensorMonitor {
     pub fn answered_code(&self) -> Option<i32> {
         self.last_code
             .filter(|_| self.rail_count == 0 && self.same_count < STUCK_SAMPLES)
+    }
+
+    /// When the last sample arrived, µs; `None` before the first and after a reset.
+    pub fn last_sample_us(&self) -> Option<u64> {
+        self.last_code.map(|_| self.last_sample_us)
     }
 
     /// Check for a disconnect at `now_us` (no sample for 3 periods).

@@ -22,6 +22,8 @@ use crate::hx711::Calibration;
 use crate::material::Material;
 use crate::odometer::{Journal, Measurement, Odometer, WearLevel};
 use crate::sequencer::{Request, State};
+use crate::signature::monitor::HistoryCols;
+use crate::signature::view::{CurveView, SignatureStatus, Which};
 use crate::update::ImageReport;
 
 /// The controller as its clients (console, Modbus) see it. See the module doc.
@@ -109,6 +111,12 @@ pub trait Machine {
     fn begin_update(&mut self) -> Result<(), MaintError>;
     /// [`Controller::end_update`].
     fn end_update(&mut self);
+    /// [`Controller::signature_status`].
+    fn signature_status(&self) -> SignatureStatus;
+    /// [`Controller::curve`].
+    fn curve(&mut self, which: Which, out: &mut CurveView) -> bool;
+    /// [`Controller::signature_history`].
+    fn signature_history(&self, cycle: u32) -> Option<HistoryCols>;
 }
 
 impl<B: Bsp> Machine for Controller<B> {
@@ -233,5 +241,14 @@ impl<B: Bsp> Machine for Controller<B> {
     }
     fn end_update(&mut self) {
         Controller::end_update(self)
+    }
+    fn signature_status(&self) -> SignatureStatus {
+        Controller::signature_status(self)
+    }
+    fn curve(&mut self, which: Which, out: &mut CurveView) -> bool {
+        Controller::curve(self, which, out)
+    }
+    fn signature_history(&self, cycle: u32) -> Option<HistoryCols> {
+        Controller::signature_history(self, cycle)
     }
 }

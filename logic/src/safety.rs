@@ -191,6 +191,13 @@ impl<A: LoadCellAdc> SafetyKernel<A> {
         }
     }
 
+    /// When the newest sample was read, µs (`None` before the first, and after a
+    /// clear until the next): the docking signature's tap (`Controller::capture`), read
+    /// off the sample path from what the sensor monitor keeps anyway.
+    pub fn last_sample_us(&self) -> Option<u64> {
+        self.sensor.last_sample_us()
+    }
+
     /// Single-sample spikes the guard has rejected.
     pub fn spikes_rejected(&self) -> u32 {
         self.guard.spikes_rejected()

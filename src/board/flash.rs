@@ -1,4 +1,5 @@
-//! The odometer's flash sectors (10 and 11), driven at register level (RM0090 §3.6).
+//! The odometer's flash sectors (10 and 11), and the docking signature's (2, 3 and 4:
+//! [`SigFlash`]), driven at register level (RM0090 §3.6).
 //!
 //! # Why not the HAL's flash driver
 //!
@@ -442,6 +443,98 @@ impl NorFlash for OdometerFlash {
             }
         }
         Self::end();
+        result
+    }
+}
+
+/// The docking signature's sectors: 2 and 3 (16 KiB each) and 4 (64 KiB), 0x0800_8000
+/// to 0x0801_FFFF (update-layout's `PROJECT_FREE`), as one region of 96 KiB. Erases
+/// and programs as the odometer's (×32, the erase's wait from SRAM feeding the
+/// watchdog and answering the Modbus line), through the same interface, from the same
+/// owner (the controller's service, at rest). `ERASE_SIZE` is the smallest sector; an
+/// erase must be exactly one of the three sectors (the store never erases less).
+pub struct SigFlash;
+
+/// The signature region: its first address, length, and sectors (offset, length,
+/// number).
+const SIG_BASE: u32 = update_layout::layout::PROJECT_FREE.0;
+const SIG_LEN: u32 = update_layout::layout::PROJECT_FREE.1;
+const SIG_SECTORS: [(u32, u32, u32); 3] =
+    [(0, 0x4000, 2), (0x4000, 0x4000, 3), (0x8000, 0x1_0000, 4)];
+const _: () = assert!(SIG_BASE == 0x0800_8000 && SIG_LEN == 0x1_8000);
+const _: () = assert!(matches!(
+    update_layout::layout::sector_of(SIG_BASE + 0x8000),
+    Some((4, _, 0x1_0000))
+));
+
+impl SigFlash {
+    fn check(from: u32, len: usize) -> Result<u32, OdoFlashError> {
+        let end = u32::try_from(len)
+            .ok()
+            .and_then(|l| from.checked_add(l))
+            .ok_or(OdoFlashError::OutOfBounds)?;
+        if end > SIG_LEN {
+            return Err(OdoFlashError::OutOfBounds);
+        }
+        Ok(SIG_BASE + from)
+    }
+}
+
+impl ErrorType for SigFlash {
+    type Error = OdoFlashError;
+}
+
+impl ReadNorFlash for SigFlash {
+    const READ_SIZE: usize = 1;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        let at = Self::check(offset, bytes.len())?;
+        for (i, b) in (at..).zip(bytes.iter_mut()) {
+            // SAFETY: `check` keeps the range inside sectors 2-4, mapped readable flash.
+            *b = unsafe { core::ptr::read_volatile(i as *const u8) };
+        }
+        Ok(())
+    }
+
+    fn capacity(&self) -> usize {
+        SIG_LEN as usize
+    }
+}
+
+impl NorFlash for SigFlash {
+    const WRITE_SIZE: usize = 4;
+    const ERASE_SIZE: usize = 0x4000;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        let len = to.checked_sub(from).ok_or(OdoFlashError::OutOfBounds)?;
+        Self::check(from, len as usize)?;
+        let Some(&(_, _, n)) = SIG_SECTORS.iter().find(|s| s.0 == from && s.1 == len) else {
+            return Err(OdoFlashError::NotAligned);
+        };
+        OdometerFlash::erase_sector(n)
+    }
+
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        let at = Self::check(offset, bytes.len())?;
+        if at % 4 != 0 || bytes.len() % 4 != 0 {
+            return Err(OdoFlashError::NotAligned);
+        }
+        OdometerFlash::begin()?;
+        // SAFETY: FLASH_CR (fixed MMIO): PG with ×32 parallelism.
+        unsafe { core::ptr::write_volatile(FLASH_CR, CR_PSIZE_X32 | CR_PG) };
+        let mut result = Ok(());
+        for (addr, w) in (at..).step_by(4).zip(bytes.chunks_exact(4)) {
+            let mut le = [0u8; 4];
+            le.copy_from_slice(w);
+            // SAFETY: a word-aligned address inside sectors 2-4 (checked above), PG
+            // set: this store programs the word (RM0090 §3.6.4).
+            unsafe { core::ptr::write_volatile(addr as *mut u32, u32::from_le_bytes(le)) };
+            result = OdometerFlash::status(OdometerFlash::wait_idle());
+            if result.is_err() {
+                break;
+            }
+        }
+        OdometerFlash::end();
         result
     }
 }

@@ -10,7 +10,7 @@ use crate::periph::flash::FlashTiming;
 use crate::scene::{Options, SceneOptions, SCENES};
 
 /// One-line usage summary.
-pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--cut transfer|swap|boot] [--flood] [--log] [--json] [--no-skip] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] [--no-skip] | estimate-cost [--readings N] [--firmware ELF] | swap-time [--firmware ELF] [--json]";
+pub const USAGE: &str = "usage: vboard scene NAME [--firmware ELF] [--cycles N] [--rate 10|80] [--cpi X] [--timing cpi|art] [--lsi-hz HZ] [--flash-timing max|typical] [--seed S] [--cut transfer|swap|boot] [--curve FILE.json] [--flood] [--log] [--json] [--no-skip] | serve [--pty | --tcp 127.0.0.1:PORT] [--modbus-pty | --modbus-tcp 127.0.0.1:PORT] [--plc] [--firmware ELF] [--rate 10|80] [--cpi X] [--timing cpi|art] [--speed X] [--for SECONDS] [--no-skip] | estimate-cost [--readings N] [--firmware ELF] | signature-cost [--rate 10|80] [--cpi X] [--firmware ELF] [--json] [--no-skip] | swap-time [--firmware ELF] [--json]";
 
 /// The sweep's usage (`vboard sweep`).
 pub const SWEEP_USAGE: &str = "       vboard sweep [--scene NAME[,NAME...]] [--seeds 1..10|1,2,3] [--cpi X[,X...]] [--timing cpi|art[,...]] [--flood] [--cycles N] [--rate 10|80] [--lsi-hz HZ] [--flash-timing max|typical] [--firmware ELF] [--jobs N] [--json] [--no-skip]";
@@ -54,7 +54,16 @@ fn command_help(cmd: &str) -> Option<String> {
     for piece in USAGE.trim_start_matches("usage: vboard ").split(" | ") {
         let word = piece.split_whitespace().next().unwrap_or("");
         match parts.last_mut() {
-            Some(last) if !["scene", "serve", "estimate-cost", "swap-time"].contains(&word) => {
+            Some(last)
+                if ![
+                    "scene",
+                    "serve",
+                    "estimate-cost",
+                    "signature-cost",
+                    "swap-time",
+                ]
+                .contains(&word) =>
+            {
                 last.push_str(" | ");
                 last.push_str(piece);
             }
@@ -68,7 +77,7 @@ fn command_help(cmd: &str) -> Option<String> {
 }
 
 /// What each option does, by its flag (shared by the commands that take it).
-const OPTION_HELP: [(&str, &str); 24] = [
+const OPTION_HELP: [(&str, &str); 25] = [
     ("--no-skip", "emulate every iteration of the polling loops (the same results, slower: the proof that skipping changes nothing)"),
     ("--firmware", "the image to run (default: the release build at the root; refused if older than its sources)"),
     ("--cycles", "docking cycles to run"),
@@ -93,6 +102,7 @@ const OPTION_HELP: [(&str, &str); 24] = [
     ("NAME", "the scene"),
     ("--tcp", "the console on TCP (first stdout line: its address)"),
     ("--cut", "update-cut: the power cut during the transfer, the swap or the first boot"),
+    ("--curve", "late-entry, dry-guide, debris, catch: write the board's `curve last --json` reply there (for `hil-sim plot-curve`)"),
 ];
 
 /// A synopsis as the command's line, then its options one a line with what each does.
@@ -223,9 +233,16 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
             "flash-timing",
             "seed",
             "cut",
+            "curve",
         ],
         &["json", "flood", "log", "no-skip"],
     )?;
+    if o.get("curve").is_some() && !hil_sim::sigscene::SCENES.contains(&name.as_str()) {
+        return usage(format!(
+            "--curve is the signature scenes' ({})",
+            hil_sim::sigscene::SCENES.join(", ")
+        ));
+    }
     let cut = match o.get("cut") {
         None => None,
         Some(c) => match crate::update::Cut::parse(c) {
@@ -241,6 +258,9 @@ fn scene(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
         cut,
     };
     let r = crate::scene::run(name, &opts).map_err(Failure::Run)?;
+    if let (Some(path), Some(curve)) = (o.get("curve"), r.curve_json.as_ref()) {
+        std::fs::write(path, curve).map_err(|e| Failure::Run(format!("--curve {path}: {e}")))?;
+    }
     if o.flag("log") {
         for l in &r.log {
             eprintln!("{} {:<5} {}", l.timestamp, l.level, l.msg);
@@ -431,6 +451,21 @@ fn estimate_cost(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
     Ok(())
 }
 
+/// `signature-cost [--rate 10|80] [--cpi X] [--firmware ELF] [--json]`: what the docking
+/// signature costs the image (crate::scene::signature_cost).
+fn signature_cost(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
+    let o = Opts::parse(args, &["firmware", "rate", "cpi"], &["json", "no-skip"])?;
+    let opts = session(&o)?;
+    let r = crate::scene::signature_cost(&opts).map_err(Failure::Run)?;
+    let text = if o.flag("json") {
+        r.to_json()
+    } else {
+        r.to_text()
+    };
+    let _ = writeln!(out, "{text}");
+    Ok(())
+}
+
 /// `swap-time [--firmware ELF] [--json]`: the bootloader's swap and revert, timed
 /// (crate::swap).
 fn swap_time(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
@@ -470,6 +505,7 @@ pub fn run(args: &[String], out: &mut dyn Write) -> Result<(), Failure> {
         "scene" => scene(rest, out),
         "serve" => serve(rest, out),
         "estimate-cost" => estimate_cost(rest, out),
+        "signature-cost" => signature_cost(rest, out),
         "sweep" => sweep_cmd(rest, out),
         "swap-time" => swap_time(rest, out),
         "help" | "--help" | "-h" => {
@@ -493,7 +529,14 @@ mod help_tests {
 
     #[test]
     fn every_command_answers_help_with_one_option_a_line() {
-        for cmd in ["scene", "serve", "estimate-cost", "sweep", "swap-time"] {
+        for cmd in [
+            "scene",
+            "serve",
+            "estimate-cost",
+            "signature-cost",
+            "sweep",
+            "swap-time",
+        ] {
             let (r, out) = run_args(&[cmd, "--help"]);
             assert!(r.is_ok(), "{cmd}");
             assert!(out.starts_with(&format!("vboard {cmd} ")), "{cmd}: {out}");
@@ -561,7 +604,13 @@ mod help_tests {
 
     #[test]
     fn a_missing_firmware_file_is_a_usage_error() {
-        for cmd in ["scene nominal", "estimate-cost", "sweep", "swap-time"] {
+        for cmd in [
+            "scene nominal",
+            "estimate-cost",
+            "signature-cost",
+            "sweep",
+            "swap-time",
+        ] {
             let mut args: Vec<&str> = cmd.split(' ').collect();
             args.extend(["--firmware", "/no/such/image.elf"]);
             match run_args(&args).0 {

@@ -868,6 +868,7 @@ fn meter_block(uc: &mut Unicorn<'_, Soc>, addr: u32) {
         None if addr & !1 == m.entry => m.active = Some((exc, count, lr & !1, sp)),
         Some((e, start, ret, sp0)) if e == exc && addr & !1 == ret && sp >= sp0 => {
             m.last = count - start;
+            m.max = m.max.max(m.last);
             m.insns += m.last;
             m.calls += 1;
             m.active = None;

@@ -129,6 +129,9 @@ pub struct Observed {
     pub boots: u32,
     /// E-STOP edges the firmware logged having latched (`E-STOP: N edge(s), …`).
     pub estop_edges_logged: u32,
+    /// Each stroke's signature verdict the firmware logged (`signature: cycle N
+    /// insertion ok`, `… nok band3 figure …`).
+    pub signatures: Vec<hil_sim::sigscene::SignatureSeen>,
     /// Lines read so far.
     cursor: usize,
     /// The current insertion is over (a phase went down: extraction).
@@ -479,6 +482,25 @@ impl Session {
                 ["E-STOP:", n, "edge(s),", ..] => {
                     self.seen.estop_edges_logged += n.parse::<u32>().unwrap_or(0);
                 }
+                ["signature:", "cycle", n, stroke @ ("insertion" | "extraction"), verdict, rest @ ..] =>
+                {
+                    let name = |w: &str| {
+                        docking_logic::signature::objects::Object::ALL
+                            .into_iter()
+                            .map(docking_logic::signature::objects::Object::name)
+                            .find(|o| *o == w)
+                    };
+                    self.seen.signatures.push(hil_sim::sigscene::SignatureSeen {
+                        cycle: n.parse().unwrap_or(0),
+                        stroke: if *stroke == "insertion" {
+                            "insertion"
+                        } else {
+                            "extraction"
+                        },
+                        ok: *verdict == "ok",
+                        failed: rest.first().and_then(|w| name(w)),
+                    });
+                }
                 _ => {}
             }
         }
@@ -774,7 +796,7 @@ fn docking_controller_fault_name(s: &str) -> &'static str {
 }
 
 /// The scenes of `vboard scene`.
-pub const SCENES: [&str; 23] = [
+pub const SCENES: [&str; 27] = [
     "boot",
     "nominal",
     "overload",
@@ -798,6 +820,11 @@ pub const SCENES: [&str; 23] = [
     "update-bad",
     "update-cut",
     "update-rollback",
+    // The docking signature's (issue 34): hil-sim's `sigscene`.
+    "late-entry",
+    "dry-guide",
+    "debris",
+    "catch",
 ];
 
 /// What the PLC of an in-service scene saw on the pins.
@@ -1087,6 +1114,10 @@ pub struct Report {
     /// For every E-STOP edge while anything moved: edge → EN high and the lock bridge
     /// off, on the pins, µs (`None`: they never went off).
     pub estop_reactions_us: Vec<Option<f64>>,
+    /// The docking signature's scenes: the board's `curve last --json` reply after the
+    /// last docking (what `vboard scene NAME --curve FILE.json` writes for `hil-sim
+    /// plot-curve`).
+    pub curve_json: Option<String>,
 }
 
 /// A name for exception `e` (STM32F407 interrupt names for those the board models).
@@ -1696,6 +1727,13 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
     // The fault records as the firmware keeps them (phase, peak force to the clear).
     let faults_json = s.console_json("faults --json").map_err(|e| e.to_string())?;
     let faults = parse_faults(&faults_json).unwrap_or_else(|| s.seen.faults.clone());
+    // The signature as the people and the PLC are shown it: the console's curve, the
+    // registers.
+    let curve_json = if hil_sim::sigscene::SCENES.contains(&name) {
+        Some(signature_shown(&mut s, name, cycles, &mut checks).map_err(|e| e.to_string())?)
+    } else {
+        None
+    };
     s.board.poll_rtt();
 
     let m = s.machine();
@@ -1705,6 +1743,12 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
     let sim_s = s.now() as f64 / PS_PER_S as f64;
     let insns = soc.clock.insns();
     let awake = 1.0 - soc.clock.sleep_ps() as f64 / s.now().max(1) as f64;
+    // The signature's verdicts, as the firmware logged them (hil-sim's expectations).
+    if host_scene {
+        hil_sim::sigscene::check(name, &s.seen.signatures, cycles, 1, &mut |ok, what| {
+            checks.push((what, ok, String::new()))
+        });
+    }
     let scene = SceneReport {
         scene: name.to_string(),
         rate_sps: opts.session.rate_sps,
@@ -1726,6 +1770,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
         watchdog_bit: s.watchdog_resets() > 0,
         plc: plc.map(|p| p.rep).or(scripted_plc),
         recovered_after_clear,
+        signatures: s.seen.signatures.clone(),
     };
     Ok(Report {
         scene,
@@ -1809,7 +1854,86 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
             .collect(),
         timing: s.control_timing(),
         estop_reactions_us: s.estop_reactions_us(),
+        curve_json,
     })
+}
+
+/// After a signature scene (issue 34): the last docking as the console's `curve last
+/// --json` shows it (its cycle, each stroke's verdict and first failed object) and as
+/// the PLC reads it (status bit 12; input registers 68–92: the verdict, the failed
+/// object's code, the cone's NOK and judged dockings, the newest stroke's verdict), each
+/// against what the scene must produce ([`hil_sim::sigscene::expected`]). The curve's
+/// line is returned.
+fn signature_shown(
+    s: &mut Session,
+    name: &str,
+    cycles: u32,
+    checks: &mut Vec<(String, bool, String)>,
+) -> Result<String, Halt> {
+    use docking_logic::modbus::{ir, status};
+    use docking_logic::signature::objects::Object;
+    let (ins, ext) = hil_sim::sigscene::expected(name, cycles, cycles);
+    let code = |o: Option<&str>| {
+        o.and_then(|n| Object::ALL.into_iter().find(|x| x.name() == n))
+            .map_or(0, |x| u16::from(x.code()))
+    };
+    let line = s.console_json("curve last --json")?;
+    let v: serde_json::Value = serde_json::from_str(line.trim()).unwrap_or_default();
+    let stroke = |k: &str| {
+        (
+            v[k]["verdict"].as_str().map(str::to_string),
+            v[k]["failed"].as_str().map(str::to_string),
+        )
+    };
+    let (si, se) = (stroke("insertion"), stroke("extraction"));
+    let verdict = |want: Option<&str>| {
+        (
+            Some(if want.is_some() { "nok" } else { "ok" }.to_string()),
+            want.map(str::to_string),
+        )
+    };
+    // The extraction after a disturbed insertion is not the scene's point (sigscene).
+    let ext_free = ins.is_some() && ext.is_none();
+    let ok = v["cycle"].as_u64() == Some(u64::from(cycles))
+        && si == verdict(ins)
+        && (ext_free || se == verdict(ext));
+    checks.push((
+        format!(
+            "the console's `curve last` shows cycle {cycles}: insertion {}, extraction {}",
+            ins.unwrap_or("ok"),
+            if ext_free { "any" } else { ext.unwrap_or("ok") }
+        ),
+        ok,
+        format!(
+            "cycle {:?}, insertion {si:?}, extraction {se:?}",
+            v["cycle"].as_u64()
+        ),
+    ));
+    let word = s.read_inputs(0, 1)?.and_then(|w| w.first().copied());
+    let regs = s.read_inputs(ir::SIG_VERDICT, ir::COUNT - ir::SIG_VERDICT)?;
+    let at = |r: &Option<Vec<u16>>, a: u16| {
+        r.as_ref()
+            .and_then(|r| r.get(usize::from(a - ir::SIG_VERDICT)).copied())
+    };
+    let u32_at =
+        |r: &Option<Vec<u16>>, a: u16| Some(u32::from(at(r, a)?) << 16 | u32::from(at(r, a + 1)?));
+    let nok_dockings = hil_sim::sigscene::disturbed(name, cycles).count() as u32;
+    let failed = code(ins.or(ext));
+    let ok = word.is_some_and(|w| w & status::SIGNATURE_NOK != 0)
+        && at(&regs, ir::SIG_VERDICT) == Some(2)
+        && at(&regs, ir::SIG_FAILED) == Some(failed)
+        && u32_at(&regs, ir::SIG_CYCLE) == Some(cycles)
+        && u32_at(&regs, ir::SIG_CONE_NOK) == Some(nok_dockings)
+        && u32_at(&regs, ir::SIG_CONE_JUDGED) == Some(cycles)
+        && at(&regs, ir::SIG_STROKE).is_some_and(|v| (1..=4).contains(&v));
+    checks.push((
+        format!(
+            "Modbus: status bit 12, verdict 2 (NOK), failed object {failed}, cycle {cycles}, {nok_dockings} NOK of {cycles} judged"
+        ),
+        ok,
+        format!("status word {word:?}, registers 68-92 {regs:?}"),
+    ));
+    Ok(line)
 }
 
 /// The `faults` of a `faults --json` reply.
@@ -2374,4 +2498,193 @@ mod script_reply_tests {
         let raw = "# docking-controller 0.1.0 reset=watchdog; type 'help'\r\npower_up> ";
         assert_eq!(script_reply(raw, "status"), "");
     }
+}
+
+/// One metered function: calls, instructions in all, the most of one call.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Metered {
+    /// Calls completed.
+    pub calls: u64,
+    /// Their instructions.
+    pub insns: u64,
+    /// The most instructions of one call.
+    pub max: u64,
+}
+
+impl Metered {
+    fn of(m: Option<crate::soc::FnMeter>) -> Self {
+        let m = m.unwrap_or_default();
+        Self {
+            calls: m.calls,
+            insns: m.insns,
+            max: m.max,
+        }
+    }
+
+    /// Mean instructions a call.
+    pub fn mean(&self) -> f64 {
+        self.insns as f64 / self.calls.max(1) as f64
+    }
+
+    fn json(&self) -> String {
+        format!(
+            "{{\"calls\":{},\"instructions\":{},\"mean\":{:.1},\"max\":{}}}",
+            self.calls,
+            self.insns,
+            self.mean(),
+            self.max
+        )
+    }
+}
+
+/// What the docking signature costs the image (issue 34), measured on the board:
+/// [`signature_cost`].
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SignatureCost {
+    /// The HX711's rate and the emulated core's CPI.
+    pub rate_sps: u32,
+    /// See [`Self::rate_sps`].
+    pub cpi: f64,
+    /// `Controller::capture` over one docking: one call a service turn (after each
+    /// control step), each taking the newest sample into its bin.
+    pub capture: Metered,
+    /// Samples the image read over that docking.
+    pub samples: u64,
+    /// `Monitor::judge`: one call a stroke (the objects, the figures, the summary).
+    pub judge: Metered,
+    /// `Controller::persist_signature`: a turn at rest (a part of a record, at most
+    /// `WRITE_BUDGET` bytes) after the next docking, until nothing waits.
+    pub persist: Metered,
+    /// The signature's RAM: its buffers (`SIGNATURE_MEM`) and its monitor and store
+    /// (`SIGNATURE`), both in the CCM RAM, bytes.
+    pub ccm_bytes: (u32, u32),
+    /// Flash a record takes in sectors 2–4: a NOK docking's curves, a reference, a
+    /// summary, bytes (frame headers included); and the sectors' bytes.
+    pub frame_bytes: (usize, usize, usize),
+    /// See [`Self::frame_bytes`].
+    pub store_bytes: u32,
+}
+
+impl SignatureCost {
+    /// µs of `insns` instructions at 168 MHz and this CPI.
+    fn us(&self, insns: f64) -> f64 {
+        insns * self.cpi / 168.0
+    }
+
+    /// A table for a terminal.
+    pub fn to_text(&self) -> String {
+        let row = |what: &str, m: &Metered| {
+            format!(
+                "{what:<44} | {:>5} | {:>8.1} | {:>6} | {:>7.1}\n",
+                m.calls,
+                m.mean(),
+                m.max,
+                self.us(m.max as f64)
+            )
+        };
+        let mut s = format!(
+            "# the docking signature on the Cortex-M4 (release image, {} SPS, CPI {}, 168 MHz)\nwhat                                         | calls |     mean |    max | max µs\n",
+            self.rate_sps, self.cpi
+        );
+        s += &row("capture, a service turn after each step", &self.capture);
+        s += &row("judge, a stroke", &self.judge);
+        s += &row("persist, a turn at rest (128 B a turn)", &self.persist);
+        let (nok, reference, summary) = self.frame_bytes;
+        s += &format!(
+            "# capture: {:.1} instructions a sample ({} samples in the docking)\n# RAM (CCM): {} B of buffers (SIGNATURE_MEM), {} B of monitor and store (SIGNATURE)\n# flash: a NOK docking's curves {nok} B, a reference {reference} B, a summary {summary} B; sectors 2-4 {} B (about {} dockings of summaries a 16 KiB sector)",
+            self.capture.insns as f64 / self.samples.max(1) as f64,
+            self.samples,
+            self.ccm_bytes.0,
+            self.ccm_bytes.1,
+            self.store_bytes,
+            16 * 1024 / summary.max(1)
+        );
+        s
+    }
+
+    /// One JSON object.
+    pub fn to_json(&self) -> String {
+        let (nok, reference, summary) = self.frame_bytes;
+        format!(
+            "{{\"rate_sps\":{},\"cpi\":{},\"capture\":{},\"samples\":{},\"capture_instructions_per_sample\":{:.1},\"judge\":{},\"persist\":{},\"ccm_buffers_bytes\":{},\"ccm_monitor_store_bytes\":{},\"nok_frame_bytes\":{nok},\"reference_frame_bytes\":{reference},\"summary_frame_bytes\":{summary},\"store_bytes\":{}}}",
+            self.rate_sps,
+            self.cpi,
+            self.capture.json(),
+            self.samples,
+            self.capture.insns as f64 / self.samples.max(1) as f64,
+            self.judge.json(),
+            self.persist.json(),
+            self.ccm_bytes.0,
+            self.ccm_bytes.1,
+            self.store_bytes
+        )
+    }
+}
+
+/// Meter the docking signature on a board running `opts`'s image: the capture over one
+/// docking (every service turn, every sample), then the next docking's two judgements
+/// and the turns at rest that write its records.
+pub fn signature_cost(opts: &Options) -> Result<SignatureCost, String> {
+    use docking_logic::framelog::frame_size;
+    use docking_logic::signature::records::{NOK_LEN, REFERENCE_LEN, SECTORS, SUMMARY_LEN};
+    let mut s = Session::new(opts.clone())?;
+    let halt = |e: Halt| e.to_string();
+    s.run_for(PS_PER_S).map_err(halt)?;
+    let entry = |s: &Session, part: &str| {
+        s.board
+            .image
+            .symbol_containing(part)
+            .map(|(a, _)| a)
+            .ok_or_else(|| format!("no symbol {part} in the image"))
+    };
+    let capture_at = entry(&s, "10controller19Controller$LT$B$GT$7capture17h")?;
+    let judge_at = entry(&s, "7monitor16Monitor$LT$M$GT$5judge17h")?;
+    let persist_at = entry(
+        &s,
+        "10controller19Controller$LT$B$GT$17persist_signature17h",
+    )?;
+    let size = |s: &Session, part: &str| s.board.image.symbol_containing(part).map_or(0, |x| x.1);
+    let ccm_bytes = (size(&s, "SIGNATURE_MEM"), size(&s, "9SIGNATURE17h"));
+    // Run until `done` (at most 300 s of machine time), the PLC docking when ready.
+    let run = |s: &mut Session, cycles: u32, done: &dyn Fn(&Session) -> bool| {
+        let deadline = s.now() + 300 * PS_PER_S;
+        while !done(s) {
+            if s.now() > deadline {
+                return Err("the docking did not end".to_string());
+            }
+            s.auto_dock(cycles);
+            s.run_for(5 * PS_PER_MS).map_err(halt)?;
+        }
+        Ok(())
+    };
+    s.board.meter(capture_at);
+    let samples0 = s.machine().hx.stats().samples_read;
+    run(&mut s, 1, &|s| s.seen.cycles_completed >= 1 && s.at_rest())?;
+    let capture = Metered::of(s.board.soc().meter.clone());
+    let samples = s.machine().hx.stats().samples_read - samples0;
+    s.board.meter(judge_at);
+    run(&mut s, 2, &|s| {
+        s.board.soc().meter.as_ref().is_some_and(|m| m.calls >= 2)
+    })?;
+    let judge = Metered::of(s.board.soc().meter.clone());
+    s.board.meter(persist_at);
+    run(&mut s, 2, &|s| s.seen.cycles_completed >= 2 && s.at_rest())?;
+    // The rest: 3 s, every record written (a NOK-free docking: summary and reference).
+    s.run_for(3 * PS_PER_S).map_err(halt)?;
+    let persist = Metered::of(s.board.soc().meter.clone());
+    Ok(SignatureCost {
+        rate_sps: opts.rate_sps,
+        cpi: opts.board.cpi_milli as f64 / 1000.0,
+        capture,
+        samples,
+        judge,
+        persist,
+        ccm_bytes,
+        frame_bytes: (
+            frame_size(NOK_LEN),
+            frame_size(REFERENCE_LEN),
+            frame_size(SUMMARY_LEN),
+        ),
+        store_bytes: SECTORS.iter().sum(),
+    })
 }

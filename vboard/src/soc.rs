@@ -155,6 +155,8 @@ pub struct FnMeter {
     pub insns: u64,
     /// The last call's instructions.
     pub last: u64,
+    /// The most instructions of one call.
+    pub max: u64,
     /// A call in progress: (its exception context, that context's instruction count at
     /// entry, return address, stack pointer at entry).
     pub active: Option<(usize, u64, u32, u32)>,

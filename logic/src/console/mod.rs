@@ -21,6 +21,7 @@
 //! [`auth::MaintenanceAuth`]) and replies, in JSON via [`json::JsonObject`] when asked.
 
 pub mod auth;
+mod curve;
 pub mod fields;
 pub mod json;
 pub mod line;

@@ -11,6 +11,9 @@
 //! status [--json]
 //! wear [--json]
 //! history [N] [--json]                  N = 1..=100, default 10
+//! curve [last|ref|nok N] [--json|--csv] the newest docking's force–position curve, the
+//!                                       cone's reference, or the Nth newest NOK curve
+//!                                       (N = 1..=4); default last
 //! faults [--json]
 //! measurements [--json]                 the current cone's readings
 //! clear-fault
@@ -39,7 +42,8 @@
 //! ```
 //!
 //! * `--json` may appear anywhere after the command words, at most once, and only on
-//!   the read commands (help, version, status, wear, history, faults); elsewhere it is
+//!   the read commands (help, version, status, wear, history, faults, curve; `curve`
+//!   also takes `--csv`, not with `--json`); elsewhere it is
 //!   [`ParseError::JsonNotSupported`]. The token `--json` is always this option, never
 //!   a value. On read commands any other token starting with `--` is
 //!   [`ParseError::UnknownOption`].
@@ -135,7 +139,7 @@ const fn c(
 }
 
 /// Every console command, in `help`'s order.
-pub const COMMANDS: [CommandHelp; 25] = [
+pub const COMMANDS: [CommandHelp; 26] = [
     c(
         "help",
         "help [<command>] [--json]",
@@ -171,6 +175,12 @@ pub const COMMANDS: [CommandHelp; 25] = [
         "history [N] [--json]",
         "the newest N completed cycles (1..100, default 10)",
         history_args,
+    ),
+    c(
+        "curve",
+        "curve [last|ref|nok N] [--json|--csv]",
+        "the newest docking's force-position curve and its verdict, the cone's reference, or the Nth newest NOK curve (1..4)",
+        curve_args,
     ),
     c(
         "faults",
@@ -320,6 +330,13 @@ pub enum Command<'a> {
         /// Reply in JSON.
         json: bool,
     },
+    /// `curve [last|ref|nok N] [--json|--csv]`.
+    Curve {
+        /// Which curve.
+        which: crate::signature::view::Which,
+        /// How it is written.
+        format: CurveFormat,
+    },
     /// `measurements [--json]`.
     Measurements {
         /// Reply in JSON.
@@ -408,6 +425,7 @@ impl Command<'_> {
             Self::Status { .. } => "status",
             Self::Wear { .. } => "wear",
             Self::History { .. } => "history",
+            Self::Curve { .. } => "curve",
             Self::Faults { .. } => "faults",
             Self::Measurements { .. } => "measurements",
             Self::ClearFault => "clear-fault",
@@ -466,6 +484,7 @@ impl Command<'_> {
             | Self::History { json, .. }
             | Self::Measurements { json }
             | Self::Faults { json } => *json,
+            Self::Curve { format, .. } => matches!(format, CurveFormat::Json),
             _ => false,
         }
     }
@@ -490,6 +509,11 @@ impl fmt::Debug for Command<'_> {
                 .field("json", json)
                 .finish(),
             Self::Faults { json } => f.debug_struct("Faults").field("json", json).finish(),
+            Self::Curve { which, format } => f
+                .debug_struct("Curve")
+                .field("which", which)
+                .field("format", format)
+                .finish(),
             Self::Measurements { json } => {
                 f.debug_struct("Measurements").field("json", json).finish()
             }
@@ -533,6 +557,17 @@ impl fmt::Debug for Command<'_> {
             Self::PinSet { .. } => f.write_str("PinSet { pin: <redacted> }"),
         }
     }
+}
+
+/// How `curve` writes a curve.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CurveFormat {
+    /// A compact table for a terminal.
+    Text,
+    /// One JSON line (what `hil-sim plot-curve` reads).
+    Json,
+    /// CSV that a spreadsheet opens: a header, then one row per bin.
+    Csv,
 }
 
 /// A short, sanitised copy of an unknown command word (printable ASCII, <= 15 chars).
@@ -592,8 +627,9 @@ pub enum ParseError {
 
 /// What each argument must look like, for error messages: a table searched in order
 /// (a `match` on strings compiled to a comparison chain three times its size).
-const HINTS: [(&str, &str); 17] = [
+const HINTS: [(&str, &str); 18] = [
     ("N", "1..100"),
+    ("curve", "last | ref | nok N (N = 1..4)"),
     ("material", "zqsn5-2 | qsn6-6-3 | cf-peek"),
     ("serial", "1-20 chars of A-Z a-z 0-9 _ -"),
     ("bore_diameter_mm", "20.000..40.000, up to 3 decimals"),
@@ -633,7 +669,7 @@ impl ParseError {
             Self::BadArgument(a) => ("bad <", *a, ">; expected ", ""),
             Self::ExtraArgument => ("too many arguments; type 'help'", "", "", ""),
             Self::JsonNotSupported => (
-                "--json only applies to help, version, status, wear, history, measurements, faults",
+                "--json only applies to help, version, status, wear, history, curve, measurements, faults",
                 "",
                 "",
                 "",
@@ -786,6 +822,40 @@ fn history_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
         _ => return Err(ParseError::ExtraArgument),
     };
     Ok(Command::History { n, json: a.json })
+}
+
+fn curve_args<'a>(a: &Args<'a>) -> Result<Command<'a>, ParseError> {
+    use crate::signature::view::Which;
+    // `--csv` is this command's own option (the others take `--json` only).
+    let csv = a.pos.iter().filter(|t| **t == "--csv").count();
+    if csv > 1 || (csv == 1 && a.json) {
+        return Err(ParseError::ExtraArgument);
+    }
+    let mut rest = a.pos.iter().copied().filter(|t| *t != "--csv");
+    if rest.clone().any(|t| t.starts_with("--")) {
+        return Err(ParseError::UnknownOption);
+    }
+    let which = match (rest.next(), rest.next(), rest.next()) {
+        (None | Some("last"), None, None) => Which::Last,
+        (Some("ref"), None, None) => Which::Reference,
+        (Some("nok"), Some(n), None) => match parse_count(n) {
+            Some(n @ 1..=4) => Which::Nok(n as u8),
+            _ => return Err(ParseError::BadArgument("curve")),
+        },
+        (Some("nok"), None, None) => return Err(ParseError::MissingArgument("curve")),
+        (Some(_), None, None) | (Some("last" | "ref"), Some(_), _) => {
+            return Err(ParseError::BadArgument("curve"))
+        }
+        _ => return Err(ParseError::ExtraArgument),
+    };
+    let format = if a.json {
+        CurveFormat::Json
+    } else if csv == 1 {
+        CurveFormat::Csv
+    } else {
+        CurveFormat::Text
+    };
+    Ok(Command::Curve { which, format })
 }
 
 // The actions without arguments.

@@ -16,6 +16,47 @@ use crate::machine::Machine;
 pub(super) type HistoryEntries =
     heapless::Vec<HistoryEntry, { super::parse::HISTORY_MAX as usize }>;
 
+/// An entry's docking signature (issue 34), as compact as `history` needs it (10
+/// bytes: a reply holds 100).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(super) struct SigCols {
+    /// 0 not judged (or no longer kept), 1 OK, 2 NOK.
+    verdict: u8,
+    /// First failed object's code.
+    failed: u8,
+    work_nmm: u16,
+    plateau_dn: u16,
+    drift_work_pm: i16,
+    drift_plateau_pm: i16,
+}
+
+impl SigCols {
+    fn of(c: Option<crate::signature::monitor::HistoryCols>) -> Self {
+        match c {
+            None => Self::default(),
+            Some(c) => Self {
+                verdict: if c.failed == 0 { 1 } else { 2 },
+                failed: c.failed,
+                work_nmm: c.work_nmm,
+                plateau_dn: c.plateau_dn,
+                drift_work_pm: c.drift_work_pm,
+                drift_plateau_pm: c.drift_plateau_pm,
+            },
+        }
+    }
+}
+
+/// `history`'s signature columns, one per entry.
+pub(super) type HistorySig = heapless::Vec<SigCols, { super::parse::HISTORY_MAX as usize }>;
+
+/// The signature columns of `entries`.
+pub(super) fn history_sig(ctrl: &dyn Machine, entries: &HistoryEntries) -> HistorySig {
+    entries
+        .iter()
+        .map(|e| SigCols::of(ctrl.signature_history(e.lifetime_cycle)))
+        .collect()
+}
+
 /// `status`.
 pub(super) struct StatusView {
     s: crate::controller::Status,
@@ -42,6 +83,8 @@ pub(super) struct WearView {
     /// The cycle in progress (counted into the cone at its end), same unit.
     in_cycle_nmm_milli: i64,
     readings: usize,
+    /// The docking signature's counts, reference and drift (issue 34).
+    sig: crate::signature::view::SignatureStatus,
 }
 
 /// `faults`.
@@ -141,6 +184,7 @@ pub(super) fn wear_fields(f: &mut dyn Fields, v: &WearView) -> fmt::Result {
         cone_nmm_milli,
         in_cycle_nmm_milli,
         readings,
+        ref sig,
     } = *v;
     f.group("cone")?;
     f.u64("cone", cone.id as u64)?;
@@ -188,7 +232,57 @@ pub(super) fn wear_fields(f: &mut dyn Fields, v: &WearView) -> fmt::Result {
     f.group("readings")?;
     f.fixed("baseline_bore_mm", base as i64, 3)?;
     f.bool("baseline_assumed", cone.baseline().is_none())?;
-    f.u64("readings", readings as u64)
+    f.u64("readings", readings as u64)?;
+    // On the same line (object): `wear` stays one line for the scripts that read it.
+    signature_fields(f, sig)
+}
+
+/// An optional per mille as a per cent with one decimal, or `none`.
+fn pct(f: &mut dyn Fields, key: &str, pm: Option<i64>) -> fmt::Result {
+    match pm {
+        Some(v) => f.fixed(key, v, 1),
+        None => f.none(key),
+    }
+}
+
+/// `wear`'s docking signature (docs/console.md): the cone's judged and NOK dockings,
+/// its reference, the newest docking's verdict and drift, the trend.
+fn signature_fields(
+    f: &mut dyn Fields,
+    s: &crate::signature::view::SignatureStatus,
+) -> fmt::Result {
+    f.u64("signature_judged", u64::from(s.cone.judged))?;
+    f.u64("signature_nok", u64::from(s.cone.nok))?;
+    f.u64("reference_dockings", u64::from(s.reference_n))?;
+    f.u64("reference_of", u64::from(s.reference_target))?;
+    let last = s.last.filter(|l| l.cone_id == s.cone.cone_id);
+    match last {
+        Some(l) => {
+            f.u64("signature_cycle", u64::from(l.lifetime_cycle))?;
+            f.str("signature", if l.nok() { "nok" } else { "ok" })?;
+            opt(f, "signature_failed", l.failure.map(|x| x.object.name()))?;
+            pct(f, "drift_work_pct", l.drift_work_pm.map(i64::from))?;
+            pct(f, "drift_plateau_pct", l.drift_plateau_pm.map(i64::from))?;
+        }
+        None => {
+            f.none("signature_cycle")?;
+            f.none("signature")?;
+            f.none("signature_failed")?;
+            f.none("drift_work_pct")?;
+            f.none("drift_plateau_pct")?;
+        }
+    }
+    pct(
+        f,
+        "trend_work_pct",
+        s.cone.trend_work_x16.map(|t| i64::from(t) / 16),
+    )?;
+    pct(
+        f,
+        "trend_plateau_pct",
+        s.cone.trend_plateau_x16.map(|t| i64::from(t) / 16),
+    )?;
+    f.u64("signature_records_lost", u64::from(s.losses.0))
 }
 
 /// `faults` (docs/console.md).
@@ -296,6 +390,7 @@ pub(super) fn wear_view(ctrl: &dyn Machine) -> WearView {
         in_cycle_nmm_milli: (ctrl.journal().cone_w_q1.saturating_sub(cone.w_q1) / 2_000)
             .min(i64::MAX as u64) as i64,
         readings: ctrl.measurements().len(),
+        sig: ctrl.signature_status(),
     }
 }
 
@@ -342,7 +437,11 @@ pub(super) fn measurements_view(ctrl: &dyn Machine) -> MeasurementsView {
 }
 
 /// `history` (docs/console.md): one record a completed cycle.
-pub(super) fn history_fields(f: &mut dyn Fields, entries: &HistoryEntries) -> fmt::Result {
+pub(super) fn history_fields(
+    f: &mut dyn Fields,
+    entries: &HistoryEntries,
+    sig: &HistorySig,
+) -> fmt::Result {
     // W in Q63.1 mN·µm → N·mm with 3 decimals: q1 / 2 / 1000 (mN·µm → 1e-3 N·mm units).
     f.records("history", entries.len(), &mut |i, x| {
         let Some(e) = entries.get(i) else {
@@ -352,6 +451,22 @@ pub(super) fn history_fields(f: &mut dyn Fields, entries: &HistoryEntries) -> fm
         x.u64("cone", e.cone_id as u64)?;
         x.u64("cone_cycle", e.cone_cycle as u64)?;
         x.fixed("load_distance_nmm", (e.w_q1 / 2_000) as i64, 3)?;
-        x.fixed("wear_mm", e.wear_nm as i64, 6)
+        x.fixed("wear_mm", e.wear_nm as i64, 6)?;
+        // The docking's signature (issue 34), when judged and still kept.
+        let s = sig.get(i).copied().unwrap_or_default();
+        if s.verdict == 0 {
+            return x.none("signature");
+        }
+        x.str("signature", if s.verdict == 2 { "nok" } else { "ok" })?;
+        opt(
+            x,
+            "failed",
+            crate::signature::objects::Object::from_code(s.failed).map(|o| o.name()),
+        )?;
+        x.u64("work_nmm", u64::from(s.work_nmm))?;
+        x.fixed("plateau_n", i64::from(s.plateau_dn), 1)?;
+        let d = |v: i16| (v != i16::MIN).then_some(i64::from(v));
+        pct(x, "drift_work_pct", d(s.drift_work_pm))?;
+        pct(x, "drift_plateau_pct", d(s.drift_plateau_pm))
     })
 }

@@ -54,9 +54,9 @@ use super::json::{write_i64, write_u64, Sink};
 use super::line::{LineEvent, LineReader, BS, CR, DEL, ESC, LF, MAX_BYTES_PER_POLL, TAB};
 use super::parse::{parse, Command, COMMANDS};
 use super::reports::{
-    faults_fields, faults_view, history_fields, measurements_fields, measurements_view,
-    status_fields, status_view, wear_fields, wear_view, FaultsView, HistoryEntries,
-    MeasurementsView, StatusView, WearView,
+    faults_fields, faults_view, history_fields, history_sig, measurements_fields,
+    measurements_view, status_fields, status_view, wear_fields, wear_view, FaultsView,
+    HistoryEntries, HistorySig, MeasurementsView, StatusView, WearView,
 };
 use crate::hal::ConsoleIo;
 use crate::machine::Machine;
@@ -353,7 +353,9 @@ enum Report {
     Wear(WearView),
     Faults(FaultsView),
     Measurements(MeasurementsView),
-    History(HistoryEntries),
+    History(HistoryEntries, HistorySig),
+    /// `curve`: the curve and how to write it.
+    Curve(crate::signature::view::CurveView, super::parse::CurveFormat),
 }
 
 impl Console {
@@ -688,7 +690,10 @@ impl Console {
             Report::Wear(v) => self.render_wear(v, json),
             Report::Faults(v) => self.render_faults(v, json),
             Report::Measurements(v) => self.render_measurements(v, json),
-            Report::History(entries) => self.render_history(entries, json),
+            Report::History(entries, sig) => self.render_history(entries, sig, json),
+            Report::Curve(v, format) => {
+                self.reply(|o| super::curve::render(o, v, *format));
+            }
         }
         let hashed = self.finish_login(now_ms) + self.finish_pin_set(now_ms);
         self.term.maint = self.auth.is_active(now_ms);
@@ -1015,7 +1020,22 @@ impl Console {
                 ctrl.history(n as usize, &mut |e| {
                     let _ = entries.push(e);
                 });
-                self.defer(Report::History(entries), json)
+                let sig = history_sig(ctrl, &entries);
+                self.defer(Report::History(entries, sig), json)
+            }
+            Command::Curve { which, format } => {
+                let mut v = crate::signature::view::CurveView::empty(ctrl.config().signature);
+                if ctrl.curve(which, &mut v) {
+                    self.defer(Report::Curve(v, format), false);
+                } else {
+                    self.err(&match which {
+                        crate::signature::view::Which::Last => "no docking captured since boot",
+                        crate::signature::view::Which::Reference => {
+                            "no reference yet: it is the mean of the cone's first OK dockings"
+                        }
+                        crate::signature::view::Which::Nok(_) => "no such NOK curve kept",
+                    });
+                }
             }
             Command::Faults { json } => self.defer(Report::Faults(faults_view(ctrl)), json),
             Command::ClearFault => self.request(
@@ -1368,12 +1388,12 @@ impl Console {
         self.report_as(json, !self.term.quiet, &mut |f| wear_fields(f, v));
     }
 
-    fn render_history(&mut self, entries: &HistoryEntries, json: bool) {
+    fn render_history(&mut self, entries: &HistoryEntries, sig: &HistorySig, json: bool) {
         if !json && entries.is_empty() {
             self.reply(|o| o.write_str("no completed cycles recorded\r\n"));
             return;
         }
-        self.report(json, &mut |f| history_fields(f, entries));
+        self.report(json, &mut |f| history_fields(f, entries, sig));
     }
 
     fn render_faults(&mut self, v: &FaultsView, json: bool) {

@@ -7,7 +7,7 @@ use crate::sequencer::{Request, State};
 
 /// The register map's version: bumped when registers are added (never moved or
 /// reused).
-pub const MAP_VERSION: u16 = 2;
+pub const MAP_VERSION: u16 = 3;
 
 /// Input register addresses (function 0x04); see the module doc for units.
 pub mod ir {
@@ -83,8 +83,52 @@ pub mod ir {
     pub const FW_PATCH: u16 = 66;
     /// [`super::MAP_VERSION`].
     pub const MAP_VERSION: u16 = 67;
+    /// The newest judged docking's verdict (the docking signature, map version 3): 0
+    /// none yet, 1 OK, 2 NOK.
+    pub const SIG_VERDICT: u16 = 68;
+    /// Its first failed object's code (0 none).
+    pub const SIG_FAILED: u16 = 69;
+    /// The figure that failed it, i32 (high word first), in [`SIG_UNIT`].
+    pub const SIG_FIGURE: u16 = 70;
+    /// The limit it broke, i32.
+    pub const SIG_LIMIT: u16 = 72;
+    /// Their unit: 0 mN, 1 µm.
+    pub const SIG_UNIT: u16 = 74;
+    /// That docking's lifetime cycle, u32.
+    pub const SIG_CYCLE: u16 = 75;
+    /// Its insertion work ∫F·dx, N·mm.
+    pub const SIG_WORK: u16 = 77;
+    /// Its phase-4 plateau, 0.1 N, i16.
+    pub const SIG_PLATEAU: u16 = 78;
+    /// Where its force stepped from single- to two-point contact, µm (0xFFFF none).
+    pub const SIG_STEP: u16 = 79;
+    /// Its work's drift from the cone's reference, 0.1 %, i16 (0x8000: no reference
+    /// yet).
+    pub const SIG_DRIFT_WORK: u16 = 80;
+    /// Its plateau's drift from the reference, 0.1 %, i16.
+    pub const SIG_DRIFT_PLATEAU: u16 = 81;
+    /// The cone's trend of the work's drift (moving average, α = 1/16), 0.1 %, i16.
+    pub const SIG_TREND_WORK: u16 = 82;
+    /// The cone's trend of the plateau's drift, 0.1 %, i16.
+    pub const SIG_TREND_PLATEAU: u16 = 83;
+    /// NOK dockings of the current cone, u32.
+    pub const SIG_CONE_NOK: u16 = 84;
+    /// Judged dockings of the current cone, u32.
+    pub const SIG_CONE_JUDGED: u16 = 86;
+    /// Dockings in the cone's reference so far.
+    pub const SIG_REFERENCE_N: u16 = 88;
+    /// Dockings its reference takes (20 by default).
+    pub const SIG_REFERENCE_TARGET: u16 = 89;
+    /// The newest stroke's verdict (at MATED for an insertion, home for an
+    /// extraction): 0 none, 1 insertion OK, 2 insertion NOK, 3 extraction OK, 4
+    /// extraction NOK.
+    pub const SIG_STROKE: u16 = 90;
+    /// Its first failed object's code (0 none).
+    pub const SIG_STROKE_FAILED: u16 = 91;
+    /// Stroke verdicts since boot (wraps): a change is a new verdict.
+    pub const SIG_STROKE_COUNT: u16 = 92;
     /// Input registers in the map (addresses 0..COUNT).
-    pub const COUNT: u16 = 68;
+    pub const COUNT: u16 = 93;
 }
 
 /// Status word bits (input register 0), and the discrete inputs (bit n = input n).
@@ -114,8 +158,11 @@ pub mod status {
     /// A technician has the machine in maintenance mode at the console: motion
     /// commands from the PLC are refused (refusal 9) and READY is low.
     pub const MAINTENANCE_MODE: u16 = 1 << 11;
+    /// The newest judged docking was NOK by its signature (map version 3): for the
+    /// people who maintain the machine, nothing stopped.
+    pub const SIGNATURE_NOK: u16 = 1 << 12;
     /// Discrete inputs in the map (the bits above).
-    pub const COUNT: u16 = 12;
+    pub const COUNT: u16 = 13;
 }
 
 /// Commands (coil address = code − 1; holding register 0 value = code).
@@ -258,7 +305,7 @@ fn sat_u16(v: u64) -> u16 {
     u16::try_from(v).unwrap_or(u16::MAX)
 }
 
-/// The status word (input register 0; discrete inputs 0–11).
+/// The status word (input register 0; discrete inputs 0–12).
 pub fn status_word(ctrl: &dyn Machine) -> u16 {
     let s = ctrl.status();
     let h = s.handshake;
@@ -275,6 +322,10 @@ pub fn status_word(ctrl: &dyn Machine) -> u16 {
         | bit(s.wear_level == WearLevel::Limit, status::WORN_OUT)
         | bit(s.state.is_docking(), status::DOCKING)
         | bit(ctrl.maintenance_mode(), status::MAINTENANCE_MODE)
+        | bit(
+            ctrl.signature_status().last.is_some_and(|l| l.nok()),
+            status::SIGNATURE_NOK,
+        )
 }
 
 /// The input registers now, 0..[`ir::COUNT`] (reserved addresses 0; the last command
@@ -365,5 +416,52 @@ pub fn input_registers(ctrl: &dyn Machine) -> [u16; ir::COUNT as usize] {
     set(ir::FW_PATCH, patch);
     set(ir::MAP_VERSION, MAP_VERSION);
     set(ir::MAINTENANCE_MODE, u16::from(ctrl.maintenance_mode()));
+    signature_registers(ctrl, &mut set);
     r
+}
+
+/// The docking signature's registers (68–92).
+fn signature_registers(ctrl: &dyn Machine, set: &mut dyn FnMut(u16, u16)) {
+    let sig = ctrl.signature_status();
+    let mut set32 = |addr: u16, v: u32| {
+        set(addr, (v >> 16) as u16);
+        set(addr.saturating_add(1), v as u16);
+    };
+    let pm = |v: Option<i16>| v.map_or(0x8000, |x| x as u16);
+    let trend = |v: Option<i32>| pm(v.map(|t| (t / 16).clamp(-32_767, 32_767) as i16));
+    set32(ir::SIG_CONE_NOK, sig.cone.nok);
+    set32(ir::SIG_CONE_JUDGED, sig.cone.judged);
+    if let Some(l) = sig.last {
+        let f = l.failure;
+        set32(ir::SIG_FIGURE, f.map_or(0, |f| f.figure as u32));
+        set32(ir::SIG_LIMIT, f.map_or(0, |f| f.limit as u32));
+        set32(ir::SIG_CYCLE, l.lifetime_cycle);
+        set(ir::SIG_VERDICT, if l.nok() { 2 } else { 1 });
+        set(ir::SIG_FAILED, f.map_or(0, |f| u16::from(f.object.code())));
+        set(ir::SIG_UNIT, f.map_or(0, |f| f.unit as u16));
+        set(ir::SIG_WORK, sat_u16(u64::from(l.work_mnmm / 1_000)));
+        set(ir::SIG_PLATEAU, decinewtons(l.plateau_mn));
+        set(
+            ir::SIG_STEP,
+            l.step_um.map_or(0xFFFF, |s| sat_u16(s.max(0) as u64)),
+        );
+        set(ir::SIG_DRIFT_WORK, pm(l.drift_work_pm));
+        set(ir::SIG_DRIFT_PLATEAU, pm(l.drift_plateau_pm));
+    }
+    set(ir::SIG_TREND_WORK, trend(sig.cone.trend_work_x16));
+    set(ir::SIG_TREND_PLATEAU, trend(sig.cone.trend_plateau_x16));
+    set(ir::SIG_REFERENCE_N, u16::from(sig.reference_n));
+    set(ir::SIG_REFERENCE_TARGET, u16::from(sig.reference_target));
+    if let Some(v) = sig.newest {
+        let ext = v.stroke == crate::signature::Stroke::Extraction;
+        set(
+            ir::SIG_STROKE,
+            1 + u16::from(v.failure.is_some()) + 2 * u16::from(ext),
+        );
+        set(
+            ir::SIG_STROKE_FAILED,
+            v.failure.map_or(0, |f| u16::from(f.object.code())),
+        );
+    }
+    set(ir::SIG_STROKE_COUNT, sig.verdicts as u16);
 }
