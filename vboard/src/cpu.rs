@@ -91,6 +91,8 @@ impl Default for BoardConfig {
 
 const SRAM: u32 = 0x2000_0000;
 const SRAM_SIZE: u32 = 128 * 1024;
+/// The engine's page (ARM: 1 KiB), the unit SRAM is made executable in.
+const SRAM_PAGE: u32 = 1024;
 /// R0–R12.
 const GP_REGS: [RegisterARM; 13] = [
     RegisterARM::R0,
@@ -184,6 +186,8 @@ pub struct Board {
     /// The defmt log, decoded.
     pub log: Vec<LogLine>,
     next_rtt_ps: u64,
+    /// SRAM's 1 KiB pages granted EXEC so far, bit n for page n (`grant_sram_exec`).
+    sram_exec: u128,
     sleeping: bool,
     /// Resets so far, with their time, ps (the power-on included).
     pub resets: Vec<(u64, ResetCause)>,
@@ -326,7 +330,15 @@ impl Board {
             .map_err(|x| e("flash size", x))?;
         uc.mem_map(0x1FFF_C000, 0x1000, Prot::READ)
             .map_err(|x| e("map option bytes", x))?;
-        uc.mem_map(SRAM as u64, SRAM_SIZE as u64, Prot::ALL)
+        // SRAM: read/write; a page becomes executable at its first instruction fetch
+        // (`run`: the engine stops with FETCH_PROT there, the page is granted EXEC and the
+        // run goes on, nothing executed twice). The silicon executes from any SRAM byte;
+        // the engine, though, sends every store to an executable page through its slow
+        // path (unicorn 2.1.5, cputlb.c `notdirty_write`: a TLB entry with a code address
+        // is never marked dirty), so mapping all of SRAM executable cost about a third of
+        // the engine's time in stack and `.bss` stores. Only the pages the RAM functions
+        // occupy (flash.rs, options.rs, modbus.rs) pay it now.
+        uc.mem_map(SRAM as u64, SRAM_SIZE as u64, Prot::READ | Prot::WRITE)
             .map_err(|x| e("map sram", x))?;
         // SRAM bit-band alias (0x2200_0000: 32 bytes per SRAM byte).
         uc.mmio_map(
@@ -481,16 +493,24 @@ impl Board {
             true
         })
         .map_err(|x| e("invalid-insn hook", x))?;
-        uc.add_mem_hook(
-            HookType::MEM_INVALID,
-            1,
-            0,
-            |uc: &mut Unicorn<'_, Soc>, t: MemType, addr: u64, _size: usize, _v: i64| {
-                uc.get_data_mut().mem_fault = Some((addr as u32, t));
-                false
-            },
-        )
-        .map_err(|x| e("memory hook", x))?;
+        // Every address but SRAM's: any memory hook over an address keeps the engine's
+        // stores to it on the slow path (cputlb.c `uc_mem_hook_installed`), and SRAM is
+        // mapped whole, so nothing there is invalid but a fetch (`run` grants it).
+        for (lo, hi) in [
+            (0u64, SRAM as u64 - 1),
+            ((SRAM + SRAM_SIZE) as u64, u32::MAX as u64),
+        ] {
+            uc.add_mem_hook(
+                HookType::MEM_INVALID,
+                lo,
+                hi,
+                |uc: &mut Unicorn<'_, Soc>, t: MemType, addr: u64, _size: usize, _v: i64| {
+                    uc.get_data_mut().mem_fault = Some((addr as u32, t));
+                    false
+                },
+            )
+            .map_err(|x| e("memory hook", x))?;
+        }
         // A store to the code sectors (a bootloader's flash program): the region is
         // read-only to the engine, so the store comes here first; it goes to the flash
         // interface, and the engine's raw store that follows is undone before anything
@@ -548,6 +568,7 @@ impl Board {
             probe_attached: true,
             log: Vec::new(),
             next_rtt_ps: 0,
+            sram_exec: 0,
             sleeping: false,
             resets: Vec::new(),
             speed: Default::default(),
@@ -1158,6 +1179,9 @@ impl Board {
             let r = self.uc.emu_start((pc | 1) as u64, 0, 0, 0);
             let stopped = self.uc.get_data().stop;
             match r {
+                Err(unicorn_engine::uc_error::FETCH_PROT)
+                    if self.uc.get_data().mem_fault.is_none()
+                        && self.grant_sram_exec(reg(&self.uc, RegisterARM::PC)) => {}
                 Err(err) => {
                     let pc = reg(&self.uc, RegisterARM::PC);
                     match self.uc.get_data_mut().mem_fault.take() {
@@ -1193,6 +1217,33 @@ impl Board {
                 }
             }
         }
+    }
+
+    /// The first instruction fetch from an SRAM page (see the SRAM map in `new`): the
+    /// page becomes executable, and the run goes on from `pc`, where the fetch stopped it
+    /// before anything of that instruction ran. False if `pc` is not in SRAM or its page
+    /// is executable already (a fault of another kind).
+    fn grant_sram_exec(&mut self, pc: u32) -> bool {
+        // A 32-bit instruction may straddle two pages: its second halfword's too.
+        let mut granted = false;
+        for a in [pc, pc.wrapping_add(2)] {
+            let Some(page) = a.checked_sub(SRAM).map(|o| o / SRAM_PAGE) else {
+                continue;
+            };
+            if page >= SRAM_SIZE / SRAM_PAGE || self.sram_exec & (1 << page) != 0 {
+                continue;
+            }
+            let base = SRAM + page * SRAM_PAGE;
+            if self
+                .uc
+                .mem_protect(base as u64, SRAM_PAGE as u64, Prot::ALL)
+                .is_ok()
+            {
+                self.sram_exec |= 1 << page;
+                granted = true;
+            }
+        }
+        granted
     }
 
     fn check_halt(&mut self) -> Result<(), Halt> {
