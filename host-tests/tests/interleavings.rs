@@ -786,27 +786,36 @@ prop_state_machine! {
     fn a_million_interleavings_keep_the_invariants(sequential 1..60 => Checker);
 }
 
+/// Run `ops` from a fresh board at `rate` SPS and check the invariants at the end: a
+/// sequence a batch found, kept as a regression.
+fn replay(rate: u32, ops: impl IntoIterator<Item = Op>) {
+    let mut sut = Checker::init_test(&rate);
+    for op in ops {
+        sut = Checker::apply(sut, &rate, op);
+    }
+    Checker::teardown(sut, rate);
+}
+
 /// The ignored batch's first finding (after 433 353 sequences), a bug of the checker's
 /// own: a reset loses the count of dropped records with the RAM, and the checker
 /// forgot only the queued ones. Kept as a regression of the checker.
 #[test]
 fn records_dropped_before_a_reset_are_accounted_for() {
-    let mut sut = Checker::init_test(&80);
-    for op in [
-        Op::FlashFail(true),
-        Op::EstopPulse,
-        Op::Tick,
-        Op::Console(Line::Login),
-        Op::Console(Line::ClearFault),
-        Op::Console(Line::ClearFault),
-        Op::Console(Line::ClearFault),
-        Op::Console(Line::ClearFault),
-        Op::Console(Line::ClearFault),
-        Op::Reset,
-    ] {
-        sut = Checker::apply(sut, &80, op);
-    }
-    Checker::teardown(sut, 80);
+    replay(
+        80,
+        [
+            Op::FlashFail(true),
+            Op::EstopPulse,
+            Op::Tick,
+            Op::Console(Line::Login),
+            Op::Console(Line::ClearFault),
+            Op::Console(Line::ClearFault),
+            Op::Console(Line::ClearFault),
+            Op::Console(Line::ClearFault),
+            Op::Console(Line::ClearFault),
+            Op::Reset,
+        ],
+    );
 }
 
 /// The ignored batch's finding on 3492742 (after 363 656 sequences), a bug of the
@@ -815,7 +824,6 @@ fn records_dropped_before_a_reset_are_accounted_for() {
 /// present, not those written. Kept as a regression of the checker.
 #[test]
 fn a_clear_after_a_pull_at_rest_keeps_its_audit_record() {
-    let mut sut = Checker::init_test(&80);
     let ops = [
         Op::Sensor(Load::Pull(true)),
         Op::Wait(104),
@@ -823,15 +831,10 @@ fn a_clear_after_a_pull_at_rest_keeps_its_audit_record() {
         Op::Wait(238),
         Op::Console(Line::ClearFault),
     ];
-    for op in ops {
-        sut = Checker::apply(sut, &80, op);
-    }
-    for w in [
+    let waits = [
         350, 104, 353, 216, 377, 334, 179, 324, 316, 285, 163, 371, 285,
-    ] {
-        sut = Checker::apply(sut, &80, Op::Wait(w));
-    }
-    Checker::teardown(sut, 80);
+    ];
+    replay(80, ops.into_iter().chain(waits.map(Op::Wait)));
 }
 
 /// CI's batch on 829567a: two clears typed back to back after an E-STOP pulse, a
@@ -839,17 +842,16 @@ fn a_clear_after_a_pull_at_rest_keeps_its_audit_record() {
 /// millisecond): the checker's own count, kept as its regression.
 #[test]
 fn two_clears_back_to_back_each_keep_their_audit_record() {
-    let mut sut = Checker::init_test(&80);
-    for op in [
-        Op::EstopPulse,
-        Op::Tick,
-        Op::Console(Line::Login),
-        Op::Modbus(Coil::Dock),
-        Op::Console(Line::ClearFault),
-        Op::Console(Line::ClearFault),
-        Op::Wait(3),
-    ] {
-        sut = Checker::apply(sut, &80, op);
-    }
-    Checker::teardown(sut, 80);
+    replay(
+        80,
+        [
+            Op::EstopPulse,
+            Op::Tick,
+            Op::Console(Line::Login),
+            Op::Modbus(Coil::Dock),
+            Op::Console(Line::ClearFault),
+            Op::Console(Line::ClearFault),
+            Op::Wait(3),
+        ],
+    );
 }

@@ -137,31 +137,21 @@ const OWNER_TRIES: u32 = 400;
 /// once a second failed the update (issue 32, item 3; docs/board.md, "What holds
 /// between the steps", rule 8).
 fn with_owner(op: &mut dyn FnMut() -> Result<(), OdoFlashError>) -> Result<(), FlashError> {
-    for _ in 0..OWNER_TRIES {
-        let mut r = None;
-        // The window the try ran in (read in it: the job may wait for the next).
-        let mut steps = 0;
-        MAILBOX.call(&mut |ctrl: &mut Ctrl| {
-            steps = super::owner::steps();
-            ctrl.set_bus_busy(super::modbus::busy());
-            if ctrl.updating() && ctrl.at_rest() {
-                r = Some(op());
-            }
-        });
-        if r.is_none() {
-            super::owner::sleep_until_step_after(steps);
+    let mut r = None;
+    once_a_window(&mut |ctrl, _last| {
+        if ctrl.updating() && ctrl.at_rest() {
+            r = Some(op());
         }
-        match r {
-            Some(Ok(())) => return Ok(()),
-            Some(Err(OdoFlashError::Status(sr))) => return Err(FlashError::Status(sr)),
-            Some(Err(OdoFlashError::OutOfBounds)) => return Err(FlashError::OutOfBounds),
-            Some(Err(OdoFlashError::NotAligned)) => return Err(FlashError::NotAligned),
-            Some(Err(OdoFlashError::Locked)) => return Err(FlashError::Locked),
-            Some(Err(OdoFlashError::Timeout)) => return Err(FlashError::Timeout),
-            None => {}
-        }
+        r.is_some()
+    });
+    match r {
+        Some(Ok(())) => Ok(()),
+        Some(Err(OdoFlashError::Status(sr))) => Err(FlashError::Status(sr)),
+        Some(Err(OdoFlashError::OutOfBounds)) => Err(FlashError::OutOfBounds),
+        Some(Err(OdoFlashError::NotAligned)) => Err(FlashError::NotAligned),
+        Some(Err(OdoFlashError::Locked)) => Err(FlashError::Locked),
+        Some(Err(OdoFlashError::Timeout)) | None => Err(FlashError::Timeout),
     }
-    Err(FlashError::Timeout)
 }
 
 #[cfg(feature = "updater")]
@@ -171,22 +161,36 @@ fn with_owner(op: &mut dyn FnMut() -> Result<(), OdoFlashError>) -> Result<(), F
 /// then restarts: with a reply on the line its image record was refused and its audit
 /// record queued in RAM, lost at the restart (issue 32's review).
 pub fn at_rest(op: &mut dyn FnMut(&mut Ctrl)) {
+    once_a_window(&mut |ctrl, last| {
+        let run = ctrl.at_rest() || last;
+        if run {
+            op(ctrl);
+        }
+        run
+    });
+}
+
+#[cfg(feature = "updater")]
+/// Offer `job` the controller in the owner's window, once a window, [`OWNER_TRIES`]
+/// windows at most: each try sees the Modbus line as it is then (`modbus::busy`), and
+/// a try `job` declines (returns false) waits for the next window. `job`'s second
+/// argument says the try is the last. True once `job` has run.
+fn once_a_window(job: &mut dyn FnMut(&mut Ctrl, bool) -> bool) -> bool {
     for i in 0..OWNER_TRIES {
         let mut done = false;
+        // The window the try ran in (read in it: the job may wait for the next).
         let mut steps = 0;
         MAILBOX.call(&mut |ctrl: &mut Ctrl| {
             steps = super::owner::steps();
             ctrl.set_bus_busy(super::modbus::busy());
-            if ctrl.at_rest() || i + 1 == OWNER_TRIES {
-                op(ctrl);
-                done = true;
-            }
+            done = job(ctrl, i + 1 == OWNER_TRIES);
         });
         if done {
-            return;
+            return true;
         }
         super::owner::sleep_until_step_after(steps);
     }
+    false
 }
 
 #[cfg(feature = "updater")]

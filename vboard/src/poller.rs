@@ -55,15 +55,24 @@ pub struct PollStats {
 #[derive(Clone, Debug)]
 pub struct Poller {
     state: State,
+    /// From the end of one transaction to the next request.
+    period_ps: u64,
     /// What it saw so far.
     pub stats: PollStats,
 }
 
 impl Poller {
-    /// The first request at `start_ps`.
+    /// The first request at `start_ps`, the next [`POLL_PS`] after each transaction.
     pub fn new(start_ps: u64) -> Self {
+        Self::every(start_ps, POLL_PS)
+    }
+
+    /// The first request at `start_ps`, the next `period_ps` after each transaction
+    /// (a PLC polling once a second: `PS_PER_S`).
+    pub fn every(start_ps: u64, period_ps: u64) -> Self {
         Self {
             state: State::Idle { next_ps: start_ps },
+            period_ps,
             stats: PollStats::default(),
         }
     }
@@ -95,7 +104,7 @@ impl Poller {
                     };
                 } else {
                     self.state = State::Idle {
-                        next_ps: now + POLL_PS,
+                        next_ps: now + self.period_ps,
                     };
                 }
             }
@@ -130,7 +139,7 @@ impl Poller {
                     st.reply_max_at_s = end_ps as f64 / (1000 * PS_PER_MS) as f64;
                 }
                 self.state = State::Idle {
-                    next_ps: now + POLL_PS,
+                    next_ps: now + self.period_ps,
                 };
             }
         }

@@ -162,16 +162,9 @@ pub struct Session {
     estop_open: bool,
     /// Every edge of the E-STOP input: (time ps, opened).
     pub estop_edges: Vec<(u64, bool)>,
-    /// A PLC's master polling the Modbus line every 100 ms (`crate::poller`), in the
-    /// scenes that time the line's replies (issue 31).
+    /// A PLC's master polling the Modbus line (`crate::poller`; every 100 ms in the
+    /// scenes that time the line's replies, issue 31), checking each reply.
     pub poller: Option<crate::poller::Poller>,
-    /// A PLC that polls the Modbus line: this frame every `period_ps` (the replies are
-    /// not waited for), from the next millisecond on (`None`: no polling).
-    pub modbus_poll: Option<(u64, Vec<u8>)>,
-    /// When the polling PLC sends next, ps.
-    modbus_poll_next_ps: u64,
-    /// Polls sent.
-    pub modbus_polls: u64,
 }
 
 /// The control task's exception: TIM2 (IRQ 28).
@@ -223,9 +216,6 @@ impl Session {
             estop_open: false,
             estop_edges: Vec::new(),
             poller: None,
-            modbus_poll: None,
-            modbus_poll_next_ps: 0,
-            modbus_polls: 0,
         })
     }
 
@@ -275,23 +265,13 @@ impl Session {
     }
 
     /// Housekeeping every millisecond: read the log, watch MATED, poll the Modbus line
-    /// (when a master polls: `poller`, or the frame of `modbus_poll`).
+    /// (when a master polls: `poller`).
     fn tick(&mut self) {
         self.board.poll_rtt();
         self.observe();
         if let Some(mut p) = self.poller.take() {
             p.tick(self);
             self.poller = Some(p);
-        }
-        if let Some((period, frame)) = &self.modbus_poll {
-            let now = self.now();
-            if now >= self.modbus_poll_next_ps && self.board.soc().usart3.far_pending() == 0 {
-                self.modbus_poll_next_ps = now + *period;
-                let frame = frame.clone();
-                if self.board.soc_mut().modbus_send(&frame) {
-                    self.modbus_polls += 1;
-                }
-            }
         }
         let out = self.plc_out();
         match (out.mated, self.mated_since_ps) {

@@ -251,21 +251,22 @@ fn a_field_update_failed_while_the_plc_polled_modbus_once_a_second() {
     o.board.flash_timing = vboard::periph::flash::FlashTiming::Typical;
     let mut s = ready(Session::new(o).unwrap());
     assert!(s.maint_enter().unwrap());
-    s.modbus_poll = Some((PS_PER_S, rtu(1, &[0x04, 0, 0, 0, 10])));
+    s.poller = Some(vboard::poller::Poller::every(s.now(), PS_PER_S));
     let app = vboard::update::app_bytes(&s.board.image);
     let file = vboard::update::update_file(&app, vboard::update::NEW_VERSION);
     let t = vboard::update::transfer(&mut s, &file, None, None).unwrap();
+    let polls = |s: &Session| s.poller.as_ref().map_or(0, |p| p.stats.polls);
     assert!(
         t.reply.starts_with("ok: update verified"),
         "{} after {:.1} s, {} polls",
         t.reply,
         t.seconds,
-        s.modbus_polls
+        polls(&s)
     );
     assert!(
-        s.modbus_polls as f64 >= t.seconds - 2.0,
+        polls(&s) as f64 >= t.seconds - 2.0,
         "the PLC polled throughout: {} polls in {:.1} s",
-        s.modbus_polls,
+        polls(&s),
         t.seconds
     );
 }

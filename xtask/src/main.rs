@@ -579,6 +579,12 @@ impl Xtask {
             println!("FAIL: vboard's clippy or test build");
             return None;
         }
+        self.vboard_lanes_go()
+    }
+
+    /// The bootloader the image is linked behind built (the board loads both), then
+    /// vboard's tests started in their lanes on a thread of their own.
+    fn vboard_lanes_go(&mut self) -> Option<std::thread::JoinHandle<(u64, u64)>> {
         if !self.run("boot", "cargo", &["build", "--release"], &[]) {
             return None;
         }
@@ -605,35 +611,17 @@ impl Xtask {
     }
 
     /// The bootloader the image is linked behind (the board loads both), then vboard's
-    /// tests and its boot scene on the release image.
+    /// tests in lanes and its boot scene on the release image.
     fn vboard_tests(&mut self) -> bool {
-        let mut ok = self.run("boot", "cargo", &["build", "--release"], &[]);
-        ok &= self.tests_in_lanes("vboard", &["--release"]);
-        ok &= self.run(
-            "vboard",
-            "cargo",
-            &["run", "-q", "--release", "--", "scene", "boot"],
-            &[],
-        );
-        ok
+        let lanes = self.vboard_lanes_go();
+        self.vboard_lanes_join(lanes)
     }
 
-    /// `cargo test ARGS` in `dir`, each test in a process of its own, as many at a time
-    /// as the machine has cores (longest first, [`LONG_FIRST`]): the virtual board's
-    /// binaries are mostly one long emulation each, which cargo would run one binary
-    /// after another with a core idle. Each test's result and time are printed; its
-    /// output only when it fails. Counted into `passed` / `failed` test by test.
-    fn tests_in_lanes(&mut self, dir: &str, args: &[&str]) -> bool {
-        let Some(plan) = self.lanes_plan(dir, args) else {
-            return false;
-        };
-        let (passed, failed) = plan.run();
-        self.passed += passed;
-        self.failed += failed;
-        failed == 0
-    }
-
-    /// The tests of `cargo test ARGS` in `dir`, built and listed, in the lanes' order.
+    /// The tests of `cargo test ARGS` in `dir`, built and listed, in the lanes' order,
+    /// to run each test in a process of its own, as many at a time as the machine has
+    /// cores (longest first, [`LONG_FIRST`]): the virtual board's binaries are mostly one
+    /// long emulation each, which cargo would run one binary after another with a core
+    /// idle. Each test's result and time are printed; its output only when it fails.
     fn lanes_plan(&self, dir: &str, args: &[&str]) -> Option<Lanes> {
         let mut build = vec!["test", "--no-run", "--message-format=json"];
         build.extend_from_slice(args);
@@ -794,7 +782,7 @@ const LONG_FIRST: &[&str] = &[
 /// The test executables in `cargo test --no-run --message-format=json`'s output (the
 /// artifacts built with the test profile: not the package's own binaries, which are
 /// built too when a test runs them).
-/// Test processes to run in lanes ([`Ci::tests_in_lanes`]): (executable, test name).
+/// Test processes to run in lanes ([`Ci::lanes_plan`]): (executable, test name).
 struct Lanes {
     jobs: Vec<(String, String)>,
     alone: Vec<(String, String)>,
