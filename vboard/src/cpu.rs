@@ -493,11 +493,18 @@ impl Board {
             true
         })
         .map_err(|x| e("invalid-insn hook", x))?;
-        // Every address but SRAM's: any memory hook over an address keeps the engine's
-        // stores to it on the slow path (cputlb.c `uc_mem_hook_installed`), and SRAM is
-        // mapped whole, so nothing there is invalid but a fetch (`run` grants it).
+        // Every address but SRAM's and the code sectors': any memory hook over an
+        // address keeps the engine's stores to it on the slow path (cputlb.c
+        // `uc_mem_hook_installed`), and SRAM is mapped whole, so nothing there is invalid
+        // but a fetch (`run` grants it). A store to the code sectors is the flash
+        // interface's (the hook below): this hook ran first and left a fault behind for
+        // the next engine error to report (a bus fault at a flash program's address
+        // when the first fetch from an SRAM page stopped the run after a frame-log write).
+        let code = |base: u32| (base as u64, (base + CODE_LEN) as u64);
+        let (alias, flash) = (code(0), code(FLASH_BASE));
         for (lo, hi) in [
-            (0u64, SRAM as u64 - 1),
+            (alias.1, FLASH_BASE as u64 - 1),
+            (flash.1, SRAM as u64 - 1),
             ((SRAM + SRAM_SIZE) as u64, u32::MAX as u64),
         ] {
             uc.add_mem_hook(

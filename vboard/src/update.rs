@@ -377,6 +377,16 @@ pub fn update(s: &mut Session, checks: &mut Checks) -> Result<(), Halt> {
         t.reply.starts_with("ok: update verified: version 0.1.1"),
         format!("{} ({:.1} s)", t.reply, t.seconds),
     ));
+    // Issue 32's review: the update's end wrote its image record (MARKED) and its audit
+    // record before the reply, at rest with the line free (`update::at_rest` in
+    // src/board/update.rs), not queued in RAM for a rest the restart never gives it.
+    let (image, audit) = (image_event(s), newest_audit_action(s));
+    checks.push((
+        "the update's image record (MARKED) and audit record in flash before the restart".into(),
+        image == Some(docking_logic::update::event::MARKED)
+            && audit == Some(docking_logic::console::service::action::UPDATE),
+        format!("newest image record's event {image:?}, newest audit record's action {audit:?}"),
+    ));
     // Issue 35: the pace against the line's limit; no block sent twice and every ACK
     // within a sender's 10 s (lrzsz's sb) even while a DFU page erases.
     let longest = t.ack_waits_ps.iter().copied().max().unwrap_or(u64::MAX);
@@ -1076,16 +1086,25 @@ fn cut_marked_board(
     after_cut(s, &m.old, &m.new, &m.counters, want, checks, what, cut_ps).map_err(|e| e.to_string())
 }
 
-/// The event of the newest image record in the odometer's flash (a copy of it is
-/// opened: nothing is written), `None` without one.
-fn image_event(s: &Session) -> Option<u8> {
+/// The first byte of the newest record of `kind` in the odometer's flash (a copy of it
+/// is opened: nothing is written), `None` without one.
+fn newest_first_byte(s: &Session, kind: u8) -> Option<u8> {
     let copy = SharedFlash::new(s.board.soc().world.flash.with(|f| f.clone()));
     let newest = crate::scene::read_newest(&copy).ok()?;
-    let (_, data) = newest
-        .get(usize::from(docking_logic::odometer::kind::IMAGE))?
-        .as_ref()?;
-    // The record's first byte is its event (logic/src/update.rs, `ImageRecord`).
+    let (_, data) = newest.get(usize::from(kind))?.as_ref()?;
     data.first().copied()
+}
+
+/// The event of the newest image record (its first byte: logic/src/update.rs,
+/// `ImageRecord`).
+fn image_event(s: &Session) -> Option<u8> {
+    newest_first_byte(s, docking_logic::odometer::kind::IMAGE)
+}
+
+/// The action of the newest audit record (its first byte: logic/src/console/service.rs,
+/// `AuditLayout`).
+fn newest_audit_action(s: &Session) -> Option<u8> {
+    newest_first_byte(s, docking_logic::odometer::kind::AUDIT)
 }
 
 /// From the marked flash `m`, the power cut at the worst instant of the new image's
