@@ -908,8 +908,11 @@ mod app {
                 let t = clock::now_us();
                 if server.request_due(t) {
                     // Issued when its first character began (a clear refused if an E-STOP
-                    // edge came after that: docs/board.md, "What holds between the steps").
-                    let issued = server.request_start_us() as u32;
+                    // edge came after that: docs/board.md, "What holds between the steps"),
+                    // less the most its interrupt's stamp can be late: never later than
+                    // the PLC sent it.
+                    let issued =
+                        (server.request_start_us() as u32).wrapping_sub(modbus::STAMP_LATE_MAX_US);
                     mailbox.call(&mut |ctrl| {
                         ctrl.issued_at(Some(issued));
                         let reply = server.poll(t, ctrl, serial);

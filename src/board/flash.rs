@@ -123,7 +123,7 @@ impl NorFlashError for OdoFlashError {
 
 /// Wait (inside an `unsafe` block of a function placed in SRAM) until the flash interface
 /// is no longer busy or `max_cycles` core cycles have passed, feeding the watchdog and
-/// answering the Modbus line meanwhile (`modbus::busy_responder_step`: every request
+/// answering the Modbus line meanwhile (`modbus::busy_responder`: every request
 /// for this unit gets exception 06, server device busy, within t3.5 of its end; issue
 /// 31); the value is FLASH_SR at the end (BSY still set: timed out). A macro, not a
 /// function, so that nothing is ever called from flash while the flash is busy (the

@@ -17,8 +17,8 @@
 //!
 //! A sector erase stalls every fetch from flash for up to 2 s, so it runs from SRAM with
 //! every interrupt masked (`flash.rs`), and neither this interrupt nor idle runs. The
-//! erase's loop in SRAM then stands in for both ([`busy_responder_step`], inlined into
-//! it): it reads USART3's data register into the same ring, and answers every whole frame
+//! erase's loop in SRAM then stands in for both ([`busy_responder`], in SRAM too,
+//! called from it): it reads USART3's data register into the same ring, and answers every whole frame
 //! addressed to this unit with **exception 06, server device busy** (the Modbus
 //! specification's answer for a request the server cannot take now; a broadcast, another
 //! unit's request or a bad CRC get no reply, as always), within t3.5 of the request's
@@ -48,6 +48,20 @@ use stm32f4xx_hal::serial::{Rx, Tx};
 /// A receive-queue entry's character that stands for a character received with an
 /// error.
 pub const LINE_ERROR: u16 = 0x100;
+
+/// The most a character's stamp can be late, µs: the interrupt's stamp is taken when
+/// USART3's handler (priority 2) runs, which the HX711's readout and guard (EXTI0,
+/// priority 4: 32 µs at CPI 1, under 100 µs at CPI 3), the step generator (SysTick), the
+/// E-STOP's handler, the console's handlers at its own level and the masked windows can
+/// hold back by well under a millisecond together. A request's issue time (its first
+/// character's start, `Controller::issued_at`) is taken this much earlier, so that it is
+/// never later than the PLC sent it: an E-STOP edge in the first microseconds of a
+/// clear's frame seemed to come before the clear, which then recovered the machine
+/// (issue 32's review; `an_estop_pulse_in_the_first_microseconds_of_a_clears_frame_was_swallowed`
+/// on the virtual board). The cost: a clear whose frame began within a millisecond after
+/// an E-STOP edge is refused at its step (no PLC answers an edge that fast; it sends the
+/// clear again).
+pub const STAMP_LATE_MAX_US: u32 = 1_000;
 
 /// Characters lost because the receive ring was full.
 pub static RX_DROPPED: AtomicU32 = AtomicU32::new(0);
@@ -185,7 +199,7 @@ static RESPONDER_UNIT: AtomicU32 = AtomicU32::new(0);
 static RESPONDER_CHAR_US: AtomicU32 = AtomicU32::new(573);
 static RESPONDER_T35_US: AtomicU32 = AtomicU32::new(2_006);
 
-/// Idle: the line's settings, for [`busy_responder_step`] and idle's own framing.
+/// Idle: the line's settings, for [`busy_responder`] and idle's own framing.
 pub fn configure(settings: &docking_logic::modbus::ModbusSettings) {
     RESPONDER_CHAR_US.store(settings.char_us(), Ordering::Relaxed);
     RESPONDER_T35_US.store(settings.t3_5_us(), Ordering::Relaxed);

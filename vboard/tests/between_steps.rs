@@ -480,6 +480,52 @@ fn a_console_line_was_lost_at_boot_at_10_sps_with_the_console_flooded() {
     assert_eq!(s.board.soc().usart2.overruns, 0);
 }
 
+/// Issue 32's review, suspicion 5: the clear's issue time came from its first
+/// character's interrupt stamp less one character time, and the stamp is late by the
+/// interrupt's latency (its entry, and any handler above it: the HX711's readout). An
+/// E-STOP pulse in the first microseconds of the clear's frame then seemed to come
+/// before the clear, the clear recovered the machine, and a motor was driven after a
+/// pulse the PLC had not seen. The issue time is now earlier by the longest the stamp
+/// can be late (`modbus::STAMP_LATE_MAX_US`).
+#[test]
+fn an_estop_pulse_in_the_first_microseconds_of_a_clears_frame_was_swallowed() {
+    // The clear's first character ends (RXNE) 2 µs after the HX711's DOUT falls: the
+    // readout's interrupt (priority 4) holds the line's (2) for its 25 µs and more.
+    let char_ps = 11 * PS_PER_S / 19_200;
+    for (cpi, pulse_ps) in [(1, 10 * PS_PER_US), (3, 40 * PS_PER_US)] {
+        let what = format!("CPI {cpi}, a {} µs pulse", pulse_ps / PS_PER_US);
+        let mut o = options(80);
+        o.board.cpi_milli = cpi * 1000;
+        let mut s = ready(Session::new(o).unwrap());
+        s.estop_pulse(2 * PS_PER_MS).unwrap();
+        s.run_for(300 * PS_PER_MS).unwrap();
+        assert!(s.plc_out().fault, "{what}");
+        let mut dout_ps = s.machine().hx.next_conversion_ns() * 1_000;
+        while dout_ps < s.now() + char_ps + PS_PER_MS {
+            dout_ps += 12_500 * PS_PER_US;
+        }
+        let start_ps = dout_ps + 2 * PS_PER_US - char_ps;
+        s.run_exact(start_ps - s.now()).unwrap();
+        let n = s.board.soc().modbus_out.len();
+        assert!(s
+            .board
+            .soc_mut()
+            .modbus_send_at(&rtu(1, &[0x05, 0, 2, 0xFF, 0]), start_ps));
+        s.run_exact(PS_PER_US).unwrap();
+        let pulse_at = s.now();
+        s.estop_pulse(pulse_ps).unwrap();
+        assert!(run_fine(&mut s, 10 * PS_PER_US, 200 * PS_PER_MS, |x| {
+            x.board.soc().modbus_out.len() > n
+        }));
+        s.run_for(500 * PS_PER_MS).unwrap();
+        assert_eq!(
+            driven_since(&s, pulse_at),
+            None,
+            "{what}: a motor driven after the pulse, on a clear sent before it"
+        );
+    }
+}
+
 /// Found by the campaign (`interleavings.rs`, seed 1059) on this branch's image before
 /// its fix: a clear on the Modbus line (4.6 ms at 19 200 Bd) as a 50 µs E-STOP pulse
 /// came; the step after the pulse consumed its edges, the clear was accepted after it,
