@@ -480,6 +480,59 @@ fn a_console_line_was_lost_at_boot_at_10_sps_with_the_console_flooded() {
     assert_eq!(s.board.soc().usart2.overruns, 0);
 }
 
+/// Issue 32's review, item 1: a console line's issue time was its read time less its
+/// time on the line. Idle reads late whenever it is busy (here a login's PIN hash, 257
+/// SHA-256 blocks: about 18 ms at CPI 3), so a `clear-fault` typed before an E-STOP
+/// pulse, and read after it and after the step that took the pulse's edges, was issued
+/// after it: the clear recovered the machine, and a motor was driven after a pulse the
+/// technician had not seen. The issue time is now the last look that found the
+/// console's ring empty.
+#[test]
+fn a_console_clear_typed_before_an_estop_pulse_and_read_after_it_recovered_the_machine() {
+    let mut o = options(80);
+    o.board.cpi_milli = 3_000;
+    let mut s = ready(Session::new(o).unwrap());
+    let r = s.console("pin set 2468", 5 * PS_PER_S).unwrap();
+    assert!(r.starts_with("ok"), "{r}");
+    s.estop_pulse(2 * PS_PER_MS).unwrap();
+    s.run_for(300 * PS_PER_MS).unwrap();
+    assert!(s.plc_out().fault, "the E-STOP latched");
+    // The login, and the clear typed at once behind it: it is in while idle hashes.
+    let login = b"maint 2468\r\n";
+    let line = b"clear-fault\r\n";
+    let byte_ps = 10 * PS_PER_S / 115_200;
+    let n = s.board.soc().console_out.len();
+    assert!(s.board.soc_mut().console_send(login));
+    assert!(s.board.soc_mut().console_send(line));
+    s.run_exact((login.len() + line.len()) as u64 * byte_ps + 200 * PS_PER_US)
+        .unwrap();
+    let pulse_at = s.now();
+    s.estop_pulse(50 * PS_PER_US).unwrap();
+    s.run_for(500 * PS_PER_MS).unwrap();
+    let text = console_text(&s, n);
+    // The clear was read after a control step that followed the pulse.
+    let read_ps = s.board.soc().console_out[n..]
+        .iter()
+        .find(|&&(t, b)| b == b'c' && t > pulse_at)
+        .map(|&(t, _)| t);
+    let steps = s
+        .board
+        .soc()
+        .entry_log
+        .times(vboard::scene::CONTROL_EXCEPTION);
+    assert!(
+        read_ps.is_some_and(|r| steps.iter().any(|&t| t > pulse_at && t < r)),
+        "the clear was not read after a step that followed the pulse (console: {text:?})"
+    );
+    assert!(text.contains("ok: maintenance"), "logged in: {text:?}");
+    assert_eq!(
+        driven_since(&s, pulse_at),
+        None,
+        "a motor driven after the pulse, on a clear typed before it (console: {text:?})"
+    );
+    assert!(s.plc_out().fault, "still latched (console: {text:?})");
+}
+
 /// Issue 32's review, suspicion 5: the clear's issue time came from its first
 /// character's interrupt stamp less one character time, and the stamp is late by the
 /// interrupt's latency (its entry, and any handler above it: the HX711's readout). An
