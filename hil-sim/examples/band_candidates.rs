@@ -1,6 +1,6 @@
 //! The uncertainty models issue 36 compared, on the early-life study (`hil-sim
 //! accuracy`'s, `hil_sim::early_life`): the design record behind the choice stated in
-//! `logic/src/estimate.rs`'s module doc.
+//! `logic/src/wear/estimate.rs`'s module doc.
 //!
 //! `cargo run --release -p hil-sim --example band_candidates [SEEDS]`
 //!

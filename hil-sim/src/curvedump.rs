@@ -1,5 +1,5 @@
 //! A `curve … --json` dump read back (the firmware's one JSON line,
-//! `logic/src/console/curve.rs`), for `hil-sim plot-curve`: a small JSON reader, enough
+//! `logic/src/links/console/curve.rs`), for `hil-sim plot-curve`: a small JSON reader, enough
 //! for that line (objects, arrays, numbers, strings, `null`, booleans).
 
 use std::collections::BTreeMap;

@@ -73,7 +73,7 @@ pub fn write_csv(out: &mut impl Write, rate_hz: f64, stroke: Stroke) -> std::io:
 // One per command run: boxing the plant would buy nothing.
 #[allow(clippy::large_enum_variant)]
 pub enum Model {
-    /// Eq. 7 as printed (`logic/src/profile.rs`), the default.
+    /// Eq. 7 as printed (`logic/src/control/profile.rs`), the default.
     Eq7,
     /// The equilibrium systems of Eqs. 3–6 (`hil-sim/src/plant.rs`).
     Plant(Plant),

@@ -7,7 +7,7 @@
 //! back, byte for byte.
 //!
 //! To record the fixture again (only for an intended change of the format, with the
-//! change drawn in `logic/src/signature/records.rs` and a reader for the old one):
+//! change drawn in `logic/src/wear/signature/records.rs` and a reader for the old one):
 //! `SIGNATURE_RECORD=1 cargo test -p host-tests --test signature_records`.
 
 use docking_logic::modbus::{input_registers, ir, status};

@@ -34,7 +34,7 @@ fn v(patch: u16) -> Version {
     }
 }
 
-/// The newest image record's bytes (its first is its event: logic/src/update.rs,
+/// The newest image record's bytes (its first is its event: logic/src/links/update.rs,
 /// `ImageRecord`), `None` without one.
 fn image_record(r: &mut Rig) -> Option<Vec<u8>> {
     let mut buf = [0u8; 64];

@@ -25,27 +25,21 @@
 #[macro_use]
 mod fmt;
 
+// Grouped by concern (the reader finds a module by its name): `control`, `wear`,
+// `storage`, `links`; what all of them use at the top. Each module is also at the
+// crate's root under its own name (`docking_logic::controller`, …), its path since
+// before the grouping.
 pub mod config;
-pub mod console;
-pub mod controller;
-pub mod crc;
+pub mod control;
 pub mod diag;
-pub mod estimate;
 pub mod fixed;
-pub mod framelog;
-pub mod guard;
 pub mod hal;
-pub mod hx711;
-pub mod lock;
+pub mod links;
 pub mod machine;
-pub mod material;
-pub mod modbus;
-pub mod odometer;
-pub mod profile;
-pub mod propulsion;
-pub mod safety;
-pub mod sequencer;
-pub mod signature;
 pub mod storage;
-pub mod update;
-pub mod ymodem;
+pub mod wear;
+
+pub use control::{controller, guard, hx711, lock, profile, propulsion, safety, sequencer};
+pub use links::{console, modbus, update, ymodem};
+pub use storage::{crc, framelog};
+pub use wear::{estimate, material, odometer, signature};

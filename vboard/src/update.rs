@@ -1095,13 +1095,13 @@ fn newest_first_byte(s: &Session, kind: u8) -> Option<u8> {
     data.first().copied()
 }
 
-/// The event of the newest image record (its first byte: logic/src/update.rs,
+/// The event of the newest image record (its first byte: logic/src/links/update.rs,
 /// `ImageRecord`).
 fn image_event(s: &Session) -> Option<u8> {
     newest_first_byte(s, docking_logic::odometer::kind::IMAGE)
 }
 
-/// The action of the newest audit record (its first byte: logic/src/console/service.rs,
+/// The action of the newest audit record (its first byte: logic/src/links/console/service.rs,
 /// `AuditLayout`).
 fn newest_audit_action(s: &Session) -> Option<u8> {
     newest_first_byte(s, docking_logic::odometer::kind::AUDIT)

@@ -9,7 +9,7 @@
 //! |---|---|---|---|
 //! | 0 [`kind::SUMMARY`] | one judged docking | [`Summary`], 68 B | the newest; older ones stay until their sector is erased (`history`) |
 //! | 1 [`kind::REFERENCE`] | a cone's reference, as far as it is learnt | [`RefHeader`] + sums, 1 056 B | the newest |
-//! | 2 [`kind::NOK`] | a NOK docking's curves | [`Summary`] + two [`curve`]s, 1 348 B | the newest [`NOK_KEPT`] |
+//! | 2 [`kind::NOK`] | a NOK docking's curves | [`Summary`] + two curves (below), 1 348 B | the newest [`NOK_KEPT`] |
 //! | 7 | the log's erase certificate | sector index, 1 B | no |
 //!
 //! # Summary (68 bytes, little-endian)

@@ -4,7 +4,7 @@
 //!
 //! ## Model and prior
 //! The odometer's model is Eq. 17 driven by the measured load–distance: after `E`
-//! equivalent nominal cycles the depth is `h = a·(E + m0)^b − c` (`logic/src/odometer.rs`).
+//! equivalent nominal cycles the depth is `h = a·(E + m0)^b − c` (`logic/src/wear/odometer.rs`).
 //! Taking logarithms, `z = log2(h + c) = α + β·u` is a straight line in
 //! `u = log2(E + m0) − u_p` (`u_p` = 10, a pivot at E ≈ 1 000 that keeps α and β nearly
 //! uncorrelated in the prior). The model is the line `α0 = log2 a + b·u_p`, `β0 = b`.

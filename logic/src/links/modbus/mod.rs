@@ -87,7 +87,7 @@ mod tests {
     /// register and its map version are the code's.
     #[test]
     fn the_register_map_page_ends_where_the_map_does() {
-        let page = include_str!("../../../docs/modbus-map.md");
+        let page = include_str!("../../../../docs/modbus-map.md");
         // A row's cells as numbers (a cell that is not one: None).
         let row = |name: &str| -> heapless::Vec<Option<u16>, 8> {
             page.lines()

@@ -6,7 +6,7 @@
 //!
 //! Not in the control step. The board's service task (`src/board.rs`, after each
 //! control step, at the control task's priority) hands it the safety kernel's newest
-//! sample ([`crate::safety::SafetyKernel::last_sample`]: its time and code, which the
+//! sample ([`crate::safety::SafetyKernel::last_sample_us`] and its code, which the
 //! sampler stores anyway) with the position the control step counted for it, and the
 //! stroke the sequencer is in. Nothing was added to the sampler or to the control step:
 //! their instructions, the stop latency and the E-STOP's reaction do not change

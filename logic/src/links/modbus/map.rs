@@ -1,5 +1,5 @@
 // The register map's table, once: docs/modbus-map.md is this module's doc.
-#![doc = include_str!("../../../docs/modbus-map.md")]
+#![doc = include_str!("../../../../docs/modbus-map.md")]
 
 use crate::machine::Machine;
 use crate::odometer::WearLevel;

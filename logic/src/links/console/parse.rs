@@ -1079,7 +1079,7 @@ mod tests {
     /// the command block): a command added to COMMANDS and not to the page fails here.
     #[test]
     fn the_console_page_lists_every_command_of_the_table() {
-        let page = include_str!("../../../docs/console.md");
+        let page = include_str!("../../../../docs/console.md");
         for c in COMMANDS.iter() {
             assert!(
                 page.lines().any(|l| l.starts_with(c.usage)),

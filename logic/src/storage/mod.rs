@@ -138,6 +138,13 @@
 //! each, plus a record held whole for each that survives only in the erased sector).
 //! `latest` reads one slot. `for_each_newest_first` reads backwards until it has `max`
 //! records.
+//!
+//! **Storage** (this module and its two below): the record log here, [`framelog`]'s
+//! frames for larger records (the docking signature's curves), and [`crc`], the
+//! checksums of every persisted record and every frame on a line.
+
+pub mod crc;
+pub mod framelog;
 
 use embedded_storage::nor_flash::NorFlash;
 use zerocopy::byteorder::little_endian::U32;
