@@ -66,9 +66,10 @@ fn figures_of(s: &Summary) -> [Option<f64>; 5] {
     ]
 }
 
-/// The plant's N3 per step of insertion depth (the rig's profile's form), with the bore
-/// worn by `wear_um` and the frictions scaled by `mu1`, `mu2`.
-fn table(machine: &MachineConfig, wear_um: f64, mu1: f64, mu2: f64) -> Rc<Vec<f64>> {
+/// The plant's N3 per step of insertion depth (the rig's profile's form: the rig's
+/// `script.profile_n`), with the bore worn by `wear_um` and the frictions scaled by
+/// `mu1`, `mu2`.
+pub fn table(machine: &MachineConfig, wear_um: f64, mu1: f64, mu2: f64) -> Rc<Vec<f64>> {
     let mut p = PlantParams::PAPER;
     p.geometry.d2_mm += wear_um / 1000.0;
     p.mu1 *= mu1;
