@@ -2,9 +2,11 @@
 //! first object it failed and the figure that failed it.
 //!
 //! The objects are placed on the **design's force profile** ([`NominalCurve`]: Eq. 7 by
-//! default, computed at build time; another machine's from its plant at commissioning,
-//! `hil-sim commission`), as a press-fit monitor places its windows and envelopes on a
-//! master curve:
+//! default, computed at build time; another machine's from its plant at commissioning:
+//! `hil-sim commission --model plant …` writes its curve, [`NominalCurve::from_fn`] on the
+//! host, into the tuning file the board is built with, whose `apply` sets
+//! [`SignatureConfig::nominal`] as it sets the guard's profile), as a press-fit monitor
+//! places its windows and envelopes on a master curve:
 //!
 //! ```text
 //!  force                     plateau (phase-4 mean ± plateau_pct)
