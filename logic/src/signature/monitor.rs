@@ -17,8 +17,8 @@
 //!
 //! # Memory
 //!
-//! The capture, the reference's sums and the ring of the newest summaries for `history`
-//! ([`SignatureMem`], about 4.7 KiB) live wherever the board puts them: on the STM32F407
+//! The capture, the reference's sums, the ring of the newest summaries for `history` and
+//! the wear estimate's window of steps ([`SignatureMem`], about 4.8 KiB) live wherever the board puts them: on the STM32F407
 //! in the CCM RAM, which the bootloader uses only before it starts the application
 //! (`memory.x`); the monitor itself is a few hundred bytes of the controller.
 

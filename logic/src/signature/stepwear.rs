@@ -25,18 +25,22 @@
 //! ```text
 //!   wear   = (x̄ − r̄) / s                                   the wear since `cone replace`
 //!   band   = max( t(m−1) · sd · √(1/m + 1/N),  q_floor ) / s       ± , 95 %
-//!   q_floor = 0.776 · q   if sd < q/√12,  else 0
+//!   q_floor = q   if sd < q/2,  else 0
 //! ```
 //!
 //! * `t(m−1)`: Student's t at 97.5 % with `m − 1` degrees of freedom (the spread is
 //!   taken from the window: 2.09 at m = 20; 1.96 is its large-sample value), the
 //!   reference's steps assumed as spread as the window's (their spread is not kept).
 //! * `q`: the sample spacing, `v0 / rate` (15 µm at 80 SPS, 120 µm at 10 SPS): the step
-//!   finder places the step to one sample. When the steps spread less than a random
-//!   sample phase would make them (`q/√12`), their quantisation is not averaged away,
-//!   and the window's mean and the reference's may each be off by up to `q/2`: the
-//!   band is then at least the 95 % point of the difference of two such errors
-//!   (triangular on ±q: `(1 − √0.05)·q = 0.776·q`).
+//!   finder places the step to one sample. Unless the steps spread by half a spacing
+//!   or more (then the quantisation is dithered: its residual bias on a mean,
+//!   `(q/π)·exp(−2π²·sd²/q²)`, is under 1 % of `q`), it is not averaged away — the
+//!   sample phase against the stroke repeats from one docking to the next — and the
+//!   window's mean and the reference's may each be off by up to `q/2`, in opposite
+//!   directions: the band is then at least `q`. (Measured on the rig, wear every 3 µm
+//!   from 0 to 120 µm: a band of 95 % of the difference of two independent uniform
+//!   errors, `0.776·q`, held 37 of 41 at 80 SPS, the error reaching 0.97·q; see
+//!   `docs/physics.md` §10.5.)
 //!
 //! A wear below zero (a new cone's noise) is reported as it is, with its band.
 //!
@@ -65,10 +69,6 @@ const T975_MILLI: [u16; 31] = [
     2_145, 2_131, 2_120, 2_110, 2_101, 2_093, 2_086, 2_080, 2_074, 2_069, 2_064, 2_060, 2_056,
     2_052, 2_048, 2_045, 2_042, 2_040,
 ];
-
-/// The 95 % point of the difference of two uniform errors of one sample spacing each,
-/// thousandths of the spacing: `1 − √0.05`.
-const QUANT_95_MILLI: i64 = 776;
 
 /// The step depths of a cone's newest OK dockings after its reference (a ring; all
 /// zero: empty).
@@ -191,12 +191,9 @@ pub fn estimate(
     let root = crate::propulsion::isqrt((var_nm2 * (mi + n) / (mi * n)) as u64) as i64;
     let stat_nm = root * t / 1_000;
     let q_nm = i64::from(spacing_um.min(STROKE_UM as u32)) * 1_000;
-    let quantised = 12 * var_nm2 < q_nm * q_nm && q_nm * QUANT_95_MILLI / 1_000 > stat_nm;
-    let band_depth_nm = if quantised {
-        q_nm * QUANT_95_MILLI / 1_000
-    } else {
-        stat_nm
-    };
+    // sd < q/2: the quantisation is not dithered; its floor, one spacing.
+    let quantised = 4 * var_nm2 < q_nm * q_nm && q_nm > stat_nm;
+    let band_depth_nm = if quantised { q_nm } else { stat_nm };
     let band_nm = (band_depth_nm * 1_000 + slope - 1) / slope;
     Some(StepWear {
         wear_nm: wear_nm.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32,
@@ -246,11 +243,11 @@ mod tests {
         // Mean 15 538.5: (15 538.5 − 14 934)/6.047 = 99.966 µm.
         assert_eq!(e.wear_nm, 99_967);
         assert_eq!((e.dockings, e.reference_n), (20, 20));
-        // sd of ±30.5 (alternating, n = 20): 31.29; band = 2.093·31.29·√(2/20)/6.047,
-        // 3.425 µm (above 120 µm's floor? sd 31.3 < 120/√12 = 34.6: the floor, 0.776 ·
-        // 120 / 6.047 = 15.4 µm, dominates).
+        // sd of ±30.5 (alternating, n = 20): 31.29; the statistics' band
+        // 2.093·31.29·√(2/20)/6.047 = 3.4 µm; but 31.3 < 120/2: at 10 SPS the floor,
+        // one spacing, 120 / 6.047 = 19.845 µm.
         assert!(e.quantised);
-        assert_eq!(e.band_nm, 15_400);
+        assert_eq!(e.band_nm, 19_845);
         // At 80 SPS (15 µm) the statistics dominate.
         let e = estimate(&c, 14_934 * 20, 20, &w, 15).unwrap();
         assert!(!e.quantised);
@@ -265,9 +262,9 @@ mod tests {
         let w = window(&[14_900; 10]);
         let e = estimate(&c, 14_934 * 20, 20, &w, 15).unwrap();
         assert_eq!(e.wear_nm, -5_623);
-        // No spread at all: the grid's floor (0.776 · 15 µm / 6.047).
+        // No spread at all: the grid's floor (15 µm / 6.047).
         assert!(e.quantised);
-        assert_eq!(e.band_nm, 1_925);
+        assert_eq!(e.band_nm, 2_481);
     }
 
     #[test]
