@@ -36,6 +36,7 @@ use crate::plant::{Plant, PlantError, PlantParams};
 use docking_logic::controller::ControllerConfig;
 use docking_logic::guard::{GuardConfig, NominalProfile};
 use docking_logic::profile::{forces_at_depth_um, STROKE_UM, V0_UM_PER_S};
+use docking_logic::signature::objects::{NominalCurve, SignatureConfig};
 
 /// The spread of µ1 and µ2 the envelope covers, ±.
 pub const MU_SPREAD: f64 = 0.02;
@@ -114,8 +115,44 @@ pub fn nominal_cycle_w_q1(model: &ForceModel) -> u64 {
     (4.0 * stroke_mn_um).round().max(1.0) as u64
 }
 
+/// The docking signature's evaluation objects for `model` (the machine at its own
+/// frictions: the objects' bands carry the spread): the nominal curve on the grid, and
+/// how much deeper its 3→4 step lies per mm of bore wear (the wear estimate's slope),
+/// measured on the plant itself: its boundary at D2 and at D2 + 0.1 mm. Eq. 7's are the
+/// build's ([`SignatureConfig::DEFAULT`]).
+pub fn signature_for(model: &ForceModel) -> SignatureConfig {
+    let ForceModel::Plant(plant) = model else {
+        return SignatureConfig::DEFAULT;
+    };
+    // The first µm of each phase (`from_fn` takes the step's force halfway between the
+    // µm before the boundary and the boundary's own: rounded to the nearer µm, a
+    // boundary at 14 933.2 µm put both in phase 3, and the step was searched for at
+    // phase 3's force).
+    let first_um = plant
+        .boundaries_s()
+        .map(|t| (t * f64::from(V0_UM_PER_S)).ceil().clamp(0.0, 1e9) as i32);
+    let curve = NominalCurve::from_fn(|d| model.n3_at_depth_um(f64::from(d)), first_um);
+    let p = *plant.params();
+    let mut worn = p;
+    worn.geometry.d2_mm += 0.1;
+    let step_s = |q: PlantParams| Plant::new(q).map_or(f64::NAN, |pl| pl.boundaries_s()[2]);
+    // s per 0.1 mm of wear × v0 (µm/s) × 10 = µm of depth per mm of wear.
+    let slope = (step_s(worn) - step_s(p)) * f64::from(V0_UM_PER_S) * 10.0;
+    SignatureConfig {
+        // Commissioning runs once per machine: the curve lives as long as the program.
+        nominal: Box::leak(Box::new(curve)),
+        step_um_per_wear_mm: if slope.is_finite() && slope > 0.0 {
+            slope.round().min(f64::from(u32::MAX)) as u32
+        } else {
+            0
+        },
+        ..SignatureConfig::DEFAULT
+    }
+}
+
 /// What commissioning sets for a machine: the guard (its nominal profile and hard
-/// limit), the odometer's nominal load–distance, the hold force.
+/// limit), the odometer's nominal load–distance, the hold force, the docking
+/// signature's nominal curve and the wear estimate's slope.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Tuning {
     /// The guard's configuration.
@@ -124,6 +161,9 @@ pub struct Tuning {
     pub nominal_w_q1: u64,
     /// Mated contact force, mN.
     pub hold_expected_mn: i32,
+    /// The docking signature's objects: the machine's nominal curve and its step's
+    /// slope against wear ([`signature_for`]; the other settings the defaults).
+    pub signature: SignatureConfig,
 }
 
 impl Tuning {
@@ -173,6 +213,7 @@ impl Tuning {
             },
             nominal_w_q1: nominal_cycle_w_q1(&nominal),
             hold_expected_mn: (nominal.n3_at_depth_um(STROKE_UM as f64) * 1000.0).round() as i32,
+            signature: signature_for(&nominal),
         })
     }
 
@@ -182,14 +223,43 @@ impl Tuning {
             guard: cfg.guard,
             nominal_w_q1: cfg.wear.nominal_w_q1,
             hold_expected_mn: cfg.hold_expected_mn,
+            signature: cfg.signature,
         }
     }
 
     /// The tuning as Rust source for the firmware's build (`DOCKING_TUNING=FILE cargo
-    /// build --release --target thumbv7em-none-eabihf`, see `build.rs`): a `static`
-    /// nominal profile and a function `apply` that sets the machine-specific fields.
-    /// `origin` goes into the file's header (the parameters it was made from).
+    /// build --release --target thumbv7em-none-eabihf`, see `build.rs`): the guard's
+    /// `static` nominal profile, the signature's nominal curve, and a function `apply`
+    /// that sets the machine-specific fields. `origin` goes into the file's header (the
+    /// parameters it was made from).
     pub fn to_rust(&self, origin: &str) -> String {
+        let rows = |v: &[i16]| -> String {
+            v.chunks(16)
+                .map(|c| {
+                    let v: Vec<String> = c.iter().map(|x| x.to_string()).collect();
+                    format!("            {},", v.join(", "))
+                })
+                .collect::<Vec<_>>()
+                .join("\n")
+        };
+        let n = self.signature.nominal;
+        let b = n.boundaries_um;
+        let curve = format!(
+            "/// The docking signature's nominal curve (dN a bin: its mean, and its minimum and\n\
+             /// maximum over the bin ± the position tolerance): what the evaluation objects sit on.\n\
+             static SIG_NOMINAL: docking_logic::signature::objects::NominalCurve =\n    \
+             docking_logic::signature::objects::NominalCurve {{\n        \
+             mean_dn: [\n{}\n        ],\n        min_dn: [\n{}\n        ],\n        \
+             max_dn: [\n{}\n        ],\n        boundaries_um: [{}, {}, {}],\n        \
+             step_dn: {},\n    }};\n\n",
+            rows(&n.mean_dn),
+            rows(&n.min_dn),
+            rows(&n.max_dn),
+            b[0],
+            b[1],
+            b[2],
+            n.step_dn,
+        );
         let table: Vec<String> = self
             .guard
             .nominal
@@ -205,24 +275,31 @@ impl Tuning {
              // The machine's tuning, included by the firmware's build (DOCKING_TUNING).\n\
              static NOMINAL: docking_logic::guard::NominalProfile =\n    \
              docking_logic::guard::NominalProfile {{\n    n3_max_mn: [\n{}\n    ],\n}};\n\n\
+             {curve}\
              /// Set the machine-specific fields of `cfg`.\n\
              pub fn apply(cfg: &mut docking_logic::controller::ControllerConfig) {{\n    \
              cfg.guard.nominal = &NOMINAL;\n    \
              cfg.guard.hard_limit_mn = {};\n    \
              cfg.wear.nominal_w_q1 = {};\n    \
-             cfg.hold_expected_mn = {};\n}}\n",
+             cfg.hold_expected_mn = {};\n    \
+             cfg.signature.nominal = &SIG_NOMINAL;\n    \
+             cfg.signature.step_um_per_wear_mm = {};\n}}\n",
             table.join("\n"),
             self.guard.hard_limit_mn,
             self.nominal_w_q1,
             self.hold_expected_mn,
+            self.signature.step_um_per_wear_mm,
         )
     }
 
-    /// Apply to `cfg`.
+    /// Apply to `cfg` (as the generated `apply` does: of the signature's settings, the
+    /// nominal curve and the step's slope).
     pub fn apply(&self, cfg: &mut ControllerConfig) {
         cfg.guard = self.guard;
         cfg.wear.nominal_w_q1 = self.nominal_w_q1;
         cfg.hold_expected_mn = self.hold_expected_mn;
+        cfg.signature.nominal = self.signature.nominal;
+        cfg.signature.step_um_per_wear_mm = self.signature.step_um_per_wear_mm;
     }
 }
 
@@ -264,6 +341,30 @@ mod tests {
             (cfg.hold_expected_mn - 125_098).abs() < 1_000,
             "{}",
             cfg.hold_expected_mn
+        );
+    }
+
+    /// The signature's objects from the plant (issue 34): the paper's machine's are
+    /// Eq. 7's within the plant's residuals, its step's force between phase 3's and
+    /// phase 4's, and its step's slope against wear the geometry's constant.
+    #[test]
+    fn the_paper_machines_commissioned_objects_are_eq7s_within_the_residuals() {
+        let sig = Tuning::for_plant(PlantParams::PAPER).unwrap().signature;
+        let (n, e) = (sig.nominal, &docking_logic::signature::objects::EQ7_CURVE);
+        assert_eq!(n.boundaries_um, e.boundaries_um);
+        // Eq. 7's step at 1 567 dN; the plant's phase 3 is 1.7 N off (§8.5).
+        assert!((i32::from(n.step_dn) - 1_567).abs() <= 10, "{}", n.step_dn);
+        for (i, (a, b)) in n.mean_dn.iter().zip(e.mean_dn.iter()).enumerate() {
+            assert!((a - b).abs() <= 20, "bin {i}: {a} against Eq. 7's {b}");
+        }
+        assert_eq!(
+            sig.step_um_per_wear_mm,
+            docking_logic::profile::STEP_UM_PER_WEAR_MM
+        );
+        // The same settings as the build's, but the curve and the slope.
+        assert_eq!(
+            SignatureConfig { nominal: e, ..sig },
+            SignatureConfig::DEFAULT
         );
     }
 

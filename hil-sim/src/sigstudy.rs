@@ -20,6 +20,10 @@
 //!   |slope|`; and `floor_um`: the wear a friction drift alone mimics, `drift / |slope|`
 //!   (averaging does not remove it).
 //!
+//! And the firmware's own wear estimate from the step
+//! ([`docking_logic::signature::stepwear`]) after each level's dockings at the paper's
+//! frictions, against the study's first dockings at no wear as the cone's reference.
+//!
 //! The step's depth is also compared with the plant's own 3→4 boundary (the geometry:
 //! `L* = (D2 − D1·cos θ0)/sin θ0`, mapped to the firmware's depth as §8.3 of
 //! docs/physics.md says): its error (bias and spread) is the grid's and the sample
@@ -66,9 +70,10 @@ fn figures_of(s: &Summary) -> [Option<f64>; 5] {
     ]
 }
 
-/// The plant's N3 per step of insertion depth (the rig's profile's form), with the bore
-/// worn by `wear_um` and the frictions scaled by `mu1`, `mu2`.
-fn table(machine: &MachineConfig, wear_um: f64, mu1: f64, mu2: f64) -> Rc<Vec<f64>> {
+/// The plant's N3 per step of insertion depth (the rig's profile's form: the rig's
+/// `script.profile_n`), with the bore worn by `wear_um` and the frictions scaled by
+/// `mu1`, `mu2`.
+pub fn table(machine: &MachineConfig, wear_um: f64, mu1: f64, mu2: f64) -> Rc<Vec<f64>> {
     let mut p = PlantParams::PAPER;
     p.geometry.d2_mm += wear_um / 1000.0;
     p.mu1 *= mu1;
@@ -158,6 +163,11 @@ pub struct Level {
     pub nok: (usize, usize),
     /// The first objects failed, most frequent first.
     pub failed: Vec<(&'static str, usize)>,
+    /// The firmware's wear estimate from the step after this level's dockings at the
+    /// paper's frictions (the reference: the first dockings of the study, at no wear):
+    /// µm, its band ± µm, the dockings it rests on; `None` with fewer dockings a level
+    /// than its window (the window would mix levels).
+    pub estimate: Option<(f64, f64, u8)>,
 }
 
 /// A figure's sensitivity at one rate.
@@ -205,6 +215,21 @@ pub fn run(dockings: u32, rates: &[u32], seed: u64) -> Vec<RateStudy> {
         for &w in &WEAR_UM {
             let fixed = table(&machine, w, 1.0, 1.0);
             let nominal = dock(&mut rig, dockings, &mut |_| fixed.clone());
+            let window = u32::from(machine_window());
+            let estimate = rig
+                .ctrl
+                .signature_status()
+                .step_wear
+                .filter(|e| {
+                    u32::from(e.dockings) <= dockings.saturating_sub(window * u32::from(w == 0.0))
+                })
+                .map(|e| {
+                    (
+                        f64::from(e.wear_nm) / 1e3,
+                        f64::from(e.band_nm) / 1e3,
+                        e.dockings,
+                    )
+                });
             let spread = dock(&mut rig, dockings, &mut |_| {
                 let a = 1.0 + MU_SPREAD * (2.0 * rng.uniform() - 1.0);
                 let b = 1.0 + MU_SPREAD * (2.0 * rng.uniform() - 1.0);
@@ -232,6 +257,7 @@ pub fn run(dockings: u32, rates: &[u32], seed: u64) -> Vec<RateStudy> {
                     .collect(),
                 nok: (all.iter().filter(|d| d.failed.is_some()).count(), all.len()),
                 failed,
+                estimate,
             });
         }
         // The frictions' drift at no wear: both up, both down.
@@ -300,6 +326,12 @@ pub fn run(dockings: u32, rates: &[u32], seed: u64) -> Vec<RateStudy> {
     out
 }
 
+/// The wear estimate's window (M dockings) and the reference's size, as the firmware
+/// is configured.
+fn machine_window() -> u8 {
+    docking_logic::signature::objects::SignatureConfig::DEFAULT.wear_window
+}
+
 /// The least-squares slope of `pts`.
 fn fit_slope(pts: &[(f64, f64)]) -> f64 {
     let n = pts.len() as f64;
@@ -358,6 +390,23 @@ pub fn to_text(studies: &[RateStudy], dockings: u32) -> String {
                     .join(", ")
             );
         }
+        s += "the firmware's wear estimate from the step (the reference: the first dockings at no wear), after each level's dockings at the paper's frictions:\n";
+        for l in &r.levels {
+            match l.estimate {
+                Some((e, b, n)) => {
+                    s += &format!(
+                        "{:>7.0} µm of wear: estimate {e:.1} ± {b:.1} µm ({n} dockings){}\n",
+                        l.wear_um,
+                        if (e - l.wear_um).abs() <= b {
+                            ""
+                        } else {
+                            "  OUTSIDE its band"
+                        }
+                    )
+                }
+                None => s += &format!("{:>7.0} µm of wear: no estimate\n", l.wear_um),
+            }
+        }
         s += &format!(
             "the step against the plant's boundary: bias up to {:.0} µm, sd up to {:.0} µm (the grid: 234 µm bins; the sample rate)\n",
             r.step_error_um.0, r.step_error_um.1
@@ -414,14 +463,18 @@ pub fn to_json(studies: &[RateStudy], dockings: u32) -> String {
                         .iter()
                         .map(|(o, n)| format!("{{\"object\":\"{o}\",\"dockings\":{n}}}"))
                         .collect();
+                    let estimate = l.estimate.map_or("null".to_string(), |(e, b, n)| {
+                        format!("{{\"wear_um\":{},\"band_um\":{},\"dockings\":{n}}}", num(e), num(b))
+                    });
                     format!(
-                        "{{\"wear_um\":{},\"true_step_um\":{},{},\"nok\":{},\"dockings\":{},\"failed\":[{}]}}",
+                        "{{\"wear_um\":{},\"true_step_um\":{},{},\"nok\":{},\"dockings\":{},\"failed\":[{}],\"estimate\":{}}}",
                         num(l.wear_um),
                         num(l.true_step_um),
                         figs.join(","),
                         l.nok.0,
                         l.nok.1,
-                        failed.join(",")
+                        failed.join(","),
+                        estimate
                     )
                 })
                 .collect();

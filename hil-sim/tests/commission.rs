@@ -30,9 +30,22 @@ fn a_tuning_file_written_before_the_crate_split_still_builds_and_sets_the_same()
     let (mut old_cfg, mut new_cfg) = (new(), new());
     before_crate_split::apply(&mut old_cfg);
     example::apply(&mut new_cfg);
-    assert_eq!(
+    let (old, new) = (
         hil_sim::machine::Tuning::of(&old_cfg),
-        hil_sim::machine::Tuning::of(&new_cfg)
+        hil_sim::machine::Tuning::of(&new_cfg),
+    );
+    // A file from before the signature's objects were commissioned (issue 34) leaves
+    // the default objects; everything else it sets as today's.
+    assert_eq!(
+        old.signature,
+        docking_logic::signature::objects::SignatureConfig::DEFAULT
+    );
+    assert_eq!(
+        hil_sim::machine::Tuning {
+            signature: new.signature,
+            ..old
+        },
+        new
     );
 }
 
@@ -53,6 +66,14 @@ fn the_generated_tuning_compiles_and_sets_what_commissioning_computed() {
     example::apply(&mut cfg);
     let want = hil_sim::machine::Tuning::for_plant(heavy()).unwrap();
     assert_eq!(hil_sim::machine::Tuning::of(&cfg), want);
+    // The docking signature's objects sit on this machine's curve (issue 34), not on
+    // Eq. 7's: its phase-4 forces are 1.7 times the paper machine's.
+    assert_ne!(
+        cfg.signature.nominal,
+        &docking_logic::signature::objects::EQ7_CURVE
+    );
+    assert_eq!(cfg.signature.nominal, want.signature.nominal);
+    assert_eq!(cfg.signature.step_um_per_wear_mm, 6_047);
     // The builder's names for Modbus device identification.
     assert_eq!(cfg.identity.vendor, "Example Machines Ltd");
     assert_eq!(cfg.identity.product, "AutoDock 18 (example)");

@@ -496,8 +496,8 @@ fn input_registers_match_status_and_odometer() {
         .collect();
     assert_eq!(regs[64..67], v[..]);
     assert_eq!(
-        regs[67], 3,
-        "map version (2: maintenance mode, register 10 and bit 11; 3: the docking signature, 68-92 and bit 12)"
+        regs[67], 4,
+        "map version (2: maintenance mode, register 10 and bit 11; 3: the docking signature, 68-92 and bit 12; 4: the wear estimate from its step, 93-95)"
     );
     // Reserved addresses read 0; handle_frame keeps no last command.
     for a in [8, 9, 11, 15, 36, 39, 45, 47, 60, 63] {
@@ -508,7 +508,7 @@ fn input_registers_match_status_and_odometer() {
         read_inputs(&mut r, ir::CONE_SERIAL, 10).unwrap(),
         regs[50..60]
     );
-    assert_eq!(read_inputs(&mut r, 67, 1).unwrap(), [3]);
+    assert_eq!(read_inputs(&mut r, 67, 1).unwrap(), [4]);
 }
 
 #[test]

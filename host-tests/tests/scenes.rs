@@ -225,6 +225,54 @@ fn a_heavier_machine_commissioned_for_its_forces_docks_without_a_trip() {
     );
 }
 
+/// The docking signature's objects come from commissioning too (issue 34): the heavier
+/// machine's nominal dockings, at both rates and with the load cell's noise, are OK on
+/// the objects commissioned from its plant, and NOK on the paper machine's (Eq. 7's)
+/// with the guard commissioned — its phase-4 forces are far above Eq. 7's band.
+#[test]
+fn a_heavier_machine_is_judged_ok_on_its_commissioned_objects_and_nok_on_the_defaults() {
+    let p = heavy_machine();
+    let tuned = hil_sim::machine::Tuning::for_plant(p).unwrap();
+    let default_objects = hil_sim::machine::Tuning {
+        signature: docking_logic::signature::objects::SignatureConfig::DEFAULT,
+        ..tuned
+    };
+    for rate in [10, 80] {
+        let dock = |tuning| {
+            run(
+                "nominal",
+                SceneOptions {
+                    cycles: 3,
+                    force_model: hil_sim::machine::ForceModel::plant(p).unwrap(),
+                    tuning: Some(tuning),
+                    ..SceneOptions::new(rate)
+                },
+            )
+            .unwrap()
+        };
+        let r = dock(tuned);
+        assert!(r.faults.is_empty(), "{}", r.to_json());
+        assert_eq!(r.signatures.len(), 6, "{}", r.to_json());
+        assert!(
+            r.signatures.iter().all(|s| s.ok),
+            "{rate} SPS: {}",
+            r.to_json()
+        );
+        let r = dock(default_objects);
+        assert!(r.faults.is_empty(), "a NOK stops nothing: {}", r.to_json());
+        assert_eq!(r.signatures.len(), 6, "{}", r.to_json());
+        for s in &r.signatures {
+            assert!(!s.ok, "{rate} SPS: {}", r.to_json());
+            let failed = s.failed.unwrap_or("none");
+            assert!(
+                failed.starts_with("band") || failed.starts_with("ext_band") || failed == "plateau",
+                "{rate} SPS: a band or the plateau, not {failed}: {}",
+                r.to_json()
+            );
+        }
+    }
+}
+
 /// `nominal` with the 18 kg plant on the paper machine's configuration.
 fn heavy_machine_on_the_default_configuration() -> SceneReport {
     run(

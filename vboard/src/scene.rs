@@ -1840,7 +1840,7 @@ pub fn run(name: &str, opts: &SceneOptions) -> Result<Report, String> {
 
 /// After a signature scene (issue 34): the last docking as the console's `curve last
 /// --json` shows it (its cycle, each stroke's verdict and first failed object) and as
-/// the PLC reads it (status bit 12; input registers 68–92: the verdict, the failed
+/// the PLC reads it (status bit 12; input registers 68 on: the verdict, the failed
 /// object's code, the cone's NOK and judged dockings, the newest stroke's verdict), each
 /// against what the scene must produce ([`hil_sim::sigscene::expected`]). The curve's
 /// line is returned.
@@ -1911,7 +1911,11 @@ fn signature_shown(
             "Modbus: status bit 12, verdict 2 (NOK), failed object {failed}, cycle {cycles}, {nok_dockings} NOK of {cycles} judged"
         ),
         ok,
-        format!("status word {word:?}, registers 68-92 {regs:?}"),
+        format!(
+            "status word {word:?}, registers {}-{} {regs:?}",
+            ir::SIG_VERDICT,
+            ir::COUNT - 1
+        ),
     ));
     Ok(line)
 }

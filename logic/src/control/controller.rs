@@ -1263,7 +1263,11 @@ impl<B: Bsp> Controller<B> {
 
     /// The signature's state for the PLC and `wear`.
     pub fn signature_status(&self) -> SignatureStatus {
-        SignatureStatus::of(&self.sig.monitor, &self.cfg.signature)
+        SignatureStatus::of(
+            &self.sig.monitor,
+            &self.cfg.signature,
+            crate::profile::V0_UM_PER_S / self.cfg.sample_rate_sps.max(1),
+        )
     }
 
     /// Copy curve `which` into `out` (`curve`); `false`: there is none.

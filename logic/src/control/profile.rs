@@ -22,6 +22,37 @@ pub const BOUNDARY_S: [f64; 3] = [3.75, 7.25, 12.445];
 /// Phase boundaries as insertion depth, µm (`v0 · BOUNDARY_S`).
 pub const BOUNDARY_UM: [i32; 3] = [4_500, 8_700, 14_934];
 
+/// The rod's tilt in single-point contact (phases 1–3), θ0, degrees (Eq. 6; `hil-sim`'s
+/// `PlantParams::PAPER`, a test there checks they agree).
+pub const THETA0_DEG: f64 = 2.84;
+/// Eq. 7's time axis in phases 3–4: the travel per second of its `t`, µm/s
+/// (`docs/physics.md` §8.3; `hil-sim`'s `DEFAULT_V_MODEL_MM_S`).
+pub const V_MODEL_UM_PER_S: u32 = 4_000;
+
+/// How much deeper the 3→4 force step lies per mm of bore wear, µm of insertion depth.
+/// Two-point contact begins at the engaged length `L* = (D2 − D1·cos θ0)/sin θ0`
+/// (Eq. 6), reached on Eq. 7's axis at `t3 = t2 + L*·cos θ0 / v_model`, i.e. at the
+/// depth `v0·t3`: so `d(depth)/d(D2) = (v0 / v_model) · cos θ0 / sin θ0` = 6.047 µm a
+/// µm (`docs/physics.md` §10.5). Computed by the compiler from [`THETA0_DEG`],
+/// [`V0_UM_PER_S`] and [`V_MODEL_UM_PER_S`]: 6 047.
+pub const STEP_UM_PER_WEAR_MM: u32 = {
+    let x = THETA0_DEG * core::f64::consts::PI / 180.0;
+    // Taylor series to x^13 (|x| < 0.1 rad here: exact to the last bit of the rounding
+    // below).
+    let (mut s, mut c, mut term_s, mut term_c) = (0.0, 0.0, x, 1.0);
+    let mut k = 0;
+    while k < 7 {
+        s += term_s;
+        c += term_c;
+        let n = (2 * k + 2) as f64;
+        term_s = -term_s * x * x / (n * (n + 1.0));
+        term_c = -term_c * x * x / ((n - 1.0) * n);
+        k += 1;
+    }
+    let v = V0_UM_PER_S as f64 / V_MODEL_UM_PER_S as f64 * c / s * 1000.0;
+    (v + 0.5) as u32
+};
+
 /// One of the four contact phases of a compliant insertion (`docs/physics.md` §2).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

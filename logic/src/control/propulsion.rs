@@ -102,7 +102,7 @@ pub const ARRIVAL_TOLERANCE_STEPS: i32 = 1;
 /// x' = ⌊(x + ⌊v/x⌋)/2⌋ decreases strictly while x > ⌊√v⌋ and never goes below it, so
 /// the first x' ≥ x is ⌊√v⌋; tested against core's `isqrt`
 /// (`isqrt_is_cores_isqrt`). Five or six steps from the start 2^⌈bits/2⌉.
-const fn isqrt(v: u64) -> u64 {
+pub(crate) const fn isqrt(v: u64) -> u64 {
     if v >> 32 == 0 {
         return isqrt_u32(v as u32) as u64;
     }

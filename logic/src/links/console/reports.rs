@@ -229,6 +229,23 @@ pub(super) fn wear_fields(f: &mut dyn Fields, v: &WearView) -> fmt::Result {
         "remaining_estimate_high_cycles",
         est.remaining_high_cycles as u64,
     )?;
+    // Beside the reading and the model: the wear the docking signature's 3→4 step
+    // tells (issue 34), with its band and what it rests on; `none` until the cone's
+    // reference and enough dockings after it.
+    match sig.step_wear {
+        Some(w) => {
+            f.fixed("signature_wear_estimate_mm", i64::from(w.wear_nm), 6)?;
+            f.fixed("signature_wear_band_mm", i64::from(w.band_nm), 6)?;
+            f.u64("signature_wear_dockings", u64::from(w.dockings))?;
+            f.u64("signature_wear_reference", u64::from(w.reference_n))?;
+        }
+        None => {
+            f.none("signature_wear_estimate_mm")?;
+            f.none("signature_wear_band_mm")?;
+            f.none("signature_wear_dockings")?;
+            f.none("signature_wear_reference")?;
+        }
+    }
     f.group("readings")?;
     f.fixed("baseline_bore_mm", base as i64, 3)?;
     f.bool("baseline_assumed", cone.baseline().is_none())?;

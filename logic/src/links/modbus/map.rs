@@ -7,7 +7,7 @@ use crate::sequencer::{Request, State};
 
 /// The register map's version: bumped when registers are added (never moved or
 /// reused).
-pub const MAP_VERSION: u16 = 3;
+pub const MAP_VERSION: u16 = 4;
 
 /// Input register addresses (function 0x04); see the module doc for units.
 pub mod ir {
@@ -127,8 +127,15 @@ pub mod ir {
     pub const SIG_STROKE_FAILED: u16 = 91;
     /// Stroke verdicts since boot (wraps): a change is a new verdict.
     pub const SIG_STROKE_COUNT: u16 = 92;
+    /// The cone's wear estimated from its docking signature's 3→4 step (map version 4;
+    /// [`crate::signature::stepwear`]), µm, i16 (0x8000: no estimate yet).
+    pub const SIG_WEAR_UM: u16 = 93;
+    /// Its 95 % band, ± µm (rounded up; 0xFFFF: no estimate).
+    pub const SIG_WEAR_BAND_UM: u16 = 94;
+    /// Dockings the estimate rests on (its window; 0: no estimate).
+    pub const SIG_WEAR_DOCKINGS: u16 = 95;
     /// Input registers in the map (addresses 0..COUNT).
-    pub const COUNT: u16 = 93;
+    pub const COUNT: u16 = 96;
 }
 
 /// Status word bits (input register 0), and the discrete inputs (bit n = input n).
@@ -420,7 +427,7 @@ pub fn input_registers(ctrl: &dyn Machine) -> [u16; ir::COUNT as usize] {
     r
 }
 
-/// The docking signature's registers (68–92).
+/// The docking signature's registers (68–95).
 fn signature_registers(ctrl: &dyn Machine, set: &mut dyn FnMut(u16, u16)) {
     let sig = ctrl.signature_status();
     let mut set32 = |addr: u16, v: u32| {
@@ -464,4 +471,25 @@ fn signature_registers(ctrl: &dyn Machine, set: &mut dyn FnMut(u16, u16)) {
         );
     }
     set(ir::SIG_STROKE_COUNT, sig.verdicts as u16);
+    match sig.step_wear {
+        Some(w) => {
+            // nm → µm, rounded half away from zero; the band rounded up.
+            let um = (i64::from(w.wear_nm) + if w.wear_nm >= 0 { 500 } else { -500 }) / 1_000;
+            set(
+                ir::SIG_WEAR_UM,
+                um.clamp(-i64::from(i16::MAX), i64::from(i16::MAX)) as i16 as u16,
+            );
+            set(
+                ir::SIG_WEAR_BAND_UM,
+                u16::try_from(w.band_nm.div_ceil(1_000))
+                    .unwrap_or(0xFFFE)
+                    .min(0xFFFE),
+            );
+            set(ir::SIG_WEAR_DOCKINGS, u16::from(w.dockings));
+        }
+        None => {
+            set(ir::SIG_WEAR_UM, 0x8000);
+            set(ir::SIG_WEAR_BAND_UM, 0xFFFF);
+        }
+    }
 }

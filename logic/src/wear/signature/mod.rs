@@ -20,6 +20,11 @@
 //!    and the reference kept in flash ([`store`], [`records`]: sectors 2–4 through the
 //!    power-cut-safe [`crate::framelog`]).
 //!
+//! 5. **Wear from the step** ([`stepwear`]): the 3→4 step's depth against the
+//!    reference's, over the bore's geometry, as a wear estimate with its 95 % band,
+//!    shown beside the micrometer's reading and the odometer's model (never in their
+//!    place).
+//!
 //! A NOK stops nothing (only the overload guard does): the verdict is for the people
 //! who maintain the machine and for the PLC.
 
@@ -29,6 +34,7 @@ pub mod grid;
 pub mod monitor;
 pub mod objects;
 pub mod records;
+pub mod stepwear;
 pub mod store;
 pub mod view;
 

@@ -17,8 +17,8 @@
 //!
 //! # Memory
 //!
-//! The capture, the reference's sums and the ring of the newest summaries for `history`
-//! ([`SignatureMem`], about 4.7 KiB) live wherever the board puts them: on the STM32F407
+//! The capture, the reference's sums, the ring of the newest summaries for `history` and
+//! the wear estimate's window of steps ([`SignatureMem`], about 4.8 KiB) live wherever the board puts them: on the STM32F407
 //! in the CCM RAM, which the bootloader uses only before it starts the application
 //! (`memory.x`); the monitor itself is a few hundred bytes of the controller.
 
@@ -26,6 +26,7 @@ use super::capture::Capture;
 use super::figures::{self, ExtractionFigures, InsertionFigures};
 use super::objects::{Failure, SignatureConfig};
 use super::records::{Reference, Summary};
+use super::stepwear::{StepWindow, WINDOW_MAX};
 use super::store::{SigStore, StoreError};
 use super::Stroke;
 use embedded_storage::nor_flash::NorFlash;
@@ -77,6 +78,9 @@ pub struct SignatureMem {
     pub capture: Capture,
     /// The cone's reference as learnt so far.
     pub reference: Reference,
+    /// The 3→4 steps of the cone's newest OK dockings after its reference (the wear
+    /// estimate's window, [`super::stepwear`]).
+    pub steps: StepWindow,
     /// The newest summaries: a ring of `ring_len` from `ring_start`, oldest first.
     ring: [HistoryCols; RING],
     ring_start: u8,
@@ -364,6 +368,9 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
         if self.mem.reference.cone_id != d.cone_id {
             self.mem.reference = Reference::empty(d.cone_id);
         }
+        if self.mem.steps.cone_id() != d.cone_id {
+            self.mem.steps.clear(d.cone_id);
+        }
         let r = &self.mem.reference;
         let complete = r.n >= cfg.reference_n.max(1);
         let n = i64::from(r.n.max(1));
@@ -385,6 +392,12 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
         self.cone.trend_plateau_x16 =
             trend(self.cone.trend_plateau_x16, drift_p).or(self.cone.trend_plateau_x16);
         let learn = !nok && !complete;
+        if !nok && complete {
+            // After the reference: the wear estimate's window.
+            if let Some(st) = ins.step_um {
+                self.mem.steps.push(st);
+            }
+        }
         if learn {
             let mem = &mut *self.mem;
             let rf = &mut mem.reference;
@@ -460,6 +473,7 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
             ..ConeCounts::default()
         };
         self.mem.reference = Reference::empty(cone_id);
+        self.mem.steps.clear(cone_id);
         self.pending &= !PENDING_REFERENCE;
     }
 
@@ -552,20 +566,34 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
         if store.read_reference(cone_id, &mut mem.reference).is_err() {
             mem.reference = Reference::empty(cone_id);
         }
-        // Newest first from the walk: kept in a ring whose start moves back.
+        // Newest first from the walk: kept in a ring whose start moves back. The wear
+        // estimate's window from the same walk: the cone's OK dockings after its
+        // reference, with a step (newest first, pushed oldest first below).
         mem.ring_len = 0;
         mem.ring_start = 0;
         let mut n = 0usize;
         let ring = &mut mem.ring;
+        let mut steps = [0i32; WINDOW_MAX];
+        let mut n_steps = 0usize;
         let _ = store.walk_summaries(RING, &mut |s| {
             n += 1;
             if let Some(slot) = ring.get_mut(RING - n) {
                 *slot = HistoryCols::of(s);
             }
+            if s.cone_id == cone_id && !s.nok() && !s.in_reference {
+                if let (Some(st), Some(slot)) = (s.step_um, steps.get_mut(n_steps)) {
+                    *slot = st;
+                    n_steps += 1;
+                }
+            }
             true
         });
         mem.ring_start = ((RING - n) % RING) as u8;
         mem.ring_len = n as u8;
+        mem.steps.clear(cone_id);
+        for &st in steps.iter().take(n_steps).rev() {
+            mem.steps.push(st);
+        }
     }
 
     /// The newest docking's capture.
@@ -576,6 +604,11 @@ impl<M: core::ops::DerefMut<Target = SignatureMem>> Monitor<M> {
     /// The cone's reference as learnt so far.
     pub fn reference(&self) -> &Reference {
         &self.mem.reference
+    }
+
+    /// The 3→4 steps of the cone's newest OK dockings after its reference.
+    pub fn steps(&self) -> &StepWindow {
+        &self.mem.steps
     }
 
     /// The last summarised docking.

@@ -2,9 +2,11 @@
 //! first object it failed and the figure that failed it.
 //!
 //! The objects are placed on the **design's force profile** ([`NominalCurve`]: Eq. 7 by
-//! default, computed at build time; another machine's from its plant at commissioning,
-//! `hil-sim commission`), as a press-fit monitor places its windows and envelopes on a
-//! master curve:
+//! default, computed at build time; another machine's from its plant at commissioning:
+//! `hil-sim commission --model plant …` writes its curve, [`NominalCurve::from_fn`] on the
+//! host, into the tuning file the board is built with, whose `apply` sets
+//! [`SignatureConfig::nominal`] as it sets the guard's profile), as a press-fit monitor
+//! places its windows and envelopes on a master curve:
 //!
 //! ```text
 //!  force                     plateau (phase-4 mean ± plateau_pct)
@@ -398,6 +400,16 @@ pub struct SignatureConfig {
     /// the step on, the plateau, the end force, the extraction's peak), so a worn cone
     /// is judged against its own step, not the new cone's.
     pub step_travel_um: i32,
+    /// How much deeper the 3→4 step lies per mm of bore wear, µm (the wear estimate's
+    /// slope, [`super::stepwear`]): Eq. 7's machine's from its geometry
+    /// ([`crate::profile::STEP_UM_PER_WEAR_MM`], 6 047); another machine's from its
+    /// plant at commissioning.
+    pub step_um_per_wear_mm: u32,
+    /// The wear estimate's window: the step depths of the cone's last this many OK
+    /// dockings after its reference (M, at most [`super::stepwear::WINDOW_MAX`]).
+    pub wear_window: u8,
+    /// The wear estimate is offered from this many dockings in its window on.
+    pub wear_min: u8,
 }
 
 impl SignatureConfig {
@@ -418,6 +430,9 @@ impl SignatureConfig {
         peak_pos_um: 1_000,
         reference_n: 20,
         step_travel_um: 5_000,
+        step_um_per_wear_mm: crate::profile::STEP_UM_PER_WEAR_MM,
+        wear_window: 20,
+        wear_min: 5,
     };
 
     /// Bins the objects of phases 3–4 move by for a stroke whose 3→4 step was found

@@ -7,6 +7,7 @@ use super::grid::BINS;
 use super::monitor::{ConeCounts, HistoryCols, Monitor, SignatureMem, StrokeVerdict};
 use super::objects::{Failure, SignatureConfig};
 use super::records::{StoredCurve, Summary, EMPTY_DN};
+use super::stepwear::{self, StepWear};
 use super::store::SigStore;
 use super::Stroke;
 use embedded_storage::nor_flash::NorFlash;
@@ -28,21 +29,31 @@ pub struct SignatureStatus {
     pub reference_target: u8,
     /// The reference's mean 3→4 step, µm.
     pub reference_step_um: Option<i32>,
+    /// The cone's wear estimated from its 3→4 step ([`super::stepwear`]); `None`
+    /// before its reference and enough dockings after it.
+    pub step_wear: Option<StepWear>,
     /// Records lost (not written after failed writes, or NOK curves overwritten by the
     /// next docking before a rest), and failed writes.
     pub losses: (u32, u32),
 }
 
 impl SignatureStatus {
-    /// Of a monitor, with `cfg`.
+    /// Of a monitor, with `cfg`; `spacing_um` the load cell's sample spacing at v0
+    /// (the step's resolution, for the wear estimate's band).
     pub fn of<M: core::ops::DerefMut<Target = SignatureMem>>(
         m: &Monitor<M>,
         cfg: &SignatureConfig,
+        spacing_um: u32,
     ) -> Self {
         let (newest, verdicts) = m.last_verdict();
         let r = m.reference();
         let cone = m.cone();
         let same = r.cone_id == cone.cone_id;
+        let complete = same && r.n >= cfg.reference_n.max(1);
+        let steps = m.steps();
+        let step_wear = (complete && steps.cone_id() == cone.cone_id)
+            .then(|| stepwear::estimate(cfg, r.step_sum, r.step_n, steps, spacing_um))
+            .flatten();
         Self {
             last: m.last().copied(),
             newest,
@@ -52,6 +63,7 @@ impl SignatureStatus {
             reference_target: cfg.reference_n,
             reference_step_um: (same && r.step_n > 0)
                 .then(|| (r.step_sum / i64::from(r.step_n)) as i32),
+            step_wear,
             losses: m.write_losses(),
         }
     }
