@@ -346,6 +346,17 @@ fn first_reaching(start: u64, step: u64, limit: u64) -> u64 {
     }
 }
 
+/// How many whole iterations, the first from its head at `mc_b`, `d` milli-cycles each,
+/// its last block starting `last_start` (in the first), end before `event_mc`: every
+/// block starts before it **and every read is done before it** (a block's reads come
+/// after its charge, up to the next iteration's head; counting block starts only, the
+/// skip took one iteration too many whenever the event fell in the last block, and the
+/// skipping run differed from `--no-skip` by one iteration: 11 instructions of the
+/// sector erase's wait under the ART model).
+fn whole_iterations_before(mc_b: u64, d: u64, last_start: u64, event_mc: u64) -> u64 {
+    first_reaching(last_start.max(mc_b + d), d, event_mc)
+}
+
 /// The largest gap between consecutive times of `count` events `d_mc` milli-cycles
 /// apart from `m0`, on a clock at `(base_ps, base_mc, hz)` (the times are
 /// `base_ps + (mc - base_mc)·10^9 / hz`, rounded down, as [`crate::time::Clock`] has
@@ -612,7 +623,13 @@ fn attempt(uc: &mut Unicorn<'_, Soc>, p: usize) -> Result<bool, Abort> {
             next_event_mc = next_event_mc.min(s.clock.mc_at(e));
         }
     }
-    let mut k = first_reaching(last_start, d, next_event_mc);
+    // The event bounds whole iterations, reads included: a block's reads come after its
+    // charge, up to the next iteration's head (`mc_b + d` for the first), so an
+    // iteration whose last block *starts* before the event may read after it (a device
+    // that answers by the time of the read, the flash's BSY at the erase's end, has
+    // changed then: the loop leaves one iteration earlier than the skip assumed).
+    let by_event = whole_iterations_before(mc_b, d, last_start, next_event_mc);
+    let mut k = by_event;
     for h in &held {
         if h.until_ps != u64::MAX {
             k = k.min(first_reaching(
@@ -633,9 +650,27 @@ fn attempt(uc: &mut Unicorn<'_, Soc>, p: usize) -> Result<bool, Abort> {
     }
     // Never past the point where the arithmetic below could overflow.
     k = k.min(1 << 40);
+    if debug() {
+        let ev = by_event;
+        let hs: Vec<(usize, u64, u64, u64)> = held
+            .iter()
+            .filter(|h| h.until_ps != u64::MAX)
+            .map(|h| {
+                let kk = first_reaching(access_mc[h.blk], d, s.clock.mc_at(h.until_ps));
+                let t_last = s
+                    .clock
+                    .time_at_mc(access_mc[h.blk] + kk.saturating_sub(1) * d);
+                (h.blk, kk, t_last, h.until_ps)
+            })
+            .collect();
+        eprintln!(
+            "SKIPK head {head:#x} d {d} k {k} ev {ev} held {hs:?} ncons {}",
+            o.constraints.len()
+        );
+    }
     if k.saturating_mul(n_iter) < MIN_SAVED_INSNS {
         // An event is close (try again after it), or the loop ends soon by itself.
-        let bounded_by_loop = k < first_reaching(last_start, d, next_event_mc);
+        let bounded_by_loop = k < by_event;
         return if bounded_by_loop {
             Err(Abort("too short to be worth it"))
         } else {
@@ -739,6 +774,21 @@ mod tests {
         // Two events whose gap does not round up.
         assert_eq!(max_gap_ps(base, 0, 8_000, 2), times[1] - times[0]);
         assert_eq!(max_gap_ps(base, 0, 8_000, 1), 0);
+    }
+
+    #[test]
+    fn an_iteration_whose_last_block_read_after_the_event_was_skipped() {
+        // 11 cycles an iteration, its last block starting 8 cycles in: the second
+        // iteration's last block starts at 19 000 mc, before an event at 21 000, but
+        // its reads run to 22 000, after it. Only the first iteration is skipped.
+        assert_eq!(whole_iterations_before(0, 11_000, 8_000, 21_000), 1);
+        // The old count (block starts only) took both.
+        assert_eq!(first_reaching(8_000, 11_000, 21_000), 2);
+        // An event after both iterations' ends: both.
+        assert_eq!(whole_iterations_before(0, 11_000, 8_000, 22_001), 2);
+        assert_eq!(whole_iterations_before(0, 11_000, 8_000, 22_000), 1);
+        // An event before the first iteration ends: none.
+        assert_eq!(whole_iterations_before(0, 11_000, 8_000, 10_000), 0);
     }
 
     #[test]
