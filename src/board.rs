@@ -284,14 +284,17 @@ impl PlcPins {
 }
 
 /// The E-STOP's outputs besides the propulsion (whose EN the safety path's
-/// [`BoardStop::stop_now`] sets): lock IN1/IN2 (PD12/PD13) and MATED (PD1) low — one
-/// set/reset store, no read-modify-write, from any context.
-fn estop_lock_and_mated_off() {
+/// [`BoardStop::stop_now`] sets): lock IN1/IN2 (PD12/PD13), MATED (PD1) and READY (PD0)
+/// low — one set/reset store, no read-modify-write, from any context. (READY stayed
+/// high until the next control run, up to a sample period, with an edge no step had
+/// taken: a dock then was refused at its step, but the PLC saw READY: issue 32's
+/// second review.)
+fn estop_outputs_off() {
     // SAFETY: a fixed MMIO set/reset register of GPIOD (clocked since init).
     unsafe {
         core::ptr::write_volatile(
             (update_layout::safe::GPIOD + update_layout::safe::BSRR) as *mut u32,
-            (1 << (12 + 16)) | (1 << (13 + 16)) | (1 << (1 + 16)),
+            (1 << (12 + 16)) | (1 << (13 + 16)) | (1 << (1 + 16)) | (1 << 16),
         );
     }
 }
@@ -541,7 +544,9 @@ mod app {
         let (used, size) = crash::stack_usage();
         ctrl.set_stack_usage(used, size);
 
-        // 11. The console on USART2.
+        // 11. The console on USART2 (from here a byte may come in: a line typed while
+        // booting was typed after this instant, its issue time's bound).
+        console::mark_rx_start(clock::now_us_low());
         let serial = match dp.USART2.serial(
             (gpioa.pa2, gpioa.pa3),
             SerialConfig::default().baudrate(115_200.bps()),
@@ -650,7 +655,7 @@ mod app {
         // The propulsion first, by the same stop and latch as the overload's — on every
         // edge, the closing one too: nothing filters the stop.
         let n = cx.local.estop_stop.stop_now();
-        estop_lock_and_mated_off();
+        estop_outputs_off();
         // SAFETY: EXTI PR is write-1-to-clear; line 5 is ours. Cleared before the level
         // is read: an edge after this read pends the interrupt again.
         unsafe {
@@ -731,12 +736,13 @@ mod app {
             // The handshake with the E-STOP's edges as they are now: one no step has
             // taken keeps MATED and READY low (the interrupt drove them low; issue 32's
             // review). An edge between this snapshot and the write: its interrupt's
-            // MATED-low may have come before the write, so it is done again after.
+            // MATED- and READY-low may have come before the write, so it is done again
+            // after.
             let edges = ESTOP_EDGES.snapshot();
             ctrl.set_plc(plc.dock.is_low(), plc.estop.is_high(), edges);
             plc.write(ctrl.handshake());
             if ESTOP_EDGES.snapshot().edges != edges.edges {
-                estop_lock_and_mated_off();
+                estop_outputs_off();
             }
         });
         rtic::pend(pac::Interrupt::SPI1);
@@ -852,7 +858,9 @@ mod app {
         let serial = core::str::from_utf8(&serial_hex).unwrap_or("");
         cx.local.console.set_unit(serial);
         let mut stack_checked_us = 0u64;
-        let mut console_quiet_us = clock::now_us_low();
+        // Before the console's receive started in init (a line typed while booting
+        // came after it).
+        let mut console_quiet_us = console::rx_started_us();
         loop {
             // Sleep until there is work: every interrupt that gives idle work sets
             // IDLE_WORK (the service after each run, at least once a sample period; the
@@ -867,8 +875,13 @@ mod app {
             // later was typed after it (its issue time, below).
             let looked_us = clock::now_us_low();
             let console_waiting = cx.local.term.rx_pending();
-            if !console_waiting {
-                console_quiet_us = looked_us;
+            // Quiet: nothing in the ring and no line under way in the reader (the ring
+            // empties as the reader takes a line's first bytes: counting the ring alone
+            // made a clear's issue time its last byte's, and a pulse in the middle of
+            // the line came before it: issue 32's second review). Less one character's
+            // time: a byte being shifted in at the look lands after it.
+            if !console_waiting && !cx.local.console.line_started() {
+                console_quiet_us = looked_us.wrapping_sub(console::CHAR_US);
             }
             let pending =
                 console_waiting || cx.local.modbus_line.rx_pending() || cx.local.server.receiving();

@@ -126,6 +126,25 @@ const CR_RX: u32 = (4 << 25) | (2 << 16) | (1 << 10) | (1 << 8) | (0b1111 << 1);
 /// read-modify-write, so the idle loop can set it while the interrupt clears it.
 const USART2_CR1_TXEIE_BB: *mut u32 = (0x4200_0000 + 0x440C * 32 + 7 * 4) as *mut u32;
 
+/// One character on the console's line at 115 200 Bd 8N1 (10 bits: 86.8 µs), rounded
+/// up, µs: how long before it lands a byte may have begun.
+pub const CHAR_US: u32 = 87;
+
+/// When the console's receive was set up in init (`mark_rx_start`), µs (low word of
+/// the clock).
+static RX_STARTED_US: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
+
+/// Init, before USART2 is set up: no byte of the console came before `now_us`.
+pub fn mark_rx_start(now_us: u32) {
+    RX_STARTED_US.store(now_us, core::sync::atomic::Ordering::Relaxed);
+}
+
+/// The instant [`mark_rx_start`] recorded: the idle loop's first bound for a line's
+/// issue time.
+pub fn rx_started_us() -> u32 {
+    RX_STARTED_US.load(core::sync::atomic::Ordering::Relaxed)
+}
+
 /// Set up DMA1 stream 5 (its clock enabled) to receive USART2 into the ring, and let
 /// USART2 request it. Taking DMA1 claims it: nothing else uses it.
 pub fn start_rx(_dma1: pac::DMA1) {

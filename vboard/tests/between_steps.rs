@@ -533,6 +533,92 @@ fn a_console_clear_typed_before_an_estop_pulse_and_read_after_it_recovered_the_m
     assert!(s.plc_out().fault, "still latched (console: {text:?})");
 }
 
+/// Issue 32's second review, finding 1: idle took the console for quiet whenever its
+/// receive ring was empty, and the ring empties as the line reader takes a line's
+/// first bytes: a clear's issue time was its last byte's. A `clear-fault` sent whole, a
+/// 50 µs pulse 0.2 ms into it, a control step taking the pulse's edges before the CR
+/// lands: the clear was accepted after that step as issued after the pulse, and a
+/// motor was driven. The console is quiet now only with no line under way
+/// (`Console::line_started`).
+#[test]
+fn an_estop_pulse_in_the_middle_of_a_console_clear_was_swallowed() {
+    for rate in [80, 10] {
+        let what = format!("{rate} SPS");
+        let mut s = ready(Session::new(options(rate)).unwrap());
+        assert!(s.maint_enter().unwrap(), "{what}");
+        s.estop_pulse(2 * PS_PER_MS).unwrap();
+        s.run_for(300 * PS_PER_MS).unwrap();
+        assert!(s.plc_out().fault, "{what}: the E-STOP latched");
+        // The line starts 0.5 ms before a DOUT edge (its step follows at once); its CR
+        // lands 0.54 ms after the edge.
+        let period_ps = 1_000 * PS_PER_MS / u64::from(rate);
+        let mut dout_ps = s.machine().hx.next_conversion_ns() * 1_000;
+        while dout_ps < s.now() + 20 * PS_PER_MS {
+            dout_ps += period_ps;
+        }
+        s.run_exact(dout_ps - 500 * PS_PER_US - s.now()).unwrap();
+        let n = s.board.soc().console_out.len();
+        assert!(s.board.soc_mut().console_send(b"clear-fault\r\n"));
+        s.run_exact(200 * PS_PER_US).unwrap();
+        let pulse_at = s.now();
+        s.estop_pulse(50 * PS_PER_US).unwrap();
+        s.run_for(500 * PS_PER_MS).unwrap();
+        let text = console_text(&s, n);
+        let steps = s
+            .board
+            .soc()
+            .entry_log
+            .times(vboard::scene::CONTROL_EXCEPTION);
+        assert!(
+            steps
+                .iter()
+                .any(|&t| t > pulse_at && t < dout_ps + 500 * PS_PER_US),
+            "{what}: no step between the pulse and the line's end"
+        );
+        assert_eq!(
+            driven_since(&s, pulse_at),
+            None,
+            "{what}: a motor driven after a pulse in the middle of the clear's line (console: {text:?})"
+        );
+        assert!(
+            s.plc_out().fault,
+            "{what}: still latched (console: {text:?})"
+        );
+    }
+}
+
+/// Issue 32's second review, finding 3: the E-STOP interrupt drove the lock and MATED
+/// low, not READY, which stayed high until the next control run (up to a sample
+/// period): the PLC saw READY with an edge no step had taken. At rest and READY, a
+/// 50 µs pulse 1 ms after a step: READY low within 20 µs of the edge.
+#[test]
+fn ready_stayed_high_for_a_sample_period_after_an_estop_edge() {
+    for rate in [80, 10] {
+        let mut s = ready(Session::new(options(rate)).unwrap());
+        assert!(s.plc_out().ready, "{rate} SPS: READY at rest");
+        let period_ps = 1_000 * PS_PER_MS / u64::from(rate);
+        let mut dout_ps = s.machine().hx.next_conversion_ns() * 1_000;
+        while dout_ps < s.now() + 5 * PS_PER_MS {
+            dout_ps += period_ps;
+        }
+        s.run_exact(dout_ps + PS_PER_MS - s.now()).unwrap();
+        let pulse_at = s.now();
+        s.estop_pulse(50 * PS_PER_US).unwrap();
+        let low_at = s
+            .board
+            .soc()
+            .edges
+            .iter()
+            .find(|e| e.signal == Signal::Ready && !e.high && e.t_ps >= pulse_at)
+            .map(|e| e.t_ps);
+        assert!(
+            low_at.is_some_and(|t| t - pulse_at <= 20 * PS_PER_US),
+            "{rate} SPS: READY low {:?} µs after the edge",
+            low_at.map(|t| (t - pulse_at) / PS_PER_US)
+        );
+    }
+}
+
 /// Issue 32's review, suspicion 5: the clear's issue time came from its first
 /// character's interrupt stamp less one character time, and the stamp is late by the
 /// interrupt's latency (its entry, and any handler above it: the HX711's readout). An

@@ -166,6 +166,14 @@ impl<const N: usize> LineReader<N> {
         self.returned = false;
     }
 
+    /// Whether a line is under way: a byte of it taken (kept, or a line being
+    /// discarded: overlong, a byte lost) or an escape sequence begun, and not yet
+    /// returned.
+    pub fn under_way(&self) -> bool {
+        !self.returned
+            && (!self.buf.is_empty() || self.overflow || self.lost || self.esc != Esc::None)
+    }
+
     /// The line typed so far (empty once a line was returned, or while an overlong
     /// one is being discarded): what an interactive terminal shows after its prompt.
     pub fn pending(&self) -> &[u8] {
@@ -374,6 +382,31 @@ mod tests {
         assert_eq!(feed(&mut r, b"wear\r"), [Ev::L("wear".to_string())]);
         r.lost();
         assert_eq!(feed(&mut r, b"\n"), [Ev::E(LineError::InputLost)]);
+    }
+
+    /// Issue 32's second review: the board took the console for quiet whenever its
+    /// receive ring was empty, which it is as soon as this reader has taken a line's
+    /// first bytes; a clear's issue time then followed its last byte, not its first.
+    /// The reader says a line is under way from its first byte to its end.
+    #[test]
+    fn a_line_under_way_from_its_first_byte_to_its_end() {
+        let mut r = LineReader::<8>::new();
+        assert!(!r.under_way());
+        assert_eq!(feed(&mut r, b"cl"), []);
+        assert!(r.under_way(), "bytes of a line taken");
+        assert_eq!(feed(&mut r, b"ear\r"), [Ev::L("clear".into())]);
+        assert!(!r.under_way(), "the line returned");
+        // An overlong line being discarded, and a line that lost a byte: under way too.
+        assert_eq!(feed(&mut r, b"123456789"), []);
+        assert!(r.under_way());
+        assert_eq!(feed(&mut r, b"\n"), [Ev::E(LineError::TooLong)]);
+        assert!(!r.under_way());
+        r.lost();
+        assert!(r.under_way());
+        // An escape sequence begun.
+        let mut r = LineReader::<8>::new();
+        assert_eq!(feed(&mut r, b"\x1b"), []);
+        assert!(r.under_way());
     }
 
     #[test]

@@ -604,6 +604,16 @@ impl Console {
         st
     }
 
+    /// Whether a line is under way: bytes of it read (or a line recalled), an escape
+    /// sequence begun, or a line being discarded (overlong, a byte lost). The board's
+    /// idle loop takes the console for quiet (a later line was typed after that
+    /// instant: its issue time, docs/board.md rule 1) only when its receive ring is
+    /// empty **and** no line is under way here; the ring alone empties as this reads a
+    /// line's first bytes.
+    pub fn line_started(&self) -> bool {
+        self.reader.under_way() || self.term.esc != 0
+    }
+
     /// Phase 1, without the controller: take input bytes (at most
     /// `MAX_BYTES_PER_POLL`) until a whole line is in; bad input is answered here.
     #[inline(never)]
