@@ -57,6 +57,16 @@ fn driven_since(s: &Session, from_ps: u64) -> Option<u64> {
         .or_else(|| (m.axis.enabled() || m.lock.driven()).then(|| s.now()))
 }
 
+/// The first DOUT falling edge (a sample's step follows at once) at least `ahead_ps`
+/// from now, the HX711 converting every `period_ps`.
+fn next_dout_ps(s: &Session, ahead_ps: u64, period_ps: u64) -> u64 {
+    let mut dout_ps = s.machine().hx.next_conversion_ns() * 1_000;
+    while dout_ps < s.now() + ahead_ps {
+        dout_ps += period_ps;
+    }
+    dout_ps
+}
+
 /// Run in steps of `step_ps` until `pred` holds (at most `limit_ps`); whether it held.
 fn run_fine(
     s: &mut Session,
@@ -552,10 +562,7 @@ fn an_estop_pulse_in_the_middle_of_a_console_clear_was_swallowed() {
         // The line starts 0.5 ms before a DOUT edge (its step follows at once); its CR
         // lands 0.54 ms after the edge.
         let period_ps = 1_000 * PS_PER_MS / u64::from(rate);
-        let mut dout_ps = s.machine().hx.next_conversion_ns() * 1_000;
-        while dout_ps < s.now() + 20 * PS_PER_MS {
-            dout_ps += period_ps;
-        }
+        let dout_ps = next_dout_ps(&s, 20 * PS_PER_MS, period_ps);
         s.run_exact(dout_ps - 500 * PS_PER_US - s.now()).unwrap();
         let n = s.board.soc().console_out.len();
         assert!(s.board.soc_mut().console_send(b"clear-fault\r\n"));
@@ -597,10 +604,7 @@ fn ready_stayed_high_for_a_sample_period_after_an_estop_edge() {
         let mut s = ready(Session::new(options(rate)).unwrap());
         assert!(s.plc_out().ready, "{rate} SPS: READY at rest");
         let period_ps = 1_000 * PS_PER_MS / u64::from(rate);
-        let mut dout_ps = s.machine().hx.next_conversion_ns() * 1_000;
-        while dout_ps < s.now() + 5 * PS_PER_MS {
-            dout_ps += period_ps;
-        }
+        let dout_ps = next_dout_ps(&s, 5 * PS_PER_MS, period_ps);
         s.run_exact(dout_ps + PS_PER_MS - s.now()).unwrap();
         let pulse_at = s.now();
         s.estop_pulse(50 * PS_PER_US).unwrap();
@@ -639,10 +643,7 @@ fn an_estop_pulse_in_the_first_microseconds_of_a_clears_frame_was_swallowed() {
         s.estop_pulse(2 * PS_PER_MS).unwrap();
         s.run_for(300 * PS_PER_MS).unwrap();
         assert!(s.plc_out().fault, "{what}");
-        let mut dout_ps = s.machine().hx.next_conversion_ns() * 1_000;
-        while dout_ps < s.now() + char_ps + PS_PER_MS {
-            dout_ps += 12_500 * PS_PER_US;
-        }
+        let dout_ps = next_dout_ps(&s, char_ps + PS_PER_MS, 12_500 * PS_PER_US);
         let start_ps = dout_ps + 2 * PS_PER_US - char_ps;
         s.run_exact(start_ps - s.now()).unwrap();
         let n = s.board.soc().modbus_out.len();
