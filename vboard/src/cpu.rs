@@ -229,15 +229,32 @@ fn read_u32(uc: &Unicorn<'_, Soc>, addr: u32) -> Option<u32> {
 /// Thumb instructions in `bytes` (a 32-bit instruction starts with 0b11101, 0b11110 or
 /// 0b11111).
 pub fn count_insns(bytes: &[u8]) -> u32 {
+    scan_insns(bytes).0
+}
+
+/// The instructions in `bytes` of Thumb code, and whether one of them may write
+/// PRIMASK, FAULTMASK or BASEPRI: a CPS (`1011 0110 011x 0xxx`) or an MSR
+/// (`1111 0011 1000 nnnn`, any special register: a superset, never a miss).
+fn scan_insns(bytes: &[u8]) -> (u32, bool) {
     let mut i = 0;
     let mut n = 0;
+    let mut masks = false;
     while i + 1 < bytes.len() {
         let hw = u16::from_le_bytes([bytes[i], bytes[i + 1]]);
-        i += if hw >> 11 >= 0b11101 { 4 } else { 2 };
+        if hw >> 11 >= 0b11101 {
+            masks |= hw & 0xFFF0 == 0xF380;
+            i += 4;
+        } else {
+            masks |= hw & 0xFFE8 == 0xB660;
+            i += 2;
+        }
         n += 1;
     }
-    n
+    (n, masks)
 }
+
+/// The icache's flag of a block that may write a mask register ([`scan_insns`]).
+const ICACHE_MASKS: u32 = 1 << 31;
 
 fn icache_index(addr: u64) -> Option<usize> {
     let a = addr as u32;
@@ -250,26 +267,29 @@ fn icache_index(addr: u64) -> Option<usize> {
     }
 }
 
-fn block_insns(uc: &mut Unicorn<'_, Soc>, addr: u64, size: u32) -> u64 {
+/// The instructions of the block at `addr` (`size` bytes), and whether it may write a
+/// mask register (the block hook's pending-interrupt check is then due at the next block).
+#[inline]
+fn block_insns(uc: &mut Unicorn<'_, Soc>, addr: u64, size: u32) -> (u64, bool) {
     let idx = icache_index(addr);
     if let Some(i) = idx {
         let c = uc.get_data().icache[i];
-        if c != 0 && c >> 12 == size {
-            return (c & 0xFFF) as u64;
+        if c != 0 && (c & !ICACHE_MASKS) >> 12 == size {
+            return ((c & 0xFFF) as u64, c & ICACHE_MASKS != 0);
         }
     }
     let mut buf = vec![0u8; size as usize];
-    let n = if uc.mem_read(addr, &mut buf).is_ok() {
-        count_insns(&buf)
+    let (n, masks) = if uc.mem_read(addr, &mut buf).is_ok() {
+        scan_insns(&buf)
     } else {
-        size / 2
+        (size / 2, true)
     };
     if let Some(i) = idx {
-        if size < (1 << 20) && n < 0x1000 {
-            uc.get_data_mut().icache[i] = (size << 12) | n;
+        if size < (1 << 19) && n < 0x1000 {
+            uc.get_data_mut().icache[i] = (size << 12) | n | if masks { ICACHE_MASKS } else { 0 };
         }
     }
-    n as u64
+    (n as u64, masks)
 }
 
 impl Board {
@@ -430,11 +450,22 @@ impl Board {
             restore_code(uc);
             let s = uc.get_data();
             let mut stop = s.stop || s.clock.mc() >= s.next_event_mc;
-            // With PRIMASK set nothing but an NMI (none wired) can be taken: one register
-            // read instead of three while code runs with interrupts masked.
-            if !stop && s.irq_waiting && reg(uc, RegisterARM::PRIMASK) & 1 == 0 {
-                let m = masks(uc);
-                stop = uc.get_data().nvic.to_take(m).is_some();
+            // An interrupt pending but masked: is it taken now? The answer changes only
+            // with the NVIC (a register access, which counts in `io_seq`; an event, which
+            // ends the run; an exception entry or return) or with a mask register (an
+            // instruction of the block before: `block_insns`' flag); until then the last
+            // answer stands, without its register reads (8 % of a run at rest).
+            if !stop && s.irq_waiting && s.masks_settled != Some(s.io_seq) {
+                // With PRIMASK set nothing but an NMI (none wired) can be taken: one
+                // register read instead of three while code runs with interrupts masked.
+                if reg(uc, RegisterARM::PRIMASK) & 1 == 0 {
+                    let m = masks(uc);
+                    stop = uc.get_data().nvic.to_take(m).is_some();
+                }
+                if !stop {
+                    let s = uc.get_data_mut();
+                    s.masks_settled = Some(s.io_seq);
+                }
             }
             if stop {
                 uc.get_data_mut().stop = true;
@@ -457,9 +488,13 @@ impl Board {
                 }
                 if let Some(d) = s.stall_for_flash() {
                     apply_done(uc, d);
+                    uc.get_data_mut().masks_settled = None;
                 }
             }
-            let n = block_insns(uc, addr, size);
+            let (n, writes_masks) = block_insns(uc, addr, size);
+            if writes_masks {
+                uc.get_data_mut().masks_settled = None;
+            }
             if uc.get_data().loops.enabled && crate::loops::on_block(uc, a, size, n) {
                 return;
             }
@@ -535,6 +570,7 @@ impl Board {
                     };
                     let mut old = vec![0u8; size];
                     let _ = uc.mem_read(addr, &mut old);
+                    uc.get_data_mut().masks_settled = None;
                     if let Some(d) = uc.get_data_mut().code_write(a, size, v as u32) {
                         apply_done(uc, d);
                         let _ = uc.mem_read(addr, &mut old);
@@ -701,6 +737,7 @@ const FRAME_REGS: [RegisterARM; 6] = [
 /// `e` in handler mode; `ret` is the return address. `Err` when the frame cannot be
 /// stacked (the stack points outside RAM).
 fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
+    uc.get_data_mut().masks_settled = None;
     let xpsr = reg(uc, RegisterARM::XPSR);
     let from_exc = (xpsr & 0x1FF) as usize;
     let control = reg(uc, RegisterARM::CONTROL);
@@ -785,6 +822,7 @@ fn note_entry(s: &mut Soc, e: u32, from_exc: usize, from_pc: Option<u32>) {
 /// Exception return through EXC_RETURN (the engine's interrupt 8): tail-chain or
 /// unstack.
 fn exception_return(uc: &mut Unicorn<'_, Soc>) {
+    uc.get_data_mut().masks_settled = None;
     let exc_return = reg(uc, RegisterARM::PC) | 1;
     let ipsr = reg(uc, RegisterARM::IPSR) & 0x1FF;
     {
@@ -909,6 +947,7 @@ fn meter_block(uc: &mut Unicorn<'_, Soc>, addr: u32) {
 /// at `pc`: taken as itself if enabled and allowed, else escalated to HardFault; a
 /// fault that HardFault cannot take is a lockup.
 fn fault(uc: &mut Unicorn<'_, Soc>, kind: u32, cfsr: u32, pc: u32, what: &str) {
+    uc.get_data_mut().masks_settled = None;
     let m = masks(uc);
     let (target, exec) = {
         let n = &uc.get_data().nvic;
@@ -1178,6 +1217,7 @@ impl Board {
                 s.next_event_mc = s.clock.mc_at(t);
                 s.next_event_ps = t;
                 s.irq_waiting = s.nvic.anything_pending();
+                s.masks_settled = None;
                 s.stop = false;
             }
             let pc = reg(&self.uc, RegisterARM::PC);
@@ -1508,5 +1548,31 @@ impl Board {
                 ..f.clone()
             })
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn thumb(hws: &[u16]) -> Vec<u8> {
+        hws.iter().flat_map(|h| h.to_le_bytes()).collect()
+    }
+
+    #[test]
+    fn a_block_is_flagged_when_it_may_write_a_mask_register_and_only_then() {
+        // movs r0, #1; adds r0, r0, #1; bx lr: three instructions, no mask.
+        assert_eq!(scan_insns(&thumb(&[0x2001, 0x1c40, 0x4770])), (3, false));
+        // cpsie i; cpsid i; cpsie f
+        for cps in [0xb662, 0xb672, 0xb661] {
+            assert_eq!(scan_insns(&thumb(&[0x2001, cps])), (2, true), "{cps:#06x}");
+        }
+        // msr basepri, r0 (f380 8811); msr primask, r3 (f383 8810)
+        assert_eq!(scan_insns(&thumb(&[0xf380, 0x8811, 0x4770])), (2, true));
+        assert_eq!(scan_insns(&thumb(&[0xf383, 0x8810])), (1, true));
+        // mrs r0, basepri (f3ef 8011) reads, bl (f000 f800) branches: neither writes.
+        assert_eq!(scan_insns(&thumb(&[0xf3ef, 0x8011, 0xf000, 0xf800])), (2, false));
+        // The halfword of a 32-bit instruction that looks like a CPS is not one.
+        assert_eq!(scan_insns(&thumb(&[0xf000, 0xb662])), (1, false));
     }
 }

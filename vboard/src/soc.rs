@@ -251,6 +251,10 @@ pub struct Soc {
     pub next_event_ps: u64,
     /// An interrupt is pending but masked: re-check at every block.
     pub irq_waiting: bool,
+    /// The block hook found the pending interrupt still not to be taken, at this
+    /// `io_seq`, and no exception, flash operation's end or mask-register instruction
+    /// came since (`None`: look again).
+    pub masks_settled: Option<u64>,
     /// Instruction counts of translated blocks, by address (code flash and SRAM).
     pub icache: Vec<u32>,
     /// Flash stalls so far, ps.
@@ -395,6 +399,7 @@ impl Soc {
             next_event_mc: 0,
             next_event_ps: 0,
             irq_waiting: false,
+            masks_settled: None,
             icache: vec![0; ICACHE_FLASH + ICACHE_SRAM],
             stall_ps: 0,
             console_out: Vec::new(),
