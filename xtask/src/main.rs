@@ -57,6 +57,7 @@ fn main() -> ExitCode {
     let mut x = Xtask {
         root,
         t0: Instant::now(),
+        cpu0: busy_cpu_s(),
         passed: 0,
         failed: 0,
     };
@@ -94,17 +95,45 @@ fn root() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from("."))
 }
 
+/// The machine's busy CPU time so far, in seconds (`/proc/stat`'s first line: user,
+/// nice, system, irq, softirq and steal ticks at 100 a second); `None` where there is
+/// no such file.
+fn busy_cpu_s() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    let ticks: Vec<u64> = stat
+        .lines()
+        .next()?
+        .split_whitespace()
+        .skip(1)
+        .filter_map(|f| f.parse().ok())
+        .collect();
+    let busy: u64 = [0, 1, 2, 5, 6, 7]
+        .iter()
+        .filter_map(|&i| ticks.get(i))
+        .sum();
+    Some(busy as f64 / 100.0)
+}
+
 struct Xtask {
     root: PathBuf,
     t0: Instant,
+    /// [`busy_cpu_s`] at the start.
+    cpu0: Option<f64>,
     /// Tests passed and failed, summed over every `test result:` line seen.
     passed: u64,
     failed: u64,
 }
 
 impl Xtask {
+    /// A step's header: the time since the start, and the machine's CPU time since the
+    /// start (every process's, from `/proc/stat`: on a machine running nothing else,
+    /// CI's own; the difference between two headers is what a step cost the cores).
     fn step(&self, what: &str) {
-        println!("\n=== {what} ({}s)", self.t0.elapsed().as_secs());
+        let cpu = match (busy_cpu_s(), self.cpu0) {
+            (Some(now), Some(then)) => format!(", {:.0} s of CPU", now - then),
+            _ => String::new(),
+        };
+        println!("\n=== {what} ({}s{cpu})", self.t0.elapsed().as_secs());
     }
 
     /// A command in `dir` (relative to the root), its output shown as it comes.
@@ -238,8 +267,12 @@ impl Xtask {
         ok &= self.docs();
         ok &= self.vboard_lanes_join(lanes);
 
+        let cpu = match (busy_cpu_s(), self.cpu0) {
+            (Some(now), Some(then)) => format!(", {:.0} s of the machine's CPU", now - then),
+            _ => String::new(),
+        };
         println!(
-            "\n{} passed, {} failed ({}s)",
+            "\n{} passed, {} failed ({}s{cpu})",
             self.passed,
             self.failed,
             self.t0.elapsed().as_secs()
@@ -657,8 +690,12 @@ impl Xtask {
         let (alone, jobs): (Vec<_>, Vec<_>) = jobs
             .into_iter()
             .partition(|(_, t)| ALONE.contains(&t.as_str()));
+        let (paced, jobs): (Vec<_>, Vec<_>) = jobs
+            .into_iter()
+            .partition(|(_, t)| PACED.contains(&t.as_str()));
         Some(Lanes {
             jobs,
+            paced,
             alone,
             cwd: self.root.join(dir),
         })
@@ -746,37 +783,58 @@ impl Xtask {
 /// clock, it passes beside a lane and beside another build (issue 33).
 const ALONE: &[&str] = &[];
 
+/// Virtual-board tests paced to the wall clock (`serve` with a client: a terminal, a
+/// Modbus master, lrzsz's `sb`) that leave a core mostly idle while they wait: measured
+/// on a quiet machine, a fifth of a core or less (`lrzsz_sb…`: 5.9 s of CPU in 30.5 s;
+/// the terminal and Modbus ones 0.3 s in 2-6 s). They run one after another on a lane of
+/// their own beside the CPU lanes, instead of holding one of them idle for about 50 s.
+/// The serve tests that keep a core busy (the PLC docking, the commissioning demo) stay
+/// in the CPU lanes.
+const PACED: &[&str] = &[
+    "lrzsz_sb_sends_a_signed_image_into_the_board_over_a_pty",
+    "a_terminal_that_closed_cleanly_left_the_console_busy_for_the_rest_of_the_run",
+    "a_terminal_reads_wear_as_json_over_a_pty",
+    "a_terminal_reads_the_version_over_tcp",
+    "a_plc_reads_input_registers_over_modbus_tcp",
+    "a_plc_reads_the_firmware_over_modbus_rtu_on_a_pty",
+];
+
 /// The virtual board's longest tests, longest first (started first so that the lanes
-/// end together), by their times in `cargo xtask vboard`'s output (issue 33, on a machine
-/// loaded by other builds: a load average of 7-8 on 2 cores;
-/// the polling loops skipped; the flooded runs are the longest now). Only a schedule: a
+/// end together): every test of 5 s or more, by its time in a fresh clone's `.ci/run`
+/// on 0c0c2c2 (the 2-core machine, loaded by a batch beside it). Only a schedule: a
 /// name that no longer exists is skipped, a new long test costs only the balance.
 const LONG_FIRST: &[&str] = &[
     "one_seed_at_cpi_1_and_3_and_the_cache_model_under_flood_meets_the_targets",
-    "overload_stop_waited_for_the_main_loop_at_10_sps_during_a_console_flood",
     "dock_hold_an_hour_on_the_board_counts_one_cycle_without_wear_while_mated",
-    "overload_stop_waited_for_the_main_loop_at_80_sps_during_a_console_flood",
-    "a_console_byte_was_lost_while_a_record_was_written",
     "a_power_cut_in_the_swap_or_the_first_boot_boots_a_whole_image_and_loses_no_record",
-    "estop_bounce_on_the_board_latches_every_edge_and_recovers",
-    "skipping_the_polling_loops_changes_nothing_in_a_sample_of_the_suite",
-    "a_trial_image_whose_load_cell_is_silent_or_stuck_is_not_confirmed_and_is_rolled_back",
-    "a_power_cut_in_the_transfer_boots_the_old_image_with_state_untouched",
-    "an_image_that_never_confirms_is_rolled_back_after_the_watchdog_reset",
+    "overload_stop_waited_for_the_main_loop_at_10_sps_during_a_console_flood",
+    "a_console_byte_was_lost_while_a_record_was_written",
+    "a_trial_image_whose_load_cell_is_silent_or_stuck_or_whose_confirmation_fails_is_rolled_back",
+    "dockctl_reads_and_updates_the_real_image_over_a_pty",
+    "overload_stop_waited_for_the_main_loop_at_80_sps_during_a_console_flood",
     "the_release_image_updates_itself_over_the_console_with_every_counter_intact",
+    "skipping_the_polling_loops_changes_nothing_in_a_sample_of_the_suite",
+    "estop_bounce_on_the_board_latches_every_edge_and_recovers",
+    "a_power_cut_in_the_transfer_boots_the_old_image_with_state_untouched",
     "a_plc_docks_the_firmware_over_modbus_and_over_the_dock_line",
-    "the_caches_were_not_reset_after_an_odometer_sector_erase",
-    "maintenance_lockout_on_the_board_refuses_remote_motion_until_maint_exit",
-    "one_nominal_cycle_through_the_four_contact_phases",
-    "a_power_cut_during_the_swap_still_boots_the_update_whole",
+    "an_image_that_never_confirms_is_rolled_back_after_the_watchdog_reset",
     "an_update_is_swapped_in_then_rolled_back_at_the_next_reset_unless_confirmed",
-    "a_detached_probe_blocked_the_control_loop",
-    "the_plc_docks_and_undocks_through_the_map_and_the_reply_waits_t3_5",
     "a_trial_image_that_hangs_is_reset_by_the_watchdog_and_rolled_back",
+    "a_sample_of_random_interleavings_keeps_the_invariants",
+    "a_power_cut_during_the_swap_still_boots_the_update_whole",
+    "the_caches_were_not_reset_after_an_odometer_sector_erase",
+    "a_technician_could_not_commission_the_live_board_between_demo_cycles",
+    "the_plc_docks_and_undocks_through_the_map_and_the_reply_waits_t3_5",
+    "debris_is_caught_by_band3_and_shown_on_the_console_modbus_and_the_plot",
+    "a_field_update_failed_while_the_plc_polled_modbus_once_a_second",
+    "a_detached_probe_blocked_the_control_loop",
+    "one_nominal_cycle_through_the_four_contact_phases",
+    "maintenance_lockout_on_the_board_refuses_remote_motion_until_maint_exit",
+    "a_pin_reset_mid_insertion_homed_without_a_request",
     "a_write_protected_odometer_was_retried_at_every_step",
+    "the_release_image_swapped_in_confirms_itself_and_is_kept",
     "step_edges_came_too_close_to_dir_and_en_for_an_opto_isolated_driver",
-    "lrzsz_sb_sends_a_signed_image_into_the_board_over_a_pty",
-    "heavy_default_on_the_board_trips_once_backs_off_and_clears_out_of_the_cone",
+    "a_dock_edge_just_before_maint_docked_after_the_console_said_idle",
 ];
 
 /// The test executables in `cargo test --no-run --message-format=json`'s output (the
@@ -785,6 +843,8 @@ const LONG_FIRST: &[&str] = &[
 /// Test processes to run in lanes ([`Ci::lanes_plan`]): (executable, test name).
 struct Lanes {
     jobs: Vec<(String, String)>,
+    /// [`PACED`]: one after another beside the lanes.
+    paced: Vec<(String, String)>,
     alone: Vec<(String, String)>,
     cwd: PathBuf,
 }
@@ -795,8 +855,9 @@ impl Lanes {
     fn run(self) -> (u64, u64) {
         let lanes = std::thread::available_parallelism().map_or(1, |n| n.get());
         println!(
-            "{} tests in {lanes} lanes, then {} alone",
+            "{} tests in {lanes} lanes, {} paced to the wall clock beside them, then {} alone",
             self.jobs.len(),
+            self.paced.len(),
             self.alone.len()
         );
         let queue = std::sync::Mutex::new(self.jobs.into_iter());
@@ -839,7 +900,13 @@ impl Lanes {
                 }
             }
         };
+        let paced = &self.paced;
         std::thread::scope(|s| {
+            s.spawn(|| {
+                for (exe, test) in paced {
+                    run_one(exe, test);
+                }
+            });
             for _ in 0..lanes {
                 s.spawn(|| loop {
                     let next = queue.lock().map(|mut q| q.next()).ok().flatten();
