@@ -29,6 +29,7 @@
 
 use unicorn_engine::{Arch, ArmCpuModel, HookType, MemType, Mode, Prot, RegisterARM, Unicorn};
 
+use crate::codemem::CodeMem;
 use crate::image::Image;
 use crate::periph::flash::{FlashTiming, FLASH_BASE, ODOMETER_BASE};
 use crate::periph::nvic::{exc, Masks};
@@ -312,12 +313,15 @@ impl Board {
             Unicorn::new_with_data(Arch::ARM, Mode::THUMB, soc).map_err(|x| e("open", x))?;
         uc.ctl_set_cpu_model(ArmCpuModel::CORTEX_M4 as i32)
             .map_err(|x| e("cpu model", x))?;
-        // Flash: the boot alias at 0 and the code sectors, read/execute only.
+        // Flash: the boot alias at 0 and the code sectors, read/execute only, both over
+        // the one array of bytes the board owns (`CodeMem`).
+        let mut code = CodeMem::new(CODE_LEN as usize);
+        code.write(0, &image.flash);
         for base in [0u64, FLASH_BASE as u64] {
-            uc.mem_map(base, CODE_LEN as u64, Prot::READ | Prot::EXEC)
+            code.map(&mut uc, base, Prot::READ | Prot::EXEC)
                 .map_err(|x| e("map flash", x))?;
-            uc.mem_write(base, &image.flash).map_err(|x| e("load", x))?;
         }
+        uc.get_data_mut().code_mem = Some(code);
         // The odometer sectors go through the flash interface model.
         uc.mmio_map(
             ODOMETER_BASE as u64,
@@ -676,12 +680,32 @@ fn apply_done(uc: &mut Unicorn<'_, Soc>, d: crate::periph::flash::Done) {
     }
 }
 
+/// Store `bytes` at `addr` in the code sectors (either mapping: both are the one array),
+/// as the board, not as the core; `false` when `addr` is not in them.
+fn write_code(uc: &mut Unicorn<'_, Soc>, addr: u32, bytes: &[u8]) -> bool {
+    let off = if addr < CODE_LEN {
+        addr
+    } else if addr.wrapping_sub(FLASH_BASE) < CODE_LEN {
+        addr - FLASH_BASE
+    } else {
+        return false;
+    };
+    match uc.get_data_mut().code_mem.as_mut() {
+        Some(c) => {
+            c.write(off as usize, bytes);
+            true
+        }
+        None => false,
+    }
+}
+
 /// New contents of the code sectors at `addr` (both the flash and its alias at 0): the
 /// engine's translated blocks and the instruction counts there are dropped.
 fn code_changed(uc: &mut Unicorn<'_, Soc>, addr: u32, bytes: &[u8]) {
     let len = bytes.len() as u32;
-    let _ = uc.mem_write(addr as u64, bytes);
-    let _ = uc.mem_write((addr - FLASH_BASE) as u64, bytes);
+    if !write_code(uc, addr, bytes) {
+        let _ = uc.mem_write(addr as u64, bytes);
+    }
     let _ = uc.ctl_remove_cache(addr as u64, (addr + len) as u64);
     let _ = uc.ctl_remove_cache((addr - FLASH_BASE) as u64, (addr - FLASH_BASE + len) as u64);
     if let (Some(from), Some(to)) = (
@@ -702,7 +726,9 @@ fn restore_code(uc: &mut Unicorn<'_, Soc>) {
         return;
     }
     for (addr, old) in std::mem::take(&mut uc.get_data_mut().code_restore) {
-        let _ = uc.mem_write(addr as u64, &old);
+        if !write_code(uc, addr, &old) {
+            let _ = uc.mem_write(addr as u64, &old);
+        }
     }
 }
 
@@ -1571,7 +1597,10 @@ mod tests {
         assert_eq!(scan_insns(&thumb(&[0xf380, 0x8811, 0x4770])), (2, true));
         assert_eq!(scan_insns(&thumb(&[0xf383, 0x8810])), (1, true));
         // mrs r0, basepri (f3ef 8011) reads, bl (f000 f800) branches: neither writes.
-        assert_eq!(scan_insns(&thumb(&[0xf3ef, 0x8011, 0xf000, 0xf800])), (2, false));
+        assert_eq!(
+            scan_insns(&thumb(&[0xf3ef, 0x8011, 0xf000, 0xf800])),
+            (2, false)
+        );
         // The halfword of a 32-bit instruction that looks like a CPS is not one.
         assert_eq!(scan_insns(&thumb(&[0xf000, 0xb662])), (1, false));
     }

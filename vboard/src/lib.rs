@@ -5,6 +5,8 @@
 //! peripherals the image uses), its pins wired to the simulated machine of `hil-sim`.
 //!
 //! * [`cpu`]: the core, time, exceptions, sleep, reset;
+//! * [`codemem`]: the code sectors' bytes, shared with the engine (the crate's only
+//!   unsafe code);
 //! * [`soc`]: the bus map, events, interrupt lines, pins;
 //! * [`periph`]: one model per peripheral;
 //! * [`world`]: the board's wiring to hil-sim's devices;
@@ -18,6 +20,7 @@
 //! GPL-2.0 (it links unicorn); nothing of the firmware depends on it.
 
 pub mod cli;
+pub mod codemem;
 pub mod cpu;
 pub mod image;
 pub mod loops;

@@ -239,6 +239,9 @@ pub struct Soc {
     /// Code-sector bytes the engine stored raw (a flash program through the CPU), to be
     /// put back before anything reads them: the array changes when the program ends.
     pub code_restore: Vec<(u32, Vec<u8>)>,
+    /// The code sectors' bytes, which the engine maps at 0 and at the flash's base
+    /// (`codemem.rs`); `None` before the board maps them.
+    pub code_mem: Option<crate::codemem::CodeMem>,
     /// Programs and sector erases of the code sectors (0-9) completed or cut.
     pub code_programs: u64,
     /// See `code_programs`.
@@ -393,6 +396,7 @@ impl Soc {
             unmodelled: None,
             reset_due: None,
             code_restore: Vec::new(),
+            code_mem: None,
             code_programs: 0,
             code_erases: 0,
             stop: false,
