@@ -92,6 +92,29 @@ pub mod irq {
     pub const DMA1: [u32; 8] = [11, 12, 13, 14, 15, 16, 17, 47];
 }
 
+/// The interrupt lines [`Soc::update_lines`] drives, as exception bits: USART2, USART3,
+/// the flash, DMA1's streams, the timers and EXTI's (lines 0-4, 9_5, 15_10).
+const LINES: u128 = {
+    let fixed = [irq::USART2, irq::USART3, irq::FLASH, 6, 7, 8, 9, 10, 23, 40];
+    let mut m = 0u128;
+    let mut i = 0;
+    while i < fixed.len() {
+        m |= 1 << (exc::IRQ0 + fixed[i]);
+        i += 1;
+    }
+    i = 0;
+    while i < irq::DMA1.len() {
+        m |= 1 << (exc::IRQ0 + irq::DMA1[i]);
+        i += 1;
+    }
+    i = 0;
+    while i < irq::TIM.len() {
+        m |= 1 << (exc::IRQ0 + irq::TIM[i]);
+        i += 1;
+    }
+    m
+};
+
 /// Something the board noticed that software should not have done, but that the
 /// hardware would have let pass (reported, the run continues).
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -844,24 +867,25 @@ impl Soc {
         if self.usart2.take_irq_pulse() {
             self.nvic.pend(exc::IRQ0 + irq::USART2);
         }
-        self.nvic.set_line(irq::USART2, self.usart2.irq());
+        // Every modelled line at once, as one mask (the levels of `LINES`' bits): this
+        // runs after every register access and exception return.
+        let mut high = 0u128;
+        let mut line = |irq: u32, on: bool| high |= u128::from(on) << (exc::IRQ0 + irq);
+        line(irq::USART2, self.usart2.irq());
         for (s, &l) in irq::DMA1.iter().enumerate() {
-            self.nvic.set_line(l, self.dma1.irq(s));
+            line(l, self.dma1.irq(s));
         }
-        self.nvic.set_line(irq::USART3, self.usart3.irq());
-        self.nvic.set_line(irq::FLASH, self.flash.irq());
+        line(irq::USART3, self.usart3.irq());
+        line(irq::FLASH, self.flash.irq());
         for (i, t) in self.tims.iter().enumerate() {
-            self.nvic.set_line(irq::TIM[i], t.irq());
-        }
-        let mut exti = [false; 7];
-        for irq in self.exti.irqs() {
-            if let Some(i) = [6u32, 7, 8, 9, 10, 23, 40].iter().position(|&l| l == irq) {
-                exti[i] = true;
+            if let Some(&l) = irq::TIM.get(i) {
+                line(l, t.irq());
             }
         }
-        for (i, l) in [6u32, 7, 8, 9, 10, 23, 40].into_iter().enumerate() {
-            self.nvic.set_line(l, exti[i]);
+        for l in self.exti.irqs() {
+            line(l, true);
         }
+        self.nvic.set_lines(LINES, high);
         self.note_pends();
     }
 

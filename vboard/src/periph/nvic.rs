@@ -397,6 +397,19 @@ impl Nvic {
         }
     }
 
+    /// [`Nvic::set_line`] for every line of `mask` at once: those of `high` high (each
+    /// pending again unless active: a level), the rest low.
+    pub fn set_lines(&mut self, mask: u128, high: u128) {
+        let valid = if SLOTS >= 128 {
+            u128::MAX
+        } else {
+            (1u128 << SLOTS) - 1
+        };
+        let (mask, high) = (mask & valid, high & mask & valid);
+        self.lines = (self.lines & !mask) | high;
+        self.set_pending(high & !self.active);
+    }
+
     /// Record a fault's status bits (CFSR) and, for an escalation, HFSR.FORCED.
     pub fn fault_status(&mut self, cfsr: u32, forced: bool, bfar: Option<u32>) {
         self.cfsr |= cfsr;
