@@ -384,21 +384,13 @@ impl Nvic {
     /// exceptions become pending.
     pub fn set_line(&mut self, irq: u32, high: bool) {
         let e = exc::IRQ0 + irq;
-        if e >= SLOTS {
-            return;
-        }
-        if high {
-            self.lines |= bit(e);
-            if self.active & bit(e) == 0 {
-                self.set_pending(bit(e));
-            }
-        } else {
-            self.lines &= !bit(e);
+        if e < SLOTS {
+            self.set_lines(bit(e), if high { bit(e) } else { 0 });
         }
     }
 
-    /// [`Nvic::set_line`] for every line of `mask` at once: those of `high` high (each
-    /// pending again unless active: a level), the rest low.
+    /// Every line of `mask` at once: those of `high` high (each pending again unless
+    /// active: a level), the rest low.
     pub fn set_lines(&mut self, mask: u128, high: u128) {
         let valid = if SLOTS >= 128 {
             u128::MAX
