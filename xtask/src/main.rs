@@ -129,11 +129,15 @@ impl Xtask {
     /// start (every process's, from `/proc/stat`: on a machine running nothing else,
     /// CI's own; the difference between two headers is what a step cost the cores).
     fn step(&self, what: &str) {
-        let cpu = match (busy_cpu_s(), self.cpu0) {
-            (Some(now), Some(then)) => format!(", {:.0} s of CPU", now - then),
-            _ => String::new(),
-        };
+        let cpu = self
+            .cpu_since_start()
+            .map_or(String::new(), |c| format!(", {c:.0} s of CPU"));
         println!("\n=== {what} ({}s{cpu})", self.t0.elapsed().as_secs());
+    }
+
+    /// The machine's busy CPU time since the start, s ([`busy_cpu_s`]).
+    fn cpu_since_start(&self) -> Option<f64> {
+        Some(busy_cpu_s()? - self.cpu0?)
     }
 
     /// A command in `dir` (relative to the root), its output shown as it comes.
@@ -271,10 +275,9 @@ impl Xtask {
         ok &= self.docs();
         ok &= self.vboard_lanes_join(lanes);
 
-        let cpu = match (busy_cpu_s(), self.cpu0) {
-            (Some(now), Some(then)) => format!(", {:.0} s of the machine's CPU", now - then),
-            _ => String::new(),
-        };
+        let cpu = self.cpu_since_start().map_or(String::new(), |c| {
+            format!(", {c:.0} s of the machine's CPU")
+        });
         println!(
             "\n{} passed, {} failed ({}s{cpu})",
             self.passed,
