@@ -27,7 +27,9 @@
 //! * **Reset**: peripherals to reset values (RCC keeps the reset flags), SRAM kept,
 //!   `SP` and `PC` from the vector table.
 
-use unicorn_engine::{Arch, ArmCpuModel, HookType, MemType, Mode, Prot, RegisterARM, Unicorn};
+use unicorn_engine::{
+    Arch, ArmCpuModel, HookType, MemType, Mode, Prot, RegisterARM, TlbType, Unicorn,
+};
 
 use crate::codemem::CodeMem;
 use crate::image::Image;
@@ -93,7 +95,7 @@ impl Default for BoardConfig {
 const SRAM: u32 = 0x2000_0000;
 const SRAM_SIZE: u32 = 128 * 1024;
 /// The engine's page (ARM: 1 KiB), the unit SRAM is made executable in.
-const SRAM_PAGE: u32 = 1024;
+const SRAM_PAGE: u32 = crate::tlb::PAGE;
 /// R0–R12.
 const GP_REGS: [RegisterARM; 13] = [
     RegisterARM::R0,
@@ -313,6 +315,13 @@ impl Board {
             Unicorn::new_with_data(Arch::ARM, Mode::THUMB, soc).map_err(|x| e("open", x))?;
         uc.ctl_set_cpu_model(ArmCpuModel::CORTEX_M4 as i32)
             .map_err(|x| e("cpu model", x))?;
+        // The engine's TLB filled by the board (src/tlb.rs: data pages without execute,
+        // so that stores to SRAM stay on the engine's fast path).
+        if uc.ctl_get_page_size().map_err(|x| e("page size", x))? != crate::tlb::PAGE {
+            return Err("unicorn: the engine's page is not 1 KiB (src/tlb.rs)".into());
+        }
+        uc.ctl_set_tlb_type(TlbType::VIRTUAL)
+            .map_err(|x| e("tlb type", x))?;
         // Flash: the boot alias at 0 and the code sectors, read/execute only, both over
         // the one array of bytes the board owns (`CodeMem`).
         let mut code = CodeMem::new(CODE_LEN as usize);
@@ -1250,6 +1259,13 @@ impl Board {
             self.uc.get_data_mut().runs += 1;
             self.uc.get_data_mut().loops.restart();
             let r = self.uc.emu_start((pc | 1) as u64, 0, 0, 0);
+            // A run translates at least its first block (a fetch, a fill): none counted,
+            // and the linker took unicorn's fill instead of the board's (src/tlb.rs).
+            if crate::tlb::fills() == 0 {
+                return Err(Halt::Engine(
+                    "the engine's TLB fill is unicorn's, not the board's (src/tlb.rs)".into(),
+                ));
+            }
             let stopped = self.uc.get_data().stop;
             match r {
                 Err(unicorn_engine::uc_error::FETCH_PROT)

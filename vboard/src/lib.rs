@@ -35,5 +35,6 @@ pub mod soc;
 pub mod swap;
 pub mod sweep;
 pub mod time;
+pub mod tlb;
 pub mod update;
 pub mod world;
