@@ -156,6 +156,14 @@ impl Loops {
         self.ring[(self.pos + RING - 1 - back) % RING]
     }
 
+    /// Whether the newest block's address is that of one of the `MAX_PERIOD` blocks
+    /// before it, with two periods seen: [`Loops::period`]'s first test, for every period.
+    #[inline]
+    fn head_repeats(&self) -> bool {
+        let cur = self.at(0).addr;
+        (1..=MAX_PERIOD).any(|p| 2 * p < self.len && self.at(p).addr == cur)
+    }
+
     /// The loop's period if the newest block closes two equal iterations.
     fn period(&self) -> Option<usize> {
         let cur = self.at(0);
@@ -388,6 +396,7 @@ fn max_gap_ps(base: (u64, u64, u64), m0: u64, d_mc: u64, count: u64) -> u64 {
 /// The block at `addr` (`size` bytes, `insns` instructions) is about to run: note it,
 /// and skip the loop it closes if it is a polling loop. `true`: skipped (the engine is
 /// stopped; the block is not to be charged).
+#[inline]
 pub fn on_block(uc: &mut Unicorn<'_, Soc>, addr: u32, size: u32, insns: u64) -> bool {
     let s = uc.get_data_mut();
     let mc = s.clock.mc();
@@ -400,6 +409,20 @@ pub fn on_block(uc: &mut Unicorn<'_, Soc>, addr: u32, size: u32, insns: u64) -> 
     if s.loops.len < 3 {
         return false;
     }
+    // Most blocks close no loop: their address is not among the last MAX_PERIOD blocks'
+    // (the first test of `period`). Decided here, inlined into the block hook; the rest
+    // out of line (a sixth of a flooded run went to this function's entry and exit).
+    if !s.loops.head_repeats() {
+        s.loops.watch = None;
+        return false;
+    }
+    on_repeat(uc, addr, mc)
+}
+
+/// [`on_block`] where the newest block's address repeats: a loop may close here.
+#[inline(never)]
+fn on_repeat(uc: &mut Unicorn<'_, Soc>, addr: u32, mc: u64) -> bool {
+    let s = uc.get_data_mut();
     let Some(p) = s.loops.period() else {
         s.loops.watch = None;
         return false;
