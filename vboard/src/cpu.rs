@@ -37,7 +37,7 @@ use crate::periph::flash::{FlashTiming, FLASH_BASE, ODOMETER_BASE};
 use crate::periph::nvic::{exc, Masks};
 use crate::periph::rcc::ResetCause;
 use crate::rtt::{LogLine, Rtt, POLL_PS};
-use crate::soc::{CodeEffect, Soc, ICACHE_FLASH};
+use crate::soc::{CodeEffect, MaskPending, MaskSite, Soc, ICACHE_FLASH};
 use crate::world::World;
 
 /// How executing costs time.
@@ -461,6 +461,8 @@ impl Board {
         // counted only when it runs: the stop decision comes first.
         uc.add_block_hook(1, 0, |uc: &mut Unicorn<'_, Soc>, addr: u64, size: u32| {
             restore_code(uc);
+            // The block before ran to its end: a masking site it ended with takes effect.
+            finish_mask_site(uc);
             let s = uc.get_data();
             let mut stop = s.stop || s.clock.mc() >= s.next_event_mc;
             // An interrupt pending but masked: is it taken now? The answer changes only
@@ -527,6 +529,9 @@ impl Board {
             }
             if let Some(c) = s.exc_mc.get_mut(s.current_exc) {
                 *c += n * s.clock.cpi_milli();
+            }
+            if writes_masks && !s.mask_sites.is_empty() {
+                note_mask_site(uc, a, size, n);
             }
         })
         .map_err(|x| e("block hook", x))?;
@@ -730,10 +735,17 @@ fn code_changed(uc: &mut Unicorn<'_, Soc>, addr: u32, bytes: &[u8]) {
 }
 
 /// Put back the code-sector bytes the engine stored raw (see `Soc::code_restore`).
+#[inline]
 fn restore_code(uc: &mut Unicorn<'_, Soc>) {
-    if uc.get_data().code_restore.is_empty() {
-        return;
+    // At every block: the test inlined, the work (after a store to the code sectors:
+    // rare) out of line.
+    if !uc.get_data().code_restore.is_empty() {
+        restore_code_now(uc);
     }
+}
+
+#[inline(never)]
+fn restore_code_now(uc: &mut Unicorn<'_, Soc>) {
     for (addr, old) in std::mem::take(&mut uc.get_data_mut().code_restore) {
         if !write_code(uc, addr, &old) {
             let _ = uc.mem_write(addr as u64, &old);
@@ -978,10 +990,79 @@ fn meter_block(uc: &mut Unicorn<'_, Soc>, addr: u32) {
     }
 }
 
+/// A block with a mask write was charged: if it ends with a masking site
+/// (`Board::watch_masking`), the site is noted, with its time (the block's start plus the
+/// instructions before it: the site is the block's last) and PRIMASK before it (nothing
+/// before it in the block writes PRIMASK). It counts once the block has run to its end.
+#[inline(never)]
+fn note_mask_site(uc: &mut Unicorn<'_, Soc>, addr: u32, size: u32, n: u64) {
+    let end = addr.wrapping_add(size);
+    let s = uc.get_data();
+    let found = [(2, false), (4, true)].into_iter().find_map(|(len, wide)| {
+        let pc = end.wrapping_sub(len);
+        let i = s.mask_sites.binary_search_by_key(&pc, |&(a, _)| a).ok()?;
+        let site = s.mask_sites.get(i)?.1;
+        ((site == MaskSite::Restore) == wide).then_some((pc, site))
+    });
+    let Some((pc, site)) = found else {
+        return;
+    };
+    let masked = reg(uc, RegisterARM::PRIMASK) & 1 != 0;
+    let s = uc.get_data_mut();
+    let mc = s.block_at.1 + n.saturating_sub(1) * s.clock.cpi_milli();
+    s.mask_pending = Some(MaskPending {
+        site,
+        pc,
+        mc,
+        masked,
+    });
+}
+
+/// The noted masking site has run (its block reached its end): the window it opens or
+/// closes. Called at the next block and between runs; what a site changes (PRIMASK) is
+/// read now, and nothing else has run since.
+#[inline]
+fn finish_mask_site(uc: &mut Unicorn<'_, Soc>) {
+    if uc.get_data().mask_pending.is_some() {
+        finish_mask_site_now(uc);
+    }
+}
+
+#[inline(never)]
+fn finish_mask_site_now(uc: &mut Unicorn<'_, Soc>) {
+    let Some(p) = uc.get_data_mut().mask_pending.take() else {
+        return;
+    };
+    let unmasks = match p.site {
+        MaskSite::Disable => false,
+        MaskSite::Enable => true,
+        MaskSite::Restore => reg(uc, RegisterARM::PRIMASK) & 1 == 0,
+    };
+    let s = uc.get_data_mut();
+    let now = s.clock.time_at_mc(p.mc);
+    // Time asleep inside a window does not delay anything: a pending interrupt wakes the
+    // core, which leaves the window at once.
+    let slept = s.clock.sleep_ps();
+    if p.site == MaskSite::Disable {
+        if !p.masked && s.world.machine.axis.enabled() {
+            s.mask_start = Some((now, p.pc, slept));
+        }
+    } else if unmasks {
+        if let Some((t, at, slept0)) = s.mask_start.take() {
+            let w = now.saturating_sub(t).saturating_sub(slept - slept0);
+            if w > s.mask_max.0 {
+                s.mask_max = (w, at);
+            }
+        }
+    }
+}
+
 /// A synchronous fault of kind `kind` (MemManage, BusFault, UsageFault or HardFault)
 /// at `pc`: taken as itself if enabled and allowed, else escalated to HardFault; a
 /// fault that HardFault cannot take is a lockup.
 fn fault(uc: &mut Unicorn<'_, Soc>, kind: u32, cfsr: u32, pc: u32, what: &str) {
+    // The block stopped at the faulting instruction: a masking site at its end never ran.
+    uc.get_data_mut().mask_pending = None;
     uc.get_data_mut().masks_settled = None;
     let m = masks(uc);
     let (target, exec) = {
@@ -1018,6 +1099,12 @@ fn fault(uc: &mut Unicorn<'_, Soc>, kind: u32, cfsr: u32, pc: u32, what: &str) {
 
 fn on_interrupt(uc: &mut Unicorn<'_, Soc>, intno: u32) {
     let pc = reg(uc, RegisterARM::PC);
+    if intno != 8 {
+        // An exception raised inside the block (svc, bkpt, a usage fault): the rest of
+        // the block, a masking site at its end included, did not run. (An exception
+        // return ends its block: a site of the block before has already been counted.)
+        uc.get_data_mut().mask_pending = None;
+    }
     match intno {
         8 => exception_return(uc),
         2 => {
@@ -1102,6 +1189,8 @@ impl Board {
         if let Some(d) = cut {
             apply_done(&mut self.uc, d);
         }
+        // A masking site that ran before the reset counts, then the window ends.
+        finish_mask_site(&mut self.uc);
         let uc = &mut self.uc;
         let sp = read_u32(uc, 0).unwrap_or(0);
         let pc = read_u32(uc, 4).unwrap_or(0);
@@ -1183,6 +1272,8 @@ impl Board {
 
     fn run_until_inner(&mut self, until_ps: u64) -> Result<(), Halt> {
         loop {
+            // The last run ended after its last block had run (a fault drops the site).
+            finish_mask_site(&mut self.uc);
             let done = self.uc.get_data_mut().process();
             if let Some(d) = done {
                 apply_done(&mut self.uc, d);
@@ -1353,13 +1444,12 @@ impl Board {
     /// and never executes costs nothing).
     pub fn watch_masking(&mut self) {
         // Sites: `cpsid i` (masks), `cpsie i` (unmasks), `msr primask, rN` (restores what
-        // an earlier `mrs` read: unmasks if rN's bit 0 is clear).
-        #[derive(Clone, Copy)]
-        enum Site {
-            Disable,
-            Enable,
-            Restore(RegisterARM),
-        }
+        // an earlier `mrs` read: unmasks if rN's bit 0 is clear, that is if it leaves
+        // PRIMASK clear). Each ends its translated block (translate.c: CPS and MSR end
+        // with `gen_lookup_tb`), so the block hook finds it at its block's end and counts
+        // it once the block has run (`note_mask_site`, `finish_mask_site`). They were
+        // code hooks: unicorn walks every code hook at each hooked instruction, and the
+        // walk, the hook and the exit check after it were a tenth of a flooded run.
         let code =
             &self.image.flash[..(self.image.flash_used as usize).min(self.image.flash.len())];
         let hw = |i: usize| {
@@ -1370,62 +1460,21 @@ impl Board {
         for i in 0..code.len() / 2 {
             let addr = FLASH_BASE + 2 * i as u32;
             match (hw(i), hw(i + 1)) {
-                (Some(0xB672), _) => sites.push((addr, Site::Disable)),
-                (Some(0xB662), _) => sites.push((addr, Site::Enable)),
-                (Some(h1), Some(0x8810)) if h1 & 0xFFF0 == 0xF380 => {
-                    // Any of r0–r12 and lr (the compiler keeps PRIMASK in lr too:
-                    // `mrs lr, primask` … `msr primask, lr`; a missed restore would make
-                    // a window look as long as the time to the next unmask elsewhere).
-                    let r = match h1 & 0xF {
-                        14 => Some(RegisterARM::LR),
-                        n => GP_REGS.get(n as usize).copied(),
-                    };
-                    if let Some(r) = r {
-                        sites.push((addr, Site::Restore(r)));
-                    }
+                (Some(0xB672), _) => sites.push((addr, MaskSite::Disable)),
+                (Some(0xB662), _) => sites.push((addr, MaskSite::Enable)),
+                // From any of r0–r12 and lr (the compiler keeps PRIMASK in lr too:
+                // `mrs lr, primask` … `msr primask, lr`; a missed restore would make a
+                // window look as long as the time to the next unmask elsewhere).
+                (Some(h1), Some(0x8810))
+                    if h1 & 0xFFF0 == 0xF380 && !matches!(h1 & 0xF, 13 | 15) =>
+                {
+                    sites.push((addr, MaskSite::Restore));
                 }
                 _ => {}
             }
         }
-        for (addr, site) in sites {
-            let _ = self
-                .uc
-                .add_code_hook(addr as u64, addr as u64, move |uc, pc, _| {
-                    let masked = reg(uc, RegisterARM::PRIMASK) & 1 != 0;
-                    let unmasks = match site {
-                        Site::Disable => false,
-                        Site::Enable => true,
-                        Site::Restore(r) => reg(uc, r) & 1 == 0,
-                    };
-                    // The time of this very instruction: its block's start plus the
-                    // instructions before it in the block.
-                    let (start, mc0) = uc.get_data().block_at;
-                    let mut before =
-                        vec![0u8; (pc as u32).saturating_sub(start).min(4096) as usize];
-                    let idx = if uc.mem_read(start as u64, &mut before).is_ok() {
-                        count_insns(&before) as u64
-                    } else {
-                        0
-                    };
-                    let s = uc.get_data_mut();
-                    let now = s.clock.time_at_mc(mc0 + idx * s.clock.cpi_milli());
-                    // Time asleep inside a window does not delay anything: a pending
-                    // interrupt wakes the core, which leaves the window at once.
-                    let slept = s.clock.sleep_ps();
-                    if matches!(site, Site::Disable) {
-                        if !masked && s.world.machine.axis.enabled() {
-                            s.mask_start = Some((now, pc as u32, slept));
-                        }
-                    } else if unmasks {
-                        if let Some((t, at, slept0)) = s.mask_start.take() {
-                            let w = now.saturating_sub(t).saturating_sub(slept - slept0);
-                            if w > s.mask_max.0 {
-                                s.mask_max = (w, at);
-                            }
-                        }
-                    }
-                });
-        }
+        sites.sort_by_key(|&(addr, _)| addr);
+        self.uc.get_data_mut().mask_sites = sites;
     }
 
     /// Count the executions of the instruction at `addr` (a debugging aid: a code hook on
@@ -1454,6 +1503,9 @@ impl Board {
             .add_code_hook(addr as u64, addr as u64, move |uc, _, _| {
                 let s = uc.get_data_mut();
                 if f(s) {
+                    // Stopped before this instruction: a masking site after it in the
+                    // block did not run.
+                    s.mask_pending = None;
                     s.stop = true;
                     s.irq_waiting = true;
                     let _ = uc.emu_stop();

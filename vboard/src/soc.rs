@@ -336,6 +336,12 @@ pub struct Soc {
     /// The block running: its address and the milli-cycle count at its start (to time an
     /// instruction inside it).
     pub block_at: (u32, u64),
+    /// The image's masking sites, by address (`Board::watch_masking`; empty: not watched).
+    pub mask_sites: Vec<(u32, MaskSite)>,
+    /// A site's block charged, its effect due once the block has run to its end (the
+    /// site is its last instruction): at the next block, or between two runs; dropped
+    /// if the block stopped short (a fault, a stop at a code hook).
+    pub mask_pending: Option<MaskPending>,
     /// Peripheral accesses (reads, writes), for the figures.
     pub accesses: (u64, u64),
     /// Flash reads pay the ART's wait states ([`crate::cpu::Timing::Art`]).
@@ -376,6 +382,32 @@ pub struct IoRec {
 pub const ICACHE_FLASH: usize = ((ODOMETER_BASE - flash::FLASH_BASE) / 2) as usize;
 /// Size of its SRAM part, halfwords.
 pub const ICACHE_SRAM: usize = (128 * 1024 / 2) as usize;
+
+/// What an instruction that writes PRIMASK does to an all-interrupts-masked window
+/// (`Board::watch_masking`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MaskSite {
+    /// `cpsid i`: opens a window if interrupts were not masked.
+    Disable,
+    /// `cpsie i`: closes it.
+    Enable,
+    /// `msr primask, rN`: closes it if it leaves PRIMASK clear.
+    Restore,
+}
+
+/// A masking site whose block was charged (see [`Soc::mask_pending`]).
+#[derive(Clone, Copy, Debug)]
+pub struct MaskPending {
+    /// The kind.
+    pub site: MaskSite,
+    /// Its address.
+    pub pc: u32,
+    /// The milli-cycle count when it ran (its block's start plus the instructions
+    /// before it).
+    pub mc: u64,
+    /// PRIMASK was set before it.
+    pub masked: bool,
+}
 
 impl Soc {
     /// A powered-off board with `world` outside, the core at `cpi_milli`, the IWDG's LSI
@@ -450,6 +482,8 @@ impl Soc {
             mask_start: None,
             mask_max: (0, 0),
             block_at: (0, 0),
+            mask_sites: Vec::new(),
+            mask_pending: None,
             art_timing: false,
             exc_mc: vec![0; crate::periph::nvic::SLOTS as usize],
             feeds: Default::default(),
