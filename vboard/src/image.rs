@@ -20,7 +20,10 @@ pub struct Image {
     pub flash_used: u32,
     /// Address of `_SEGGER_RTT`, if the image has one.
     pub rtt: Option<u32>,
-    symbols: Vec<(String, u32, u32)>,
+    /// Name, address, size, and whether it is a function (`STT_FUNC`: what
+    /// [`Image::function_at`] names; the `.defmt` section's symbols are not, and start at
+    /// address 0).
+    symbols: Vec<(String, u32, u32, bool)>,
 }
 
 impl Image {
@@ -124,13 +127,14 @@ impl Image {
         let mut symbols = Vec::new();
         for s in file.symbols() {
             if let Ok(name) = s.name() {
-                symbols.push((name.to_string(), s.address() as u32, s.size() as u32));
+                let func = s.kind() == object::SymbolKind::Text;
+                symbols.push((name.to_string(), s.address() as u32, s.size() as u32, func));
             }
         }
         let rtt = symbols
             .iter()
-            .find(|(n, _, _)| n == "_SEGGER_RTT")
-            .map(|&(_, a, _)| a);
+            .find(|(n, ..)| n == "_SEGGER_RTT")
+            .map(|&(_, a, ..)| a);
         Ok(Self {
             elf,
             path: path.to_string(),
@@ -145,26 +149,28 @@ impl Image {
     pub fn symbol(&self, name: &str) -> Option<(u32, u32)> {
         self.symbols
             .iter()
-            .find(|(n, _, _)| n == name)
-            .map(|&(_, a, s)| (a, s))
+            .find(|(n, ..)| n == name)
+            .map(|&(_, a, s, _)| (a, s))
     }
 
     /// Address and size of the first symbol whose (mangled) name contains `part`.
     pub fn symbol_containing(&self, part: &str) -> Option<(u32, u32)> {
         self.symbols
             .iter()
-            .find(|(n, _, s)| *s > 0 && n.contains(part))
-            .map(|&(_, a, s)| (a, s))
+            .find(|(n, _, s, _)| *s > 0 && n.contains(part))
+            .map(|&(_, a, s, _)| (a, s))
     }
 
-    /// The function containing `addr` (for fault reports), by symbol size.
+    /// The function containing `addr` (for fault reports), by symbol size. Functions
+    /// only: the `.defmt` section's strings are symbols too, at addresses from 0, and a
+    /// report with no masked window (its site 0) named one of them.
     pub fn function_at(&self, addr: u32) -> Option<&str> {
         let a = addr & !1;
         self.symbols
             .iter()
-            .filter(|(_, s, n)| *n > 0 && (s & !1) <= a && a < (s & !1) + n)
-            .min_by_key(|(_, _, n)| *n)
-            .map(|(name, _, _)| name.as_str())
+            .filter(|(_, s, n, func)| *func && *n > 0 && (s & !1) <= a && a < (s & !1) + n)
+            .min_by_key(|(_, _, n, _)| *n)
+            .map(|(name, ..)| name.as_str())
     }
 
     /// This image (an application linked behind the bootloader, at ACTIVE's first

@@ -100,6 +100,16 @@ fn the_same_scene_twice_gives_the_same_result() {
     assert_eq!(a, b);
 }
 
+/// With nothing moving there is no all-masked window to measure (its site stays 0), and
+/// the report named a defmt string as the window's site: `function_at(0)` took the
+/// `.defmt` section's symbols, which start at address 0, for functions.
+#[test]
+fn a_run_without_a_masked_window_named_a_defmt_string_as_its_site() {
+    let r = run("boot", &opts()).expect("board runs");
+    assert_eq!(r.masked_max_us, 0.0, "{}", r.to_text());
+    assert_eq!(r.masked_max_at, "-");
+}
+
 #[test]
 fn nothing_moves_after_power_on_before_the_boot_completes() {
     // From power-on the motor outputs float until the firmware drives them: the
