@@ -92,8 +92,8 @@ impl Default for BoardConfig {
     }
 }
 
-const SRAM: u32 = 0x2000_0000;
-const SRAM_SIZE: u32 = 128 * 1024;
+pub(crate) const SRAM: u32 = 0x2000_0000;
+pub(crate) const SRAM_SIZE: u32 = 128 * 1024;
 /// The engine's page (ARM: 1 KiB), the unit SRAM is made executable in.
 const SRAM_PAGE: u32 = crate::tlb::PAGE;
 /// R0–R12.
@@ -1007,15 +1007,35 @@ fn note_mask_site(uc: &mut Unicorn<'_, Soc>, addr: u32, size: u32, n: u64) {
     let Some((pc, site)) = found else {
         return;
     };
+    // The site must start the block's last instruction, not be the second halfword of
+    // a 32-bit one (the sites are found by their bytes; a code hook fired only where an
+    // instruction started).
+    let mut bytes = vec![0u8; size as usize];
+    if uc.mem_read(u64::from(addr), &mut bytes).is_err() || last_insn(&bytes) != Some(pc - addr) {
+        return;
+    }
     let masked = reg(uc, RegisterARM::PRIMASK) & 1 != 0;
     let s = uc.get_data_mut();
     let mc = s.block_at.1 + n.saturating_sub(1) * s.clock.cpi_milli();
     s.mask_pending = Some(MaskPending {
         site,
         pc,
+        block: addr,
         mc,
         masked,
     });
+}
+
+/// The offset of the last instruction in `bytes` (Thumb: a halfword from 0b11101 up
+/// starts a 32-bit one).
+fn last_insn(bytes: &[u8]) -> Option<u32> {
+    let (mut i, mut last) = (0, None);
+    while i + 1 < bytes.len() {
+        last = Some(i as u32);
+        let hw = u16::from_le_bytes([bytes[i], bytes[i + 1]]);
+        i += if hw >> 11 >= 0b11101 { 4 } else { 2 };
+    }
+    last
 }
 
 /// The noted masking site has run (its block reached its end): the window it opens or
@@ -1025,6 +1045,20 @@ fn note_mask_site(uc: &mut Unicorn<'_, Soc>, addr: u32, size: u32, n: u64) {
 fn finish_mask_site(uc: &mut Unicorn<'_, Soc>) {
     if uc.get_data().mask_pending.is_some() {
         finish_mask_site_now(uc);
+    }
+}
+
+/// Between two runs: a masking site noted in the last run's last block counts if the
+/// block ran to its end, and not if the run stopped inside it, before the site (a stop
+/// at a code hook: the PC is then between the block's start and the site; a fault has
+/// already dropped it).
+fn settle_mask_site(uc: &mut Unicorn<'_, Soc>) {
+    if let Some(p) = uc.get_data().mask_pending {
+        if (p.block..=p.pc).contains(&reg(uc, RegisterARM::PC)) {
+            uc.get_data_mut().mask_pending = None;
+        } else {
+            finish_mask_site_now(uc);
+        }
     }
 }
 
@@ -1190,7 +1224,7 @@ impl Board {
             apply_done(&mut self.uc, d);
         }
         // A masking site that ran before the reset counts, then the window ends.
-        finish_mask_site(&mut self.uc);
+        settle_mask_site(&mut self.uc);
         let uc = &mut self.uc;
         let sp = read_u32(uc, 0).unwrap_or(0);
         let pc = read_u32(uc, 4).unwrap_or(0);
@@ -1272,8 +1306,7 @@ impl Board {
 
     fn run_until_inner(&mut self, until_ps: u64) -> Result<(), Halt> {
         loop {
-            // The last run ended after its last block had run (a fault drops the site).
-            finish_mask_site(&mut self.uc);
+            settle_mask_site(&mut self.uc);
             let done = self.uc.get_data_mut().process();
             if let Some(d) = done {
                 apply_done(&mut self.uc, d);
@@ -1414,6 +1447,7 @@ impl Board {
                 continue;
             }
             let base = SRAM + page * SRAM_PAGE;
+            crate::tlb::mark_executable(base);
             if self
                 .uc
                 .mem_protect(base as u64, SRAM_PAGE as u64, Prot::ALL)
@@ -1503,9 +1537,9 @@ impl Board {
             .add_code_hook(addr as u64, addr as u64, move |uc, _, _| {
                 let s = uc.get_data_mut();
                 if f(s) {
-                    // Stopped before this instruction: a masking site after it in the
-                    // block did not run.
-                    s.mask_pending = None;
+                    // The engine stops before this instruction (a masking site after it
+                    // in the block does not run: `settle_mask_site`), or, inside an IT
+                    // block, where unicorn defers a hook's stop, at the next block.
                     s.stop = true;
                     s.irq_waiting = true;
                     let _ = uc.emu_stop();

@@ -402,6 +402,8 @@ pub struct MaskPending {
     pub site: MaskSite,
     /// Its address.
     pub pc: u32,
+    /// Its block's first address.
+    pub block: u32,
     /// The milli-cycle count when it ran (its block's start plus the instructions
     /// before it).
     pub mc: u64,

@@ -24,12 +24,16 @@
 //! faults), a load or a store by a read/write entry of its page. [`fills`] counts the
 //! fills, and `Board` refuses to go on if the engine never called this one.
 //!
-//! **Self-modifying code** stays seen: a page that code ran from gets its entry from a
-//! fetch (execute: every store to it goes through the slow path, which invalidates its
-//! translations, as before); an entry filled by a load or a store is replaced by the
-//! first fetch from its page, and its first store invalidates what was translated from
-//! the page before (`notdirty_write` checks the region's EXEC, not the entry's). Only a
-//! page granted EXEC (a RAM function's, `Board::grant_sram_exec`) has translations.
+//! **Self-modifying code** stays seen. Only SRAM pages granted EXEC (a RAM function's,
+//! `Board::grant_sram_exec`) and the code sectors hold translations. A load or a store to
+//! a granted page is filled by the CPU's own fill too ([`mark_executable`]): its entry
+//! keeps a code address, so every store to the page goes through the slow path and
+//! invalidates what it overwrites, as before. (A read/write entry would do that for its
+//! first store only: `tlb_set_dirty` then clears the check for the whole page, and a
+//! second copy of `.data` over a RAM function, after a reset into another build, would
+//! have run the old translation. Found by review; no scene copies different bytes there.)
+//! The code sectors' stores all reach the board's flash hook, whose presence keeps their
+//! entries checked (`uc_mem_hook_installed`).
 #![allow(unsafe_code)]
 
 use std::ffi::c_void;
@@ -44,6 +48,30 @@ const PAGE_WRITE: i32 = 2;
 const MMU_INST_FETCH: i32 = 2;
 
 static FILLS: AtomicU64 = AtomicU64::new(0);
+
+/// SRAM's pages any board of this process has made executable, bit n for page n: a
+/// superset of each board's own (the same image puts its RAM functions on the same
+/// pages), which costs a board only the fast path of a page it does not execute.
+static SRAM_EXEC: [AtomicU64; 2] = [AtomicU64::new(0), AtomicU64::new(0)];
+
+/// The SRAM page of `addr`, if it is in SRAM.
+fn sram_page(addr: u32) -> Option<usize> {
+    let page = (addr.wrapping_sub(crate::cpu::SRAM) / PAGE) as usize;
+    (page < (crate::cpu::SRAM_SIZE / PAGE) as usize).then_some(page)
+}
+
+/// The SRAM page at `addr` is executable from now on: its loads and stores are filled by
+/// the CPU's own fill (see the module doc). Call it before the engine runs again.
+pub fn mark_executable(addr: u32) {
+    if let Some(page) = sram_page(addr) {
+        SRAM_EXEC[page / 64].fetch_or(1 << (page % 64), Ordering::Relaxed);
+    }
+}
+
+fn executable(addr: u32) -> bool {
+    sram_page(addr)
+        .is_some_and(|page| SRAM_EXEC[page / 64].load(Ordering::Relaxed) & (1 << (page % 64)) != 0)
+}
 
 /// Fills made by [`unicorn_fill_tlb_arm`] in this process (0 after an engine ran: the
 /// linker took unicorn's).
@@ -93,7 +121,7 @@ pub unsafe extern "C" fn unicorn_fill_tlb_arm(
     retaddr: usize,
 ) -> bool {
     FILLS.fetch_add(1, Ordering::Relaxed);
-    if access_type == MMU_INST_FETCH {
+    if access_type == MMU_INST_FETCH || executable(address as u32) {
         // SAFETY: the engine's own fill, with the arguments the engine gave.
         return unsafe {
             arm_cpu_tlb_fill_arm(cs, address, size, access_type, mmu_idx, probe, retaddr)
