@@ -813,7 +813,7 @@ const PACED: &[&str] = &[
 
 /// The virtual board's longest tests, longest first (started first so that the lanes
 /// end together): every test of 3 s or more, by its time in a fresh clone's `.ci/run`
-/// on 54136e6 (the 2-core machine, nothing else running; the engine's costs of that
+/// on 1211ef2 (the 2-core machine, nothing else running; the engine's costs of that
 /// round had moved the order). Only a schedule: a
 /// name that no longer exists is skipped, a new long test costs only the balance.
 const LONG_FIRST: &[&str] = &[
