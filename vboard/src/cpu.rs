@@ -229,31 +229,35 @@ fn read_u32(uc: &Unicorn<'_, Soc>, addr: u32) -> Option<u32> {
     Some(u32::from_le_bytes(b))
 }
 
-/// Thumb instructions in `bytes` (a 32-bit instruction starts with 0b11101, 0b11110 or
-/// 0b11111).
-pub fn count_insns(bytes: &[u8]) -> u32 {
-    scan_insns(bytes).0
+/// The Thumb instructions in `bytes`: each one's offset and first halfword (a 32-bit
+/// instruction starts with 0b11101, 0b11110 or 0b11111).
+fn thumb_insns(bytes: &[u8]) -> impl Iterator<Item = (usize, u16)> + '_ {
+    let mut i = 0;
+    std::iter::from_fn(move || {
+        let hw = u16::from_le_bytes([*bytes.get(i)?, *bytes.get(i + 1)?]);
+        let at = i;
+        i += if wide(hw) { 4 } else { 2 };
+        Some((at, hw))
+    })
+}
+
+/// Whether `hw` starts a 32-bit Thumb instruction.
+fn wide(hw: u16) -> bool {
+    hw >> 11 >= 0b11101
 }
 
 /// The instructions in `bytes` of Thumb code, and whether one of them may write
 /// PRIMASK, FAULTMASK or BASEPRI: a CPS (`1011 0110 011x 0xxx`) or an MSR
 /// (`1111 0011 1000 nnnn`, any special register: a superset, never a miss).
 fn scan_insns(bytes: &[u8]) -> (u32, bool) {
-    let mut i = 0;
-    let mut n = 0;
-    let mut masks = false;
-    while i + 1 < bytes.len() {
-        let hw = u16::from_le_bytes([bytes[i], bytes[i + 1]]);
-        if hw >> 11 >= 0b11101 {
-            masks |= hw & 0xFFF0 == 0xF380;
-            i += 4;
+    thumb_insns(bytes).fold((0, false), |(n, masks), (_, hw)| {
+        let writes = if wide(hw) {
+            hw & 0xFFF0 == 0xF380
         } else {
-            masks |= hw & 0xFFE8 == 0xB660;
-            i += 2;
-        }
-        n += 1;
-    }
-    (n, masks)
+            hw & 0xFFE8 == 0xB660
+        };
+        (n + 1, masks || writes)
+    })
 }
 
 /// The icache's flag of a block that may write a mask register ([`scan_insns`]).
@@ -316,7 +320,7 @@ impl Board {
         uc.ctl_set_cpu_model(ArmCpuModel::CORTEX_M4 as i32)
             .map_err(|x| e("cpu model", x))?;
         // The engine's TLB filled by the board (src/tlb.rs: data pages without execute,
-        // so that stores to SRAM stay on the engine's fast path).
+        // but those code runs from, so that stores to SRAM stay on the fast path).
         if uc.ctl_get_page_size().map_err(|x| e("page size", x))? != crate::tlb::PAGE {
             return Err("unicorn: the engine's page is not 1 KiB (src/tlb.rs)".into());
         }
@@ -1011,7 +1015,9 @@ fn note_mask_site(uc: &mut Unicorn<'_, Soc>, addr: u32, size: u32, n: u64) {
     // a 32-bit one (the sites are found by their bytes; a code hook fired only where an
     // instruction started).
     let mut bytes = vec![0u8; size as usize];
-    if uc.mem_read(u64::from(addr), &mut bytes).is_err() || last_insn(&bytes) != Some(pc - addr) {
+    if uc.mem_read(u64::from(addr), &mut bytes).is_err()
+        || thumb_insns(&bytes).last().map(|(at, _)| at as u32) != Some(pc - addr)
+    {
         return;
     }
     let masked = reg(uc, RegisterARM::PRIMASK) & 1 != 0;
@@ -1024,18 +1030,6 @@ fn note_mask_site(uc: &mut Unicorn<'_, Soc>, addr: u32, size: u32, n: u64) {
         mc,
         masked,
     });
-}
-
-/// The offset of the last instruction in `bytes` (Thumb: a halfword from 0b11101 up
-/// starts a 32-bit one).
-fn last_insn(bytes: &[u8]) -> Option<u32> {
-    let (mut i, mut last) = (0, None);
-    while i + 1 < bytes.len() {
-        last = Some(i as u32);
-        let hw = u16::from_le_bytes([bytes[i], bytes[i + 1]]);
-        i += if hw >> 11 >= 0b11101 { 4 } else { 2 };
-    }
-    last
 }
 
 /// The noted masking site has run (its block reached its end): the window it opens or

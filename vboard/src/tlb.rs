@@ -1,5 +1,5 @@
-//! The engine's TLB fill, the board's: data pages without execute, so that stores to
-//! SRAM stay on the engine's fast path.
+//! The engine's TLB fill, the board's: data pages without execute (all but the SRAM
+//! pages code runs from), so that stores to SRAM stay on the engine's fast path.
 //!
 //! **Why.** With the MPU off, QEMU's MMU model of an M profile grants execute to every
 //! page of the default map below 0x4000_0000 (ARMv7-M B3.1), the stack's and `.bss`'s
