@@ -253,7 +253,27 @@ pub const WIRING: &[Wire] = &[
 
 /// The wire on `port`/`pin`, if any.
 pub fn wire_at(port: u8, pin: u8) -> Option<&'static Wire> {
-    WIRING.iter().find(|w| w.port == port && w.pin == pin)
+    // A table by port and pin (ports A–I), built at compile time: read at every EXTI
+    // sample and pin read.
+    const PORTS: usize = 9;
+    const _: () = assert!(WIRING.len() < u8::MAX as usize);
+    const AT: [[u8; 16]; PORTS] = {
+        let mut at = [[u8::MAX; 16]; PORTS];
+        let mut i = 0;
+        while i < WIRING.len() {
+            let w = &WIRING[i];
+            if (w.port as usize) < PORTS
+                && w.pin < 16
+                && at[w.port as usize][w.pin as usize] == u8::MAX
+            {
+                at[w.port as usize][w.pin as usize] = i as u8;
+            }
+            i += 1;
+        }
+        at
+    };
+    let i = *AT.get(port as usize)?.get(pin as usize)?;
+    WIRING.get(i as usize)
 }
 
 /// The wire of `signal`.

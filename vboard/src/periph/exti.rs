@@ -94,9 +94,16 @@ impl Exti {
 
     /// Interrupt numbers whose line is pending and unmasked.
     pub fn irqs(&self) -> impl Iterator<Item = u32> + '_ {
-        (0u8..16)
-            .filter(|&l| self.pr & self.imr & (1 << l) != 0)
-            .map(irq_of_line)
+        // The set bits only: this runs at every interrupt line update.
+        let mut set = self.pr & self.imr & 0xFFFF;
+        std::iter::from_fn(move || {
+            if set == 0 {
+                return None;
+            }
+            let l = set.trailing_zeros() as u8;
+            set &= set - 1;
+            Some(irq_of_line(l))
+        })
     }
 
     /// Read an EXTI register at `off` (from 0x4001_3C00).
