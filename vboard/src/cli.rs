@@ -207,6 +207,7 @@ fn session(o: &Opts) -> Result<Options, Failure> {
         lsi_hz: lsi,
         flash_timing: timing,
         skip: !o.flag("no-skip"),
+        ..BoardConfig::default()
     };
     Ok(s)
 }

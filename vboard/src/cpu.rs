@@ -31,7 +31,7 @@ use unicorn_engine::{
     Arch, ArmCpuModel, HookType, MemType, Mode, Prot, RegisterARM, TlbType, Unicorn,
 };
 
-use crate::codemem::CodeMem;
+use crate::hostmem::HostMem;
 use crate::image::Image;
 use crate::periph::flash::{FlashTiming, FLASH_BASE, ODOMETER_BASE};
 use crate::periph::nvic::{exc, Masks};
@@ -78,6 +78,9 @@ pub struct BoardConfig {
     pub flash_timing: FlashTiming,
     /// Skip polling loops ([`crate::loops`]; `--no-skip`: every iteration runs).
     pub skip: bool,
+    /// Take interrupts and sleep inside the engine's run (`in_run`), not by stopping it
+    /// for the run loop: the same results, faster (`vboard/tests/in_run.rs` compares).
+    pub in_run: bool,
 }
 
 impl Default for BoardConfig {
@@ -88,6 +91,7 @@ impl Default for BoardConfig {
             lsi_hz: 32_000,
             flash_timing: FlashTiming::Max,
             skip: true,
+            in_run: true,
         }
     }
 }
@@ -216,10 +220,18 @@ fn rebuild_hflags(uc: &mut Unicorn<'_, Soc>) {
 }
 
 fn masks(uc: &Unicorn<'_, Soc>) -> Masks {
+    let [primask, faultmask, basepri] = crate::regs::read(
+        uc,
+        [
+            RegisterARM::PRIMASK,
+            RegisterARM::FAULTMASK,
+            RegisterARM::BASEPRI,
+        ],
+    );
     Masks {
-        primask: reg(uc, RegisterARM::PRIMASK) & 1 != 0,
-        faultmask: reg(uc, RegisterARM::FAULTMASK) & 1 != 0,
-        basepri: reg(uc, RegisterARM::BASEPRI) as u8,
+        primask: primask & 1 != 0,
+        faultmask: faultmask & 1 != 0,
+        basepri: basepri as u8,
     }
 }
 
@@ -227,6 +239,50 @@ fn read_u32(uc: &Unicorn<'_, Soc>, addr: u32) -> Option<u32> {
     let mut b = [0u8; 4];
     uc.mem_read(addr as u64, &mut b).ok()?;
     Some(u32::from_le_bytes(b))
+}
+
+/// A vector (`addr` in the table VTOR points to): from the code sectors' array itself
+/// where the table is in flash (at every exception entry: without a walk of the
+/// engine's memory map), else as any read.
+fn read_vector(uc: &Unicorn<'_, Soc>, addr: u32) -> Option<u32> {
+    let off = if addr < CODE_LEN {
+        Some(addr)
+    } else {
+        addr.checked_sub(FLASH_BASE).filter(|&o| o < CODE_LEN)
+    };
+    if let (Some(off), Some(c)) = (off, uc.get_data().code_mem.as_ref()) {
+        let mut b = [0u8; 4];
+        if c.read(off as usize, &mut b) {
+            return Some(u32::from_le_bytes(b));
+        }
+    }
+    read_u32(uc, addr)
+}
+
+/// An exception frame's bytes at `addr` (`buf.len()` of them): from SRAM's array where
+/// they are all in it, else through the engine. False if the engine refuses.
+fn frame_read(uc: &Unicorn<'_, Soc>, addr: u32, buf: &mut [u8]) -> bool {
+    if let (Some(off), Some(m)) = (addr.checked_sub(SRAM), uc.get_data().sram_mem.as_ref()) {
+        if m.read(off as usize, buf) {
+            return true;
+        }
+    }
+    uc.mem_read(u64::from(addr), buf).is_ok()
+}
+
+/// Stack `bytes` at `addr`: into SRAM's array where they all fit in it and no page of
+/// them holds code (a store there must go through the engine, which drops the
+/// translations it overwrites), else through the engine. False if the engine refuses.
+fn frame_write(uc: &mut Unicorn<'_, Soc>, addr: u32, bytes: &[u8]) -> bool {
+    let end = addr.wrapping_add(bytes.len().max(1) as u32 - 1);
+    let inside = addr >= SRAM && end >= addr && end < SRAM + SRAM_SIZE;
+    if inside && !crate::tlb::executable(addr) && !crate::tlb::executable(end) {
+        if let Some(m) = uc.get_data_mut().sram_mem.as_mut() {
+            m.write((addr - SRAM) as usize, bytes);
+            return true;
+        }
+    }
+    uc.mem_write(u64::from(addr), bytes).is_ok()
 }
 
 /// The Thumb instructions in `bytes`: each one's offset and first halfword (a 32-bit
@@ -260,8 +316,15 @@ fn scan_insns(bytes: &[u8]) -> (u32, bool) {
     })
 }
 
-/// The icache's flag of a block that may write a mask register ([`scan_insns`]).
+/// An icache entry: bits 0–11 the block's instructions, 12–28 its size in bytes, and
+/// flags. The flag of a block that may write a mask register ([`scan_insns`]):
 const ICACHE_MASKS: u32 = 1 << 31;
+/// The block's masking site was checked (`note_mask_site`)…
+const ICACHE_SITE_CHECKED: u32 = 1 << 30;
+/// … and starts the block's last instruction.
+const ICACHE_SITE_OK: u32 = 1 << 29;
+/// The size's bits.
+const ICACHE_SIZE: u32 = ((1 << 17) - 1) << 12;
 
 fn icache_index(addr: u64) -> Option<usize> {
     let a = addr as u32;
@@ -281,7 +344,7 @@ fn block_insns(uc: &mut Unicorn<'_, Soc>, addr: u64, size: u32) -> (u64, bool) {
     let idx = icache_index(addr);
     if let Some(i) = idx {
         let c = uc.get_data().icache[i];
-        if c != 0 && (c & !ICACHE_MASKS) >> 12 == size {
+        if c != 0 && (c & ICACHE_SIZE) >> 12 == size {
             return ((c & 0xFFF) as u64, c & ICACHE_MASKS != 0);
         }
     }
@@ -292,7 +355,7 @@ fn block_insns(uc: &mut Unicorn<'_, Soc>, addr: u64, size: u32) -> (u64, bool) {
         (size / 2, true)
     };
     if let Some(i) = idx {
-        if size < (1 << 19) && n < 0x1000 {
+        if size < (1 << 17) && n < 0x1000 {
             uc.get_data_mut().icache[i] = (size << 12) | n | if masks { ICACHE_MASKS } else { 0 };
         }
     }
@@ -314,6 +377,7 @@ impl Board {
         let art = cfg.timing == Timing::Art;
         soc.art_timing = art;
         soc.loops.enabled = cfg.skip;
+        soc.in_run = cfg.in_run;
         let e = |w: &str, err: unicorn_engine::uc_error| format!("unicorn {w}: {err:?}");
         let mut uc =
             Unicorn::new_with_data(Arch::ARM, Mode::THUMB, soc).map_err(|x| e("open", x))?;
@@ -327,8 +391,8 @@ impl Board {
         uc.ctl_set_tlb_type(TlbType::VIRTUAL)
             .map_err(|x| e("tlb type", x))?;
         // Flash: the boot alias at 0 and the code sectors, read/execute only, both over
-        // the one array of bytes the board owns (`CodeMem`).
-        let mut code = CodeMem::new(CODE_LEN as usize);
+        // the one array of bytes the board owns (`HostMem`).
+        let mut code = HostMem::new(CODE_LEN as usize, 0xFF);
         code.write(0, &image.flash);
         for base in [0u64, FLASH_BASE as u64] {
             code.map(&mut uc, base, Prot::READ | Prot::EXEC)
@@ -375,8 +439,11 @@ impl Board {
         // is never marked dirty), so mapping all of SRAM executable cost about a third of
         // the engine's time in stack and `.bss` stores. Only the pages the RAM functions
         // occupy (flash.rs, options.rs, modbus.rs) pay it now.
-        uc.mem_map(SRAM as u64, SRAM_SIZE as u64, Prot::READ | Prot::WRITE)
+        // Over the board's own array: exception frames go there directly (`hostmem.rs`).
+        let mut sram = HostMem::new(SRAM_SIZE as usize, 0);
+        sram.map(&mut uc, SRAM as u64, Prot::READ | Prot::WRITE)
             .map_err(|x| e("map sram", x))?;
+        uc.get_data_mut().sram_mem = Some(sram);
         // SRAM bit-band alias (0x2200_0000: 32 bytes per SRAM byte).
         uc.mmio_map(
             0x2200_0000,
@@ -475,15 +542,17 @@ impl Board {
             // instruction of the block before: `block_insns`' flag); until then the last
             // answer stands, without its register reads (8 % of a run at rest).
             if !stop && s.irq_waiting && s.masks_settled != Some(s.io_seq) {
-                // With PRIMASK set nothing but an NMI (none wired) can be taken: one
-                // register read instead of three while code runs with interrupts masked.
-                if reg(uc, RegisterARM::PRIMASK) & 1 == 0 {
-                    let m = masks(uc);
-                    stop = uc.get_data().nvic.to_take(m).is_some();
-                }
-                if !stop {
+                // With PRIMASK set nothing but an NMI (none wired) can be taken.
+                let m = masks(uc);
+                let take = !m.primask && s.nvic.to_take(m).is_some();
+                if !take {
                     let s = uc.get_data_mut();
                     s.masks_settled = Some(s.io_seq);
+                } else if uc.get_data().in_run && in_run(uc, addr as u32, false, m) == InRun::Goes {
+                    // Entered: the block did not run; the engine goes on at the vector.
+                    return;
+                } else {
+                    stop = true;
                 }
             }
             if stop {
@@ -539,6 +608,23 @@ impl Board {
             }
         })
         .map_err(|x| e("block hook", x))?;
+        // `wfi`: the core sleeps, and wakes, inside the run (`in_run`), where the engine
+        // would stop for the run loop to do the same: at 20 kHz while the axis moves.
+        let sites = if cfg.in_run {
+            wfi_sites(&image.flash[..(image.flash_used as usize).min(image.flash.len())])
+        } else {
+            Vec::new()
+        };
+        for (addr, len) in sites {
+            uc.add_code_hook(
+                u64::from(addr),
+                u64::from(addr),
+                move |uc: &mut Unicorn<'_, Soc>, _: u64, _: u32| {
+                    on_wfi(uc, addr, len);
+                },
+            )
+            .map_err(|x| e("wfi hook", x))?;
+        }
         uc.add_intr_hook(|uc: &mut Unicorn<'_, Soc>, intno: u32| {
             on_interrupt(uc, intno);
         })
@@ -775,13 +861,26 @@ const S_REGS: [RegisterARM; 16] = [
     RegisterARM::S14,
     RegisterARM::S15,
 ];
-const FRAME_REGS: [RegisterARM; 6] = [
-    RegisterARM::R0,
-    RegisterARM::R1,
-    RegisterARM::R2,
-    RegisterARM::R3,
-    RegisterARM::R12,
-    RegisterARM::LR,
+
+/// The FPU's part of an extended frame, in frame order.
+const FP_REGS: [RegisterARM; 17] = [
+    RegisterARM::S0,
+    RegisterARM::S1,
+    RegisterARM::S2,
+    RegisterARM::S3,
+    RegisterARM::S4,
+    RegisterARM::S5,
+    RegisterARM::S6,
+    RegisterARM::S7,
+    RegisterARM::S8,
+    RegisterARM::S9,
+    RegisterARM::S10,
+    RegisterARM::S11,
+    RegisterARM::S12,
+    RegisterARM::S13,
+    RegisterARM::S14,
+    RegisterARM::S15,
+    RegisterARM::FPSCR,
 ];
 
 /// Exception entry: stack the frame on the current stack and continue at the vector of
@@ -789,42 +888,55 @@ const FRAME_REGS: [RegisterARM; 6] = [
 /// stacked (the stack points outside RAM).
 fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
     uc.get_data_mut().masks_settled = None;
-    let xpsr = reg(uc, RegisterARM::XPSR);
+    use RegisterARM as R;
+    // SP is the stack the frame goes on: the process stack in thread mode with
+    // CONTROL.SPSEL set (`use_psp`), else the main stack.
+    let [xpsr, control, sp, r0, r1, r2, r3, r12, lr] = crate::regs::read(
+        uc,
+        [
+            R::XPSR,
+            R::CONTROL,
+            R::SP,
+            R::R0,
+            R::R1,
+            R::R2,
+            R::R3,
+            R::R12,
+            R::LR,
+        ],
+    );
     let from_exc = (xpsr & 0x1FF) as usize;
-    let control = reg(uc, RegisterARM::CONTROL);
     let handler = from_exc != 0;
     let use_psp = !handler && control & 2 != 0;
     let fpca = control & 4 != 0;
-    let sp = reg(
-        uc,
-        if use_psp {
-            RegisterARM::PSP
-        } else {
-            RegisterARM::MSP
-        },
-    );
     let size = if fpca { 0x68 } else { 0x20 };
     let unaligned = sp.wrapping_sub(size);
     let frame = unaligned & !7;
     let realign = frame != unaligned;
-    let mut words: Vec<u32> = FRAME_REGS.iter().map(|&r| reg(uc, r)).collect();
-    words.push(ret & !1);
-    words.push((xpsr & !(1 << 9)) | (u32::from(realign) << 9));
+    // The frame: R0-R3, R12, LR, the return address, xPSR; then S0-S15, FPSCR and a
+    // reserved word if the thread used the FPU.
+    let mut words = [0u32; 26];
+    words[..8].copy_from_slice(&[
+        r0,
+        r1,
+        r2,
+        r3,
+        r12,
+        lr,
+        ret & !1,
+        (xpsr & !(1 << 9)) | (u32::from(realign) << 9),
+    ]);
     if fpca {
-        words.extend(S_REGS.iter().map(|&r| reg(uc, r)));
-        words.push(reg(uc, RegisterARM::FPSCR));
-        words.push(0);
+        let fp = crate::regs::read(uc, FP_REGS);
+        words[8..25].copy_from_slice(&fp);
     }
-    let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
-    uc.mem_write(frame as u64, &bytes).map_err(|_| ())?;
-    if use_psp {
-        set(uc, RegisterARM::PSP, frame);
-        set(uc, RegisterARM::CONTROL, control & !(2 | 4));
-    } else {
-        set(uc, RegisterARM::MSP, frame);
-        if fpca {
-            set(uc, RegisterARM::CONTROL, control & !4);
-        }
+    let n = (size / 4) as usize;
+    let mut bytes = [0u8; 4 * 26];
+    for (b, w) in bytes.chunks_exact_mut(4).zip(&words[..n]) {
+        b.copy_from_slice(&w.to_le_bytes());
+    }
+    if !frame_write(uc, frame, &bytes[..4 * n]) {
+        return Err(());
     }
     let exc_return = 0xFFFF_FFE1
         | if fpca { 0 } else { 0x10 }
@@ -835,11 +947,31 @@ fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
         } else {
             0x8
         };
-    set(uc, RegisterARM::LR, exc_return);
+    if use_psp {
+        crate::regs::write(
+            uc,
+            [
+                (R::PSP, frame),
+                (R::CONTROL, control & !(2 | 4)),
+                (R::LR, exc_return),
+            ],
+        );
+    } else if fpca {
+        crate::regs::write(
+            uc,
+            [
+                (R::MSP, frame),
+                (R::CONTROL, control & !4),
+                (R::LR, exc_return),
+            ],
+        );
+    } else {
+        crate::regs::write(uc, [(R::MSP, frame), (R::LR, exc_return)]);
+    }
     let vtor = uc.get_data().nvic.vtor();
-    let vector = read_u32(uc, vtor + 4 * e).ok_or(())?;
-    set(uc, RegisterARM::XPSR, (xpsr & 0xF800_0000) | (1 << 24) | e);
-    rebuild_hflags(uc);
+    let vector = read_vector(uc, vtor + 4 * e).ok_or(())?;
+    let new_xpsr = (xpsr & 0xF800_0000) | (1 << 24) | e;
+    write_xpsr(uc, new_xpsr);
     set(uc, RegisterARM::PC, vector | 1);
     let s = uc.get_data_mut();
     s.note_pends();
@@ -851,6 +983,160 @@ fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
     }
     note_entry(s, e, from_exc, Some(ret));
     Ok(())
+}
+
+/// Write xPSR (exception number and mode with it) and rebuild the engine's cached mode
+/// flags, as [`rebuild_hflags`] does, in one call: its write of the flags writes back
+/// the NZCV the xPSR write has just set.
+fn write_xpsr(uc: &mut Unicorn<'_, Soc>, xpsr: u32) {
+    crate::regs::write(
+        uc,
+        [
+            (RegisterARM::XPSR, xpsr),
+            (RegisterARM::APSR_NZCV, xpsr & 0xF000_0000),
+        ],
+    );
+}
+
+/// How [`in_run`] left the core.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum InRun {
+    /// The run goes on at the PC written (a vector, or after the `wfi`).
+    Goes,
+    /// The run loop must decide (a reset or a halt due, the run's limit reached, a frame
+    /// that cannot be stacked, nothing to take after all); `entered`: an exception was
+    /// entered first (the PC is its vector).
+    Stop { entered: bool },
+}
+
+/// The run loop's work between two runs (`run_until_inner`: the models brought up to
+/// now, the DMA's bytes stored, a sleeping core woken at the next event, an exception
+/// entered, again while another is to be taken, then the next event's time), done
+/// inside a run, at an instruction that has not run: an interrupt made takeable by the
+/// block before (the block hook at `resume`), or a `wfi` (a code hook; `resume` is the
+/// instruction after it, `asleep`). Writing the PC makes unicorn leave the block there
+/// and go on at the new PC in the same run (`quit_request`), at a fraction of a stop
+/// and a restart: a moving axis takes an interrupt at every SysTick, and its idle loop
+/// masks around its `wfi`, so each tick was two stops. Where the loop must decide, the
+/// run stops and the loop finds everything as it would have (a second `process` at the
+/// same instant changes nothing). `m`: the mask registers now.
+fn in_run(uc: &mut Unicorn<'_, Soc>, resume: u32, asleep: bool, m: Masks) -> InRun {
+    let loop_must_decide = |s: &Soc| {
+        s.stop
+            || s.nvic.reset_requested
+            || s.reset_due.is_some()
+            || s.locked_up
+            || s.unmodelled.is_some()
+            || s.engine_error.is_some()
+            || s.now() >= s.run_limit_ps
+    };
+    if loop_must_decide(uc.get_data()) {
+        return InRun::Stop { entered: false };
+    }
+    let mut asleep = asleep;
+    let mut entered = false;
+    // An entry takes no time, and the models' state at one instant is theirs after one
+    // `process` as after two: only a new instant needs one.
+    let mut new_instant = true;
+    loop {
+        if new_instant {
+            if let Some(d) = uc.get_data_mut().process() {
+                apply_done(uc, d);
+            }
+            store_dma(uc);
+            if loop_must_decide(uc.get_data()) {
+                return InRun::Stop { entered };
+            }
+        }
+        // `m`, the mask registers, stay as they are: asleep nothing runs, and an entry
+        // does not change them.
+        if asleep && !uc.get_data().nvic.wakes(m) {
+            let s = uc.get_data_mut();
+            let now = s.now();
+            let t = s.next_event().min(s.run_limit_ps);
+            s.clock.sleep_until(t.max(now + 1));
+            new_instant = true;
+            continue;
+        }
+        asleep = false;
+        let Some(e) = uc.get_data().nvic.to_take(m) else {
+            break;
+        };
+        let ret = if entered {
+            reg(uc, RegisterARM::PC)
+        } else {
+            resume
+        };
+        if enter(uc, e, ret).is_err() {
+            return InRun::Stop { entered };
+        }
+        entered = true;
+        new_instant = false;
+        if loop_must_decide(uc.get_data()) {
+            return InRun::Stop { entered };
+        }
+    }
+    if !entered {
+        if resume == reg(uc, RegisterARM::PC) {
+            // Nothing to take after all, and nothing slept: the loop restarts the block.
+            return InRun::Stop { entered };
+        }
+        // Woken with the interrupt masked: on after the `wfi`.
+        set(uc, RegisterARM::PC, resume | 1);
+    }
+    let s = uc.get_data_mut();
+    let t = s.next_event().min(s.run_limit_ps);
+    s.next_event_mc = s.clock.mc_at(t);
+    s.next_event_ps = t;
+    s.irq_waiting = s.nvic.anything_pending();
+    s.masks_settled = None;
+    s.runs += 1;
+    s.loops.restart();
+    InRun::Goes
+}
+
+/// The `wfi` instructions of the code sectors' image (`code`, from `FLASH_BASE`): each
+/// one's address and length. By their bytes (`wfi` and `wfi.w`): a match that is data or
+/// the second halfword of a 32-bit instruction never starts an instruction, and its hook
+/// never fires. Not one that may be inside an IT block (an IT instruction among the four
+/// halfwords before it): unicorn treats an IT block as one instruction and would run the
+/// `wfi` after the hook whatever the hook wrote; such a `wfi` stops the engine as before.
+fn wfi_sites(code: &[u8]) -> Vec<(u32, u32)> {
+    let hw = |i: usize| {
+        code.get(2 * i..2 * i + 2)
+            .map(|b| u16::from_le_bytes([b[0], b[1]]))
+    };
+    let after_it = |i: usize| {
+        (1..=4).any(|k| {
+            i.checked_sub(k)
+                .and_then(hw)
+                .is_some_and(|h| h & 0xFF00 == 0xBF00 && h & 0xF != 0)
+        })
+    };
+    let mut sites = Vec::new();
+    for i in 0..code.len() / 2 {
+        let len = match (hw(i), hw(i + 1)) {
+            (Some(WFI), _) => 2,
+            (Some(0xF3AF), Some(0x8003)) => 4,
+            _ => continue,
+        };
+        if !after_it(i) {
+            sites.push((FLASH_BASE + 2 * i as u32, len));
+        }
+    }
+    sites
+}
+
+/// A `wfi` about to run (its block has been charged, the instruction with it): sleep,
+/// wake and take what wakes the core here ([`in_run`]). If the run loop must decide, the
+/// `wfi` runs and the engine stops after it, as it did, unless an exception was entered
+/// first (the engine then stops at its vector).
+fn on_wfi(uc: &mut Unicorn<'_, Soc>, pc: u32, len: u32) {
+    let m = masks(uc);
+    if let InRun::Stop { entered: true } = in_run(uc, pc + len, true, m) {
+        uc.get_data_mut().stop = true;
+        let _ = uc.emu_stop();
+    }
 }
 
 /// Exception `e` entered now, from exception `from_exc` (0: thread mode) at `from_pc`
@@ -874,8 +1160,23 @@ fn note_entry(s: &mut Soc, e: u32, from_exc: usize, from_pc: Option<u32>) {
 /// unstack.
 fn exception_return(uc: &mut Unicorn<'_, Soc>) {
     uc.get_data_mut().masks_settled = None;
-    let exc_return = reg(uc, RegisterARM::PC) | 1;
-    let ipsr = reg(uc, RegisterARM::IPSR) & 0x1FF;
+    use RegisterARM as R;
+    // Nothing below changes a register before the last of these is used.
+    // In handler mode SP is the main stack.
+    let [pc, xpsr, control, msp, primask, faultmask, basepri] = crate::regs::read(
+        uc,
+        [
+            R::PC,
+            R::XPSR,
+            R::CONTROL,
+            R::SP,
+            R::PRIMASK,
+            R::FAULTMASK,
+            R::BASEPRI,
+        ],
+    );
+    let exc_return = pc | 1;
+    let ipsr = xpsr & 0x1FF;
     {
         let s = uc.get_data_mut();
         if ipsr == exc::IRQ0 + 6 {
@@ -887,15 +1188,24 @@ fn exception_return(uc: &mut Unicorn<'_, Soc>) {
     }
     uc.get_data_mut().nvic.deactivate(ipsr);
     uc.get_data_mut().update_lines();
-    let m = masks(uc);
+    let m = Masks {
+        primask: primask & 1 != 0,
+        faultmask: faultmask & 1 != 0,
+        basepri: basepri as u8,
+    };
     if let Some(n) = uc.get_data().nvic.to_take(m) {
         // Tail-chain: the frame stays; the next handler returns through it.
         let vtor = uc.get_data().nvic.vtor();
-        if let Some(vector) = read_u32(uc, vtor + 4 * n) {
-            let xpsr = reg(uc, RegisterARM::XPSR);
-            set(uc, RegisterARM::XPSR, (xpsr & 0xF800_0000) | (1 << 24) | n);
-            set(uc, RegisterARM::LR, exc_return);
-            rebuild_hflags(uc);
+        if let Some(vector) = read_vector(uc, vtor + 4 * n) {
+            let new_xpsr = (xpsr & 0xF800_0000) | (1 << 24) | n;
+            crate::regs::write(
+                uc,
+                [
+                    (R::XPSR, new_xpsr),
+                    (R::LR, exc_return),
+                    (R::APSR_NZCV, new_xpsr & 0xF000_0000),
+                ],
+            );
             set(uc, RegisterARM::PC, vector | 1);
             let s = uc.get_data_mut();
             s.note_pends();
@@ -912,55 +1222,62 @@ fn exception_return(uc: &mut Unicorn<'_, Soc>) {
     let to_thread = exc_return & 8 != 0;
     let use_psp = to_thread && exc_return & 4 != 0;
     let std_frame = exc_return & 0x10 != 0;
-    let sp = reg(
-        uc,
-        if use_psp {
-            RegisterARM::PSP
-        } else {
-            RegisterARM::MSP
-        },
-    );
+    let sp = if use_psp {
+        reg(uc, RegisterARM::PSP)
+    } else {
+        msp
+    };
     let n = if std_frame { 8 } else { 26 };
-    let mut buf = vec![0u8; 4 * n];
-    if uc.mem_read(sp as u64, &mut buf).is_err() {
-        let pc = exc_return;
+    let mut buf = [0u8; 4 * 26];
+    if !frame_read(uc, sp, &mut buf[..4 * n]) {
         fault(
             uc,
             exc::HARD_FAULT,
             0,
-            pc,
+            exc_return,
             "exception return: stack unreadable",
         );
         return;
     }
-    let w: Vec<u32> = buf
-        .chunks_exact(4)
-        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
-    for (i, &r) in FRAME_REGS.iter().enumerate() {
-        set(uc, r, w[i]);
+    let mut w = [0u32; 26];
+    for (v, c) in w.iter_mut().zip(buf.chunks_exact(4)) {
+        *v = u32::from_le_bytes([c[0], c[1], c[2], c[3]]);
     }
     let ret = w[6];
-    let xpsr = w[7];
-    if !std_frame {
-        for (i, &r) in S_REGS.iter().enumerate() {
-            set(uc, r, w[8 + i]);
-        }
-        set(uc, RegisterARM::FPSCR, w[24]);
-    }
-    let new_sp = sp + 4 * n as u32 + if xpsr & (1 << 9) != 0 { 4 } else { 0 };
-    set(
+    let frame_xpsr = w[7];
+    crate::regs::write(
         uc,
-        RegisterARM::XPSR,
-        (xpsr & !(1 << 9) & !0x1FF) | if to_thread { 0 } else { xpsr & 0x1FF },
+        [
+            (R::R0, w[0]),
+            (R::R1, w[1]),
+            (R::R2, w[2]),
+            (R::R3, w[3]),
+            (R::R12, w[4]),
+            (R::LR, w[5]),
+        ],
     );
-    let control = reg(uc, RegisterARM::CONTROL);
+    if !std_frame {
+        let mut fp = [(R::S0, 0u32); 17];
+        for ((slot, &r), &v) in fp.iter_mut().zip(FP_REGS.iter()).zip(&w[8..25]) {
+            *slot = (r, v);
+        }
+        crate::regs::write(uc, fp);
+    }
+    let new_sp = sp + 4 * n as u32 + if frame_xpsr & (1 << 9) != 0 { 4 } else { 0 };
+    let new_xpsr =
+        (frame_xpsr & !(1 << 9) & !0x1FF) | if to_thread { 0 } else { frame_xpsr & 0x1FF };
     if use_psp {
         // Thread mode again: selecting the process stack swaps it in.
-        set(uc, RegisterARM::CONTROL, control | 2);
-        set(uc, RegisterARM::PSP, new_sp);
+        crate::regs::write(
+            uc,
+            [
+                (R::XPSR, new_xpsr),
+                (R::CONTROL, control | 2),
+                (R::PSP, new_sp),
+            ],
+        );
     } else {
-        set(uc, RegisterARM::MSP, new_sp);
+        crate::regs::write(uc, [(R::XPSR, new_xpsr), (R::MSP, new_sp)]);
     }
     if !std_frame {
         let c = reg(uc, RegisterARM::CONTROL);
@@ -1013,11 +1330,31 @@ fn note_mask_site(uc: &mut Unicorn<'_, Soc>, addr: u32, size: u32, n: u64) {
     };
     // The site must start the block's last instruction, not be the second halfword of
     // a 32-bit one (the sites are found by their bytes; a code hook fired only where an
-    // instruction started).
-    let mut bytes = vec![0u8; size as usize];
-    if uc.mem_read(u64::from(addr), &mut bytes).is_err()
-        || thumb_insns(&bytes).last().map(|(at, _)| at as u32) != Some(pc - addr)
-    {
+    // instruction started). Checked once per block: the answer is kept in its icache
+    // entry, which `block_insns` has just filled for this size (and which a code change
+    // clears with the count).
+    let entry = icache_index(u64::from(addr)).filter(|&i| {
+        s.icache
+            .get(i)
+            .is_some_and(|c| (c & ICACHE_SIZE) >> 12 == size)
+    });
+    let cached = entry
+        .and_then(|i| s.icache.get(i))
+        .filter(|&&c| c & ICACHE_SITE_CHECKED != 0)
+        .map(|&c| c & ICACHE_SITE_OK != 0);
+    let starts_last = match cached {
+        Some(ok) => ok,
+        None => {
+            let mut bytes = vec![0u8; size as usize];
+            let ok = uc.mem_read(u64::from(addr), &mut bytes).is_ok()
+                && thumb_insns(&bytes).last().map(|(at, _)| at as u32) == Some(pc - addr);
+            if let Some(c) = entry.and_then(|i| uc.get_data_mut().icache.get_mut(i)) {
+                *c |= ICACHE_SITE_CHECKED | if ok { ICACHE_SITE_OK } else { 0 };
+            }
+            ok
+        }
+    };
+    if !starts_last {
         return;
     }
     let masked = reg(uc, RegisterARM::PRIMASK) & 1 != 0;
@@ -1367,6 +1704,7 @@ impl Board {
                     .min(self.next_rtt_ps)
                     .min(until_ps);
                 let s = self.uc.get_data_mut();
+                s.run_limit_ps = self.next_rtt_ps.min(until_ps);
                 s.next_event_mc = s.clock.mc_at(t);
                 s.next_event_ps = t;
                 s.irq_waiting = s.nvic.anything_pending();
@@ -1699,5 +2037,23 @@ mod tests {
         );
         // The halfword of a 32-bit instruction that looks like a CPS is not one.
         assert_eq!(scan_insns(&thumb(&[0xf000, 0xb662])), (1, false));
+    }
+
+    #[test]
+    fn wfi_sites_are_found_by_their_bytes_and_not_after_an_it() {
+        // nop; wfi; nop; wfi.w; it eq; wfi (conditional: unicorn runs an IT block whole);
+        // then four other halfwords and a wfi again.
+        let code = thumb(&[
+            0xbf00, 0xbf30, 0xbf00, 0xf3af, 0x8003, 0xbf08, 0xbf30, 0x4600, 0x4600, 0x4600, 0x4600,
+            0xbf30,
+        ]);
+        assert_eq!(
+            wfi_sites(&code),
+            vec![
+                (FLASH_BASE + 2, 2),
+                (FLASH_BASE + 6, 4),
+                (FLASH_BASE + 22, 2)
+            ]
+        );
     }
 }

@@ -5,8 +5,9 @@
 //! peripherals the image uses), its pins wired to the simulated machine of `hil-sim`.
 //!
 //! * [`cpu`]: the core, time, exceptions, sleep, reset;
-//! * [`codemem`]: the code sectors' bytes, shared with the engine (the crate's only
-//!   unsafe code);
+//! * [`hostmem`]: memory the board owns and the engine maps (the code sectors, SRAM;
+//!   with the engine's batched register transfers in [`regs`] and its TLB fill in [`tlb`],
+//!   the crate's unsafe code);
 //! * [`soc`]: the bus map, events, interrupt lines, pins;
 //! * [`periph`]: one model per peripheral;
 //! * [`world`]: the board's wiring to hil-sim's devices;
@@ -20,13 +21,14 @@
 //! GPL-2.0 (it links unicorn); nothing of the firmware depends on it.
 
 pub mod cli;
-pub mod codemem;
 pub mod cpu;
+pub mod hostmem;
 pub mod image;
 pub mod loops;
 pub mod periph;
 pub mod poller;
 pub mod realtime;
+pub mod regs;
 pub mod rtt;
 pub mod scene;
 pub mod serve;

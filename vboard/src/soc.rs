@@ -263,8 +263,11 @@ pub struct Soc {
     /// put back before anything reads them: the array changes when the program ends.
     pub code_restore: Vec<(u32, Vec<u8>)>,
     /// The code sectors' bytes, which the engine maps at 0 and at the flash's base
-    /// (`codemem.rs`); `None` before the board maps them.
-    pub code_mem: Option<crate::codemem::CodeMem>,
+    /// (`hostmem.rs`); `None` before the board maps them.
+    pub code_mem: Option<crate::hostmem::HostMem>,
+    /// SRAM's bytes, which the engine maps at 0x2000_0000 (`hostmem.rs`); `None` before
+    /// the board maps them.
+    pub sram_mem: Option<crate::hostmem::HostMem>,
     /// Programs and sector erases of the code sectors (0-9) completed or cut.
     pub code_programs: u64,
     /// See `code_programs`.
@@ -275,6 +278,12 @@ pub struct Soc {
     pub next_event_mc: u64,
     /// The same, ps.
     pub next_event_ps: u64,
+    /// The end of the current run, ps: the caller's `until` or the next RTT poll,
+    /// whichever is first (`next_event_ps` never passes it).
+    pub run_limit_ps: u64,
+    /// Interrupts are taken, and the core sleeps, inside the engine's run
+    /// (`BoardConfig::in_run`).
+    pub in_run: bool,
     /// An interrupt is pending but masked: re-check at every block.
     pub irq_waiting: bool,
     /// The block hook found the pending interrupt still not to be taken, at this
@@ -454,11 +463,14 @@ impl Soc {
             reset_due: None,
             code_restore: Vec::new(),
             code_mem: None,
+            sram_mem: None,
             code_programs: 0,
             code_erases: 0,
             stop: false,
             next_event_mc: 0,
             next_event_ps: 0,
+            run_limit_ps: 0,
+            in_run: true,
             irq_waiting: false,
             masks_settled: None,
             icache: vec![0; ICACHE_FLASH + ICACHE_SRAM],

@@ -68,7 +68,9 @@ pub fn mark_executable(addr: u32) {
     }
 }
 
-fn executable(addr: u32) -> bool {
+/// Whether the SRAM page at `addr` may hold code (any board of this process made it
+/// executable).
+pub fn executable(addr: u32) -> bool {
     sram_page(addr)
         .is_some_and(|page| SRAM_EXEC[page / 64].load(Ordering::Relaxed) & (1 << (page % 64)) != 0)
 }

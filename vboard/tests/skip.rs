@@ -1,13 +1,19 @@
-//! Skipping polling loops changes nothing: every scene of the test suite gives the same
+//! The emulator's shortcuts change nothing: every scene of the test suite gives the same
 //! JSON — pins, instruction counts, latencies, the log, the trace digest (every edge and
-//! byte with its time, every register, SRAM) — with the skipping on and with `--no-skip`,
-//! at CPI 1, 2 and 3 and under the ART cache model. Only what measures the emulation
-//! itself differs (`wall_time_s`, `mips`, `realtime_factor`, `realtime_factor_min`,
-//! `skipped_instructions`).
+//! byte with its time, every register, SRAM) — with each shortcut on and off, at CPI 1,
+//! 2 and 3 and under the ART cache model. Only what measures the emulation itself
+//! differs (`wall_time_s`, `mips`, `realtime_factor`, `realtime_factor_min`, and for the
+//! loop skipping `skipped_instructions`). The shortcuts:
 //!
-//! CI runs a sample that covers each kind of loop the image polls in (the sector
-//! erase's, the brown-out level's program, the clocks' ready bits) under every timing
-//! model; the whole suite is the ignored test:
+//! * **skipping polling loops** (`--no-skip` turns it off). CI runs a sample that covers
+//!   each kind of loop the image polls in (the sector erase's, the brown-out level's
+//!   program, the clocks' ready bits) under every timing model;
+//! * **taking interrupts and sleeping inside the engine's run** (`BoardConfig::in_run`):
+//!   the run loop's work between two runs, done in the block hook and at each `wfi`.
+//!   CI runs a moving axis's 20 kHz SysTick with its idle loop's `wfi`, and an E-STOP
+//!   under a flooded console, at two timing models.
+//!
+//! The whole suite is the ignored tests:
 //! `cargo test --release --test skip -- --ignored` (docs/vboard.md has its last run).
 
 use vboard::cpu::Timing;
@@ -15,18 +21,26 @@ use vboard::periph::flash::FlashTiming;
 use vboard::scene::{run, Options, SceneOptions};
 use vboard::update::Cut;
 
-/// The JSON of a run without what measures the emulation rather than the board.
-fn board_json(name: &str, o: &SceneOptions) -> (String, u64) {
+/// The JSON of a run without what measures the emulation rather than the board (and,
+/// unless `keep_skipped`, the instructions skipped); the instructions skipped.
+fn board_json(name: &str, o: &SceneOptions, keep_skipped: bool) -> (String, u64) {
     let r = run(name, o).unwrap_or_else(|e| panic!("{name}: {e}"));
     let mut v: serde_json::Value = serde_json::from_str(&r.to_json()).expect("JSON");
     let m = v.as_object_mut().expect("an object");
-    for k in [
+    let skipped: &[&str] = if keep_skipped {
+        &[]
+    } else {
+        &["skipped_instructions"]
+    };
+    for &k in [
         "wall_time_s",
         "mips",
         "realtime_factor",
         "realtime_factor_min",
-        "skipped_instructions",
-    ] {
+    ]
+    .iter()
+    .chain(skipped)
+    {
         assert!(m.remove(k).is_some(), "{k} missing");
     }
     (v.to_string(), r.skipped_instructions)
@@ -41,27 +55,47 @@ enum Model {
 
 const MODELS: [Model; 4] = [Model::Cpi(1), Model::Cpi(2), Model::Cpi(3), Model::Art];
 
-fn with(o: &SceneOptions, m: Model, skip: bool) -> SceneOptions {
+/// A shortcut of the emulator.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Shortcut {
+    /// Skipping polling loops.
+    Skip,
+    /// Interrupts and sleep inside the engine's run.
+    InRun,
+}
+
+fn with(o: &SceneOptions, m: Model, shortcut: Shortcut, on: bool) -> SceneOptions {
     let mut o = o.clone();
     match m {
         Model::Cpi(c) => o.session.board.cpi_milli = c * 1_000,
         Model::Art => o.session.board.timing = Timing::Art,
     }
-    o.session.board.skip = skip;
+    match shortcut {
+        Shortcut::Skip => o.session.board.skip = on,
+        Shortcut::InRun => o.session.board.in_run = on,
+    }
     o
 }
 
 /// Run `name` with the skipping on and off under `m`; the instructions skipped.
 fn same(name: &str, o: &SceneOptions, m: Model) -> u64 {
+    same_with(name, o, m, Shortcut::Skip)
+}
+
+/// Run `name` with `shortcut` on and off under `m`; the instructions skipped.
+fn same_with(name: &str, o: &SceneOptions, m: Model, shortcut: Shortcut) -> u64 {
     let t = std::time::Instant::now();
-    let (on, skipped) = board_json(name, &with(o, m, true));
+    let keep_skipped = shortcut != Shortcut::Skip;
+    let (on, skipped) = board_json(name, &with(o, m, shortcut, true), keep_skipped);
     let t_on = t.elapsed().as_secs_f64();
-    let (off, none) = board_json(name, &with(o, m, false));
+    let (off, none) = board_json(name, &with(o, m, shortcut, false), keep_skipped);
     eprintln!(
-        "{name} {m:?}: {skipped} instructions skipped; {t_on:.1} s with, {:.1} s without",
+        "{name} {m:?} {shortcut:?}: {skipped} instructions skipped; {t_on:.1} s with, {:.1} s without",
         t.elapsed().as_secs_f64() - t_on
     );
-    assert_eq!(none, 0, "{name} {m:?}: --no-skip skipped");
+    if shortcut == Shortcut::Skip {
+        assert_eq!(none, 0, "{name} {m:?}: --no-skip skipped");
+    }
     if on != off {
         let a: serde_json::Value = serde_json::from_str(&on).unwrap();
         let b: serde_json::Value = serde_json::from_str(&off).unwrap();
@@ -70,9 +104,9 @@ fn same(name: &str, o: &SceneOptions, m: Model) -> u64 {
             .unwrap()
             .iter()
             .filter(|(k, v)| b.get(k.as_str()) != Some(v))
-            .map(|(k, v)| format!("{k}: {v} skipping, {} not", b[k.as_str()]))
+            .map(|(k, v)| format!("{k}: {v} with, {} without", b[k.as_str()]))
             .collect();
-        panic!("{name} {m:?} differs with the skipping: {diff:#?}");
+        panic!("{name} {m:?} differs with {shortcut:?}: {diff:#?}");
     }
     skipped
 }
@@ -175,4 +209,26 @@ fn skipping_the_polling_loops_changes_nothing_in_any_scene_of_the_suite() {
     }
     eprintln!("{total} instructions skipped in all");
     assert!(total > 0);
+}
+
+/// The sample CI runs: a moving axis (`nominal`: a SysTick at 20 kHz, each one woken from
+/// the idle loop's `wfi` and taken as the loop unmasks) at CPI 1, and an E-STOP pressed
+/// while the console floods (`estop --flood`: the safety input's edge, the DMA's bytes,
+/// nested interrupts) at CPI 2.
+#[test]
+fn interrupts_and_sleep_inside_the_run_change_nothing_in_a_sample_of_the_suite() {
+    same_with("nominal", &default(), Model::Cpi(1), Shortcut::InRun);
+    same_with("estop", &flooded(80), Model::Cpi(2), Shortcut::InRun);
+}
+
+/// Every scene of the suite at every timing model, interrupts and sleep inside the run
+/// on and off.
+#[test]
+#[ignore]
+fn interrupts_and_sleep_inside_the_run_change_nothing_in_any_scene_of_the_suite() {
+    for (name, o) in suite() {
+        for m in MODELS {
+            same_with(name, &o, m, Shortcut::InRun);
+        }
+    }
 }
