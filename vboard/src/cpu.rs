@@ -316,15 +316,17 @@ fn scan_insns(bytes: &[u8]) -> (u32, bool) {
     })
 }
 
-/// An icache entry: bits 0–11 the block's instructions, 12–28 its size in bytes, and
-/// flags. The flag of a block that may write a mask register ([`scan_insns`]):
+/// An icache entry: bits 0–11 the block's instructions, 12–24 its size in bytes (a
+/// block is at most 512 instructions), 25–26 its masking site, and flags. The flag of a
+/// block that may write a mask register ([`scan_insns`]):
 const ICACHE_MASKS: u32 = 1 << 31;
-/// The block's masking site was checked (`note_mask_site`)…
+/// The block's masking site was looked up (`note_mask_site`); bits 25–26 then say what
+/// it ends with: 0 no site, 1 `cpsid i`, 2 `cpsie i`, 3 `msr primask`.
 const ICACHE_SITE_CHECKED: u32 = 1 << 30;
-/// … and starts the block's last instruction.
-const ICACHE_SITE_OK: u32 = 1 << 29;
 /// The size's bits.
-const ICACHE_SIZE: u32 = ((1 << 17) - 1) << 12;
+const ICACHE_SIZE: u32 = ((1 << 13) - 1) << 12;
+/// The site's bits.
+const ICACHE_SITE_SHIFT: u32 = 25;
 
 fn icache_index(addr: u64) -> Option<usize> {
     let a = addr as u32;
@@ -355,7 +357,7 @@ fn block_insns(uc: &mut Unicorn<'_, Soc>, addr: u64, size: u32) -> (u64, bool) {
         (size / 2, true)
     };
     if let Some(i) = idx {
-        if size < (1 << 17) && n < 0x1000 {
+        if size < (1 << 13) && n < 0x1000 {
             uc.get_data_mut().icache[i] = (size << 12) | n | if masks { ICACHE_MASKS } else { 0 };
         }
     }
@@ -542,17 +544,22 @@ impl Board {
             // instruction of the block before: `block_insns`' flag); until then the last
             // answer stands, without its register reads (8 % of a run at rest).
             if !stop && s.irq_waiting && s.masks_settled != Some(s.io_seq) {
-                // With PRIMASK set nothing but an NMI (none wired) can be taken.
-                let m = masks(uc);
-                let take = !m.primask && s.nvic.to_take(m).is_some();
-                if !take {
+                // With PRIMASK set nothing but an NMI (none wired) can be taken: one
+                // register read instead of three while code runs with interrupts masked.
+                let mut take = None;
+                if reg(uc, RegisterARM::PRIMASK) & 1 == 0 {
+                    let m = masks(uc);
+                    take = uc.get_data().nvic.to_take(m).map(|_| m);
+                }
+                if let Some(m) = take {
+                    if uc.get_data().in_run && in_run(uc, addr as u32, false, m) == InRun::Goes {
+                        // Entered: the block did not run; the engine goes on at the vector.
+                        return;
+                    }
+                    stop = true;
+                } else {
                     let s = uc.get_data_mut();
                     s.masks_settled = Some(s.io_seq);
-                } else if uc.get_data().in_run && in_run(uc, addr as u32, false, m) == InRun::Goes {
-                    // Entered: the block did not run; the engine goes on at the vector.
-                    return;
-                } else {
-                    stop = true;
                 }
             }
             if stop {
@@ -1161,20 +1168,8 @@ fn note_entry(s: &mut Soc, e: u32, from_exc: usize, from_pc: Option<u32>) {
 fn exception_return(uc: &mut Unicorn<'_, Soc>) {
     uc.get_data_mut().masks_settled = None;
     use RegisterARM as R;
-    // Nothing below changes a register before the last of these is used.
     // In handler mode SP is the main stack.
-    let [pc, xpsr, control, msp, primask, faultmask, basepri] = crate::regs::read(
-        uc,
-        [
-            R::PC,
-            R::XPSR,
-            R::CONTROL,
-            R::SP,
-            R::PRIMASK,
-            R::FAULTMASK,
-            R::BASEPRI,
-        ],
-    );
+    let [pc, xpsr, msp] = crate::regs::read(uc, [R::PC, R::XPSR, R::SP]);
     let exc_return = pc | 1;
     let ipsr = xpsr & 0x1FF;
     {
@@ -1188,12 +1183,14 @@ fn exception_return(uc: &mut Unicorn<'_, Soc>) {
     }
     uc.get_data_mut().nvic.deactivate(ipsr);
     uc.get_data_mut().update_lines();
-    let m = Masks {
-        primask: primask & 1 != 0,
-        faultmask: faultmask & 1 != 0,
-        basepri: basepri as u8,
+    // The mask registers only if something could be taken.
+    let tail = if uc.get_data().nvic.anything_pending() {
+        let m = masks(uc);
+        uc.get_data().nvic.to_take(m)
+    } else {
+        None
     };
-    if let Some(n) = uc.get_data().nvic.to_take(m) {
+    if let Some(n) = tail {
         // Tail-chain: the frame stays; the next handler returns through it.
         let vtor = uc.get_data().nvic.vtor();
         if let Some(vector) = read_vector(uc, vtor + 4 * n) {
@@ -1245,45 +1242,64 @@ fn exception_return(uc: &mut Unicorn<'_, Soc>) {
     }
     let ret = w[6];
     let frame_xpsr = w[7];
-    crate::regs::write(
-        uc,
-        [
-            (R::R0, w[0]),
-            (R::R1, w[1]),
-            (R::R2, w[2]),
-            (R::R3, w[3]),
-            (R::R12, w[4]),
-            (R::LR, w[5]),
-        ],
-    );
-    if !std_frame {
-        let mut fp = [(R::S0, 0u32); 17];
-        for ((slot, &r), &v) in fp.iter_mut().zip(FP_REGS.iter()).zip(&w[8..25]) {
-            *slot = (r, v);
-        }
-        crate::regs::write(uc, fp);
-    }
+    let regs = [
+        (R::R0, w[0]),
+        (R::R1, w[1]),
+        (R::R2, w[2]),
+        (R::R3, w[3]),
+        (R::R12, w[4]),
+        (R::LR, w[5]),
+    ];
     let new_sp = sp + 4 * n as u32 + if frame_xpsr & (1 << 9) != 0 { 4 } else { 0 };
     let new_xpsr =
         (frame_xpsr & !(1 << 9) & !0x1FF) | if to_thread { 0 } else { frame_xpsr & 0x1FF };
-    if use_psp {
-        // Thread mode again: selecting the process stack swaps it in.
+    if std_frame && !use_psp {
+        // The common return, in one call: the frame's registers, xPSR, the main stack,
+        // and the engine's mode flags rebuilt (as `rebuild_hflags`: NZCV as just set).
+        let [r0, r1, r2, r3, r12, lr] = regs;
         crate::regs::write(
             uc,
             [
+                r0,
+                r1,
+                r2,
+                r3,
+                r12,
+                lr,
                 (R::XPSR, new_xpsr),
-                (R::CONTROL, control | 2),
-                (R::PSP, new_sp),
+                (R::MSP, new_sp),
+                (R::APSR_NZCV, new_xpsr & 0xF000_0000),
             ],
         );
     } else {
-        crate::regs::write(uc, [(R::XPSR, new_xpsr), (R::MSP, new_sp)]);
+        crate::regs::write(uc, regs);
+        if !std_frame {
+            let mut fp = [(R::S0, 0u32); 17];
+            for ((slot, &r), &v) in fp.iter_mut().zip(FP_REGS.iter()).zip(&w[8..25]) {
+                *slot = (r, v);
+            }
+            crate::regs::write(uc, fp);
+        }
+        if use_psp {
+            // Thread mode again: selecting the process stack swaps it in.
+            let control = reg(uc, RegisterARM::CONTROL);
+            crate::regs::write(
+                uc,
+                [
+                    (R::XPSR, new_xpsr),
+                    (R::CONTROL, control | 2),
+                    (R::PSP, new_sp),
+                ],
+            );
+        } else {
+            crate::regs::write(uc, [(R::XPSR, new_xpsr), (R::MSP, new_sp)]);
+        }
+        if !std_frame {
+            let c = reg(uc, RegisterARM::CONTROL);
+            set(uc, RegisterARM::CONTROL, c | 4);
+        }
+        rebuild_hflags(uc);
     }
-    if !std_frame {
-        let c = reg(uc, RegisterARM::CONTROL);
-        set(uc, RegisterARM::CONTROL, c | 4);
-    }
-    rebuild_hflags(uc);
     set(uc, RegisterARM::PC, ret | 1);
     let s = uc.get_data_mut();
     s.current_exc = s.nvic.active_stack().last().copied().unwrap_or(0) as usize;
@@ -1319,20 +1335,9 @@ fn meter_block(uc: &mut Unicorn<'_, Soc>, addr: u32) {
 fn note_mask_site(uc: &mut Unicorn<'_, Soc>, addr: u32, size: u32, n: u64) {
     let end = addr.wrapping_add(size);
     let s = uc.get_data();
-    let found = [(2, false), (4, true)].into_iter().find_map(|(len, wide)| {
-        let pc = end.wrapping_sub(len);
-        let i = s.mask_sites.binary_search_by_key(&pc, |&(a, _)| a).ok()?;
-        let site = s.mask_sites.get(i)?.1;
-        ((site == MaskSite::Restore) == wide).then_some((pc, site))
-    });
-    let Some((pc, site)) = found else {
-        return;
-    };
-    // The site must start the block's last instruction, not be the second halfword of
-    // a 32-bit one (the sites are found by their bytes; a code hook fired only where an
-    // instruction started). Checked once per block: the answer is kept in its icache
-    // entry, which `block_insns` has just filled for this size (and which a code change
-    // clears with the count).
+    // What the block ends with is looked up once and kept in its icache entry, which
+    // `block_insns` has just filled for this size (and which a code change clears with
+    // the count).
     let entry = icache_index(u64::from(addr)).filter(|&i| {
         s.icache
             .get(i)
@@ -1341,23 +1346,35 @@ fn note_mask_site(uc: &mut Unicorn<'_, Soc>, addr: u32, size: u32, n: u64) {
     let cached = entry
         .and_then(|i| s.icache.get(i))
         .filter(|&&c| c & ICACHE_SITE_CHECKED != 0)
-        .map(|&c| c & ICACHE_SITE_OK != 0);
-    let starts_last = match cached {
-        Some(ok) => ok,
+        .map(|&c| match (c >> ICACHE_SITE_SHIFT) & 3 {
+            1 => Some(MaskSite::Disable),
+            2 => Some(MaskSite::Enable),
+            3 => Some(MaskSite::Restore),
+            _ => None,
+        });
+    let site = match cached {
+        Some(site) => site,
         None => {
-            let mut bytes = vec![0u8; size as usize];
-            let ok = uc.mem_read(u64::from(addr), &mut bytes).is_ok()
-                && thumb_insns(&bytes).last().map(|(at, _)| at as u32) == Some(pc - addr);
+            let site = block_mask_site(uc, addr, size);
+            let bits = match site {
+                None => 0,
+                Some(MaskSite::Disable) => 1,
+                Some(MaskSite::Enable) => 2,
+                Some(MaskSite::Restore) => 3,
+            };
             if let Some(c) = entry.and_then(|i| uc.get_data_mut().icache.get_mut(i)) {
-                *c |= ICACHE_SITE_CHECKED | if ok { ICACHE_SITE_OK } else { 0 };
+                *c |= ICACHE_SITE_CHECKED | bits << ICACHE_SITE_SHIFT;
             }
-            ok
+            site
         }
     };
-    if !starts_last {
+    let Some(site) = site else {
         return;
-    }
-    let masked = reg(uc, RegisterARM::PRIMASK) & 1 != 0;
+    };
+    // `msr primask` is the 32-bit one.
+    let pc = end.wrapping_sub(if site == MaskSite::Restore { 4 } else { 2 });
+    // Only a `cpsid i` asks whether interrupts were masked before it.
+    let masked = site == MaskSite::Disable && reg(uc, RegisterARM::PRIMASK) & 1 != 0;
     let s = uc.get_data_mut();
     let mc = s.block_at.1 + n.saturating_sub(1) * s.clock.cpi_milli();
     s.mask_pending = Some(MaskPending {
@@ -1367,6 +1384,26 @@ fn note_mask_site(uc: &mut Unicorn<'_, Soc>, addr: u32, size: u32, n: u64) {
         mc,
         masked,
     });
+}
+
+/// The masking site the block at `addr` (`size` bytes) ends with, if any: a site of
+/// `Board::watch_masking`'s list that starts the block's last instruction, not the
+/// second halfword of a 32-bit one (the sites are found by their bytes).
+fn block_mask_site(uc: &Unicorn<'_, Soc>, addr: u32, size: u32) -> Option<MaskSite> {
+    let end = addr.wrapping_add(size);
+    let s = uc.get_data();
+    let (pc, site) = [(2, false), (4, true)]
+        .into_iter()
+        .find_map(|(len, wide)| {
+            let pc = end.wrapping_sub(len);
+            let i = s.mask_sites.binary_search_by_key(&pc, |&(a, _)| a).ok()?;
+            let site = s.mask_sites.get(i)?.1;
+            ((site == MaskSite::Restore) == wide).then_some((pc, site))
+        })?;
+    let mut bytes = vec![0u8; size as usize];
+    let starts_last = uc.mem_read(u64::from(addr), &mut bytes).is_ok()
+        && thumb_insns(&bytes).last().map(|(at, _)| at as u32) == Some(pc - addr);
+    starts_last.then_some(site)
 }
 
 /// The noted masking site has run (its block reached its end): the window it opens or
@@ -1840,7 +1877,12 @@ impl Board {
             }
         }
         sites.sort_by_key(|&(addr, _)| addr);
-        self.uc.get_data_mut().mask_sites = sites;
+        let s = self.uc.get_data_mut();
+        s.mask_sites = sites;
+        // What blocks end with is looked up again, against these sites.
+        for c in &mut s.icache {
+            *c &= !(ICACHE_SITE_CHECKED | 3 << ICACHE_SITE_SHIFT);
+        }
     }
 
     /// Count the executions of the instruction at `addr` (a debugging aid: a code hook on

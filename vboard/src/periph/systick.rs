@@ -12,7 +12,6 @@
 //! | 0xE000_E01C | CALIB | 0x4000_5207 (no reference clock... TENMS for HCLK/8 = 21 MHz) |
 
 use super::{lane, merge, no_read, no_write, Access};
-use crate::time::PS_PER_S;
 
 /// SysTick.
 #[derive(Clone, Debug, Default)]
@@ -46,7 +45,7 @@ impl SysTick {
     }
 
     fn ticks(&self, now: u64, hclk: u64) -> u64 {
-        (now.saturating_sub(self.t0) as u128 * self.freq(hclk) as u128 / PS_PER_S as u128) as u64
+        crate::time::cycles_in(now.saturating_sub(self.t0), self.freq(hclk))
     }
 
     /// Zero-reaches within the first `k` ticks.
@@ -113,7 +112,7 @@ impl SysTick {
         } else {
             n * period
         };
-        Some(self.t0 + (k as u128 * PS_PER_S as u128).div_ceil(self.freq(hclk) as u128) as u64)
+        Some(self.t0 + crate::time::ps_of_cycles(k, self.freq(hclk)))
     }
 
     fn rebase(&mut self, now: u64, hclk: u64) {
