@@ -1074,8 +1074,16 @@ impl Soc {
             }
         };
         // A read can only clear flags (lower lines) or notice what time already brought:
-        // no new event to schedule, no new interrupt to take.
-        self.update_lines();
+        // no new event to schedule, no new interrupt to take. A read of a port, the RCC,
+        // the PWR, SYSCFG or EXTI changes nothing a line comes from, and every change of
+        // one has already ended in `update_lines`: nothing to update (the step
+        // generator's ODR read at each SysTick, the HX711's IDR reads).
+        if !matches!(
+            p,
+            Periph::Gpio(_) | Periph::Rcc | Periph::Pwr | Periph::Syscfg | Periph::Exti
+        ) {
+            self.update_lines();
+        }
         let v = r.unwrap_or_else(|Unmodelled { .. }| {
             self.unmodelled_at(addr, false);
             0

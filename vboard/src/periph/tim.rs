@@ -44,6 +44,10 @@ pub struct Tim {
     psc: u32,
     psc_preload: u32,
     arr: u32,
+    /// The next update event's time, ps, at the timer clock then (Hz), for the state as
+    /// it is: `sync` has nothing to do before it (a division less at each of the 60 000
+    /// model updates a second of a moving axis). Cleared by every change of the state.
+    due: Option<(u64, u64)>,
 }
 
 impl Tim {
@@ -63,6 +67,7 @@ impl Tim {
             psc: 0,
             psc_preload: 0,
             arr: 0,
+            due: None,
         };
         t.reset();
         t
@@ -70,6 +75,7 @@ impl Tim {
 
     /// Registers to reset values.
     pub fn reset(&mut self) {
+        self.due = None;
         self.cr1 = 0;
         self.cr2 = 0;
         self.smcr = 0;
@@ -121,6 +127,7 @@ impl Tim {
 
     /// Restart the time reference at `now` from the current count.
     fn rebase(&mut self, now: u64, clk: u64) {
+        self.due = None;
         self.cnt0 = self.count(now, clk);
         self.t0 = now;
         self.updates_seen = 0;
@@ -130,10 +137,18 @@ impl Tim {
     /// buffered prescaler takes effect at the first one, and in one-pulse mode the first
     /// one stops the counter.
     pub fn sync(&mut self, now: u64, clk: u64) {
+        if self.due.is_some_and(|(c, t)| c == clk && now < t) {
+            return;
+        }
+        self.due = None;
         while self.running() && self.arr != 0 {
             let period = self.period_ticks();
             let updates = (self.cnt0 + self.ticks_since(now, clk)) / period;
             if updates <= self.updates_seen {
+                // The next one is due when the ticks reach the next multiple of the
+                // period: `time_of` inverts `ticks_since` exactly (rounded up).
+                let k = period * (self.updates_seen + 1) - self.cnt0;
+                self.due = Some((clk, self.time_of(k, clk)));
                 return;
             }
             if self.cr1 & 2 == 0 {
@@ -165,6 +180,11 @@ impl Tim {
     pub fn next_event(&self, clk: u64) -> Option<u64> {
         if !self.running() || self.dier & 1 == 0 || self.arr == 0 {
             return None;
+        }
+        if let Some((c, t)) = self.due {
+            if c == clk {
+                return Some(t);
+            }
         }
         Some(self.time_of(
             self.period_ticks() * (self.updates_seen + 1) - self.cnt0,
@@ -198,6 +218,7 @@ impl Tim {
     /// Write at `off`.
     pub fn write(&mut self, off: u32, size: usize, value: u32, now: u64, clk: u64) -> Access<()> {
         self.sync(now, clk);
+        self.due = None;
         let o = off & !3;
         match o {
             0x00 => {
