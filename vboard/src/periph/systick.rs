@@ -24,6 +24,10 @@ pub struct SysTick {
     /// Zero-reaches since `t0` already accounted (pended / COUNTFLAG).
     zeros_seen: u64,
     countflag: bool,
+    /// The next zero-reach's time, ps, at the core clock then (Hz), for the state as it
+    /// is: `sync` has nothing to do before it, and `next_event` returns it. Cleared by
+    /// every change of the state.
+    due: Option<(u64, u64)>,
 }
 
 impl SysTick {
@@ -86,12 +90,16 @@ impl SysTick {
         if !self.enabled() {
             return 0;
         }
+        if self.due.is_some_and(|(h, t)| h == hclk && now < t) {
+            return 0;
+        }
         let z = self.zeros_in(self.ticks(now, hclk));
         let new = z.saturating_sub(self.zeros_seen);
         if new > 0 {
             self.countflag = true;
             self.zeros_seen = z;
         }
+        self.due = (self.rvr != 0).then(|| (hclk, self.next_zero(hclk)));
         new
     }
 
@@ -105,6 +113,18 @@ impl SysTick {
         if !self.enabled() || !self.tickint() || self.rvr == 0 {
             return None;
         }
+        if let Some((h, t)) = self.due {
+            if h == hclk {
+                return Some(t);
+            }
+        }
+        Some(self.next_zero(hclk))
+    }
+
+    /// When it next reaches zero (enabled, `rvr` not 0), ps: the first instant at which
+    /// `zeros_in(ticks(now))` exceeds `zeros_seen` (`ps_of_cycles` inverts `ticks`
+    /// exactly, rounded up).
+    fn next_zero(&self, hclk: u64) -> u64 {
         let n = self.zeros_seen + 1;
         let period = self.rvr as u64 + 1;
         let k = if self.cvr0 > 0 {
@@ -112,10 +132,11 @@ impl SysTick {
         } else {
             n * period
         };
-        Some(self.t0 + crate::time::ps_of_cycles(k, self.freq(hclk)))
+        self.t0 + crate::time::ps_of_cycles(k, self.freq(hclk))
     }
 
     fn rebase(&mut self, now: u64, hclk: u64) {
+        self.due = None;
         if self.enabled() {
             let k = self.ticks(now, hclk);
             self.cvr0 = self.value(k);
@@ -156,6 +177,7 @@ impl SysTick {
     /// Write at `off` from 0xE000_E010.
     pub fn write(&mut self, off: u32, size: usize, value: u32, now: u64, hclk: u64) -> Access<()> {
         self.sync(now, hclk);
+        self.due = None;
         match off & !3 {
             0x0 => {
                 self.rebase(now, hclk);
@@ -200,5 +222,36 @@ mod tests {
             0,
             "cleared by the read"
         );
+    }
+
+    #[test]
+    fn the_kept_next_zero_misses_no_zero_reach() {
+        // At the picosecond before each zero-reach, at it and after it, and between
+        // them, with a write of CVR and of RVR on the way: the kept time against a
+        // SysTick that computes it afresh at every step.
+        let hclk = 168_000_000;
+        let mut s = SysTick::default();
+        s.write(0x4, 4, 8_399, 0, hclk).unwrap();
+        s.write(0x0, 4, 7, 0, hclk).unwrap();
+        let mut zeros = 0;
+        for round in 0..12u64 {
+            let mut fresh = s.clone();
+            fresh.due = None;
+            let e = fresh.next_event(hclk).expect("interrupts");
+            for t in [e - 13_000, e - 1, e, e + 1] {
+                let mut fresh = s.clone();
+                fresh.due = None;
+                let (a, b) = (s.sync(t, hclk), fresh.sync(t, hclk));
+                assert_eq!(a, b, "zero-reaches at {t} ps");
+                zeros += a;
+                assert_eq!(s.next_event(hclk), fresh.next_event(hclk), "at {t} ps");
+            }
+            match round {
+                4 => s.write(0x8, 4, 0, e + 7, hclk).unwrap(),
+                8 => s.write(0x4, 4, 4_199, e + 7, hclk).unwrap(),
+                _ => {}
+            }
+        }
+        assert_eq!(zeros, 12);
     }
 }

@@ -298,6 +298,46 @@ mod tests {
     }
 
     #[test]
+    fn the_kept_next_update_misses_no_update() {
+        // At the picosecond before each update, at it and after it, and between them,
+        // with writes of CNT, ARR and PSC on the way: against a timer that computes it
+        // afresh at every step.
+        let clk = 84_000_000;
+        let mut t = Tim::new("TIM2", true);
+        t.write(0x28, 4, 83, 0, clk).unwrap();
+        t.write(0x2C, 4, 999, 0, clk).unwrap();
+        t.write(0x14, 4, 1, 0, clk).unwrap();
+        t.write(0x10, 4, 0, 0, clk).unwrap();
+        t.write(0x0C, 4, 1, 0, clk).unwrap();
+        t.write(0x00, 4, 1, 0, clk).unwrap();
+        let mut updates = 0;
+        for round in 0..12u64 {
+            let mut fresh = t.clone();
+            fresh.due = None;
+            let e = fresh.next_event(clk).expect("updates interrupt");
+            for now in [e - 13_000, e - 1, e, e + 1] {
+                let mut fresh = t.clone();
+                fresh.due = None;
+                t.sync(now, clk);
+                fresh.sync(now, clk);
+                assert_eq!(t.sr, fresh.sr, "UIF at {now} ps");
+                assert_eq!(t.next_event(clk), fresh.next_event(clk), "at {now} ps");
+                if t.sr & 1 != 0 {
+                    updates += 1;
+                    t.write(0x10, 4, 0, now, clk).unwrap();
+                }
+            }
+            match round {
+                3 => t.write(0x24, 4, 500, e + 7, clk).unwrap(),
+                6 => t.write(0x2C, 4, 499, e + 7, clk).unwrap(),
+                9 => t.write(0x28, 4, 41, e + 7, clk).unwrap(),
+                _ => {}
+            }
+        }
+        assert_eq!(updates, 12);
+    }
+
+    #[test]
     fn free_running_counter_wraps() {
         let clk = 1_000_000;
         let mut t = Tim::new("TIM3", false);
