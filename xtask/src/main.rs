@@ -813,27 +813,28 @@ const PACED: &[&str] = &[
 
 /// The virtual board's longest tests, longest first (started first so that the lanes
 /// end together): every test of 3 s or more, by its time in a fresh clone's `.ci/run`
-/// on 1211ef2 (the 2-core machine, nothing else running; the engine's costs of that
-/// round had moved the order). Only a schedule: a
+/// on 55ac642 (the 2-core machine, nothing else running; the in-run interrupts of that
+/// round had moved the order), then the rest of the earlier list. Only a schedule: a
 /// name that no longer exists is skipped, a new long test costs only the balance.
 const LONG_FIRST: &[&str] = &[
-    "dock_hold_an_hour_on_the_board_counts_one_cycle_without_wear_while_mated",
     "one_seed_at_cpi_1_and_3_and_the_cache_model_under_flood_meets_the_targets",
-    "a_console_byte_was_lost_while_a_record_was_written",
+    "dock_hold_an_hour_on_the_board_counts_one_cycle_without_wear_while_mated",
     "dockctl_reads_and_updates_the_real_image_over_a_pty",
+    "a_console_byte_was_lost_while_a_record_was_written",
+    "interrupts_and_sleep_inside_the_run_change_nothing_in_a_sample_of_the_suite",
     "skipping_the_polling_loops_changes_nothing_in_a_sample_of_the_suite",
     "estop_bounce_on_the_board_latches_every_edge_and_recovers",
-    "overload_stop_waited_for_the_main_loop_at_10_sps_during_a_console_flood",
     "a_plc_docks_the_firmware_over_modbus_and_over_the_dock_line",
     "the_release_image_updates_itself_over_the_console_with_every_counter_intact",
     "a_power_cut_in_the_swap_or_the_first_boot_boots_a_whole_image_and_loses_no_record",
-    "a_trial_image_whose_load_cell_is_silent_or_stuck_or_whose_confirmation_fails_is_rolled_back",
     "overload_stop_waited_for_the_main_loop_at_80_sps_during_a_console_flood",
-    "a_power_cut_in_the_transfer_boots_the_old_image_with_state_untouched",
+    "overload_stop_waited_for_the_main_loop_at_10_sps_during_a_console_flood",
+    "a_trial_image_whose_load_cell_is_silent_or_stuck_or_whose_confirmation_fails_is_rolled_back",
     "a_technician_could_not_commission_the_live_board_between_demo_cycles",
+    "a_power_cut_in_the_transfer_boots_the_old_image_with_state_untouched",
     "the_caches_were_not_reset_after_an_odometer_sector_erase",
-    "an_image_that_never_confirms_is_rolled_back_after_the_watchdog_reset",
     "a_sample_of_random_interleavings_keeps_the_invariants",
+    "an_image_that_never_confirms_is_rolled_back_after_the_watchdog_reset",
     "maintenance_lockout_on_the_board_refuses_remote_motion_until_maint_exit",
     "debris_is_caught_by_band3_and_shown_on_the_console_modbus_and_the_plot",
     "the_plc_docks_and_undocks_through_the_map_and_the_reply_waits_t3_5",
