@@ -850,26 +850,7 @@ fn restore_code_now(uc: &mut Unicorn<'_, Soc>) {
     }
 }
 
-const S_REGS: [RegisterARM; 16] = [
-    RegisterARM::S0,
-    RegisterARM::S1,
-    RegisterARM::S2,
-    RegisterARM::S3,
-    RegisterARM::S4,
-    RegisterARM::S5,
-    RegisterARM::S6,
-    RegisterARM::S7,
-    RegisterARM::S8,
-    RegisterARM::S9,
-    RegisterARM::S10,
-    RegisterARM::S11,
-    RegisterARM::S12,
-    RegisterARM::S13,
-    RegisterARM::S14,
-    RegisterARM::S15,
-];
-
-/// The FPU's part of an extended frame, in frame order.
+/// The FPU's part of an extended frame, in frame order: S0–S15, FPSCR.
 const FP_REGS: [RegisterARM; 17] = [
     RegisterARM::S0,
     RegisterARM::S1,
@@ -1608,7 +1589,7 @@ impl Board {
         set(uc, RegisterARM::MSP, sp & !3);
         set(uc, RegisterARM::PSP, 0);
         set(uc, RegisterARM::LR, 0xFFFF_FFFF);
-        for &r in &S_REGS {
+        for &r in &FP_REGS[..16] {
             set(uc, r, 0);
         }
         set(uc, RegisterARM::FPSCR, 0);
