@@ -79,7 +79,7 @@ pub struct BoardConfig {
     /// Skip polling loops ([`crate::loops`]; `--no-skip`: every iteration runs).
     pub skip: bool,
     /// Take interrupts and sleep inside the engine's run (`in_run`), not by stopping it
-    /// for the run loop: the same results, faster (`vboard/tests/in_run.rs` compares).
+    /// for the run loop: the same results, faster (`vboard/tests/skip.rs` compares).
     pub in_run: bool,
 }
 
