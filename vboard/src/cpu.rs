@@ -617,20 +617,9 @@ impl Board {
         .map_err(|x| e("block hook", x))?;
         // `wfi`: the core sleeps, and wakes, inside the run (`in_run`), where the engine
         // would stop for the run loop to do the same: at 20 kHz while the axis moves.
-        let sites = if cfg.in_run {
-            wfi_sites(&image.flash[..(image.flash_used as usize).min(image.flash.len())])
-        } else {
-            Vec::new()
-        };
-        for (addr, len) in sites {
-            uc.add_code_hook(
-                u64::from(addr),
-                u64::from(addr),
-                move |uc: &mut Unicorn<'_, Soc>, _: u64, _: u32| {
-                    on_wfi(uc, addr, len);
-                },
-            )
-            .map_err(|x| e("wfi hook", x))?;
+        if cfg.in_run {
+            let used = (image.flash_used as usize).min(image.flash.len());
+            hook_wfi_sites(&mut uc, 0, used).map_err(|x| e("wfi hook", x))?;
         }
         uc.add_intr_hook(|uc: &mut Unicorn<'_, Soc>, intno: u32| {
             on_interrupt(uc, intno);
@@ -814,6 +803,22 @@ fn write_code(uc: &mut Unicorn<'_, Soc>, addr: u32, bytes: &[u8]) -> bool {
 /// engine's translated blocks and the instruction counts there are dropped.
 fn code_changed(uc: &mut Unicorn<'_, Soc>, addr: u32, bytes: &[u8]) {
     let len = bytes.len() as u32;
+    {
+        let s = uc.get_data_mut();
+        if s.in_run {
+            let off = addr - FLASH_BASE;
+            let (lo, hi) = s.wfi_unscanned.unwrap_or((off, off + len));
+            s.wfi_unscanned = Some((lo.min(off), hi.max(off + len)));
+            // A hooked `wfi` whose bytes, or those of an IT before it, change sleeps no
+            // more until the run loop has looked at the new code (`hook_wfi_sites`).
+            let to = addr + len;
+            for (site, live) in &mut s.wfi_hooked {
+                if addr < *site + 4 && to + 2 * IT_REACH as u32 > *site {
+                    *live = None;
+                }
+            }
+        }
+    }
     if !write_code(uc, addr, bytes) {
         let _ = uc.mem_write(addr as u64, bytes);
     }
@@ -875,6 +880,10 @@ const FP_REGS: [RegisterARM; 17] = [
 /// `e` in handler mode; `ret` is the return address. `Err` when the frame cannot be
 /// stacked (the stack points outside RAM).
 fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
+    // The vector first: an entry that fails changes nothing, and the run loop that
+    // meets it after `in_run` finds the core as `in_run` did.
+    let vtor = uc.get_data().nvic.vtor();
+    let vector = read_vector(uc, vtor + 4 * e).ok_or(())?;
     uc.get_data_mut().masks_settled = None;
     use RegisterARM as R;
     // SP is the stack the frame goes on: the process stack in thread mode with
@@ -956,8 +965,6 @@ fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
     } else {
         crate::regs::write(uc, [(R::MSP, frame), (R::LR, exc_return)]);
     }
-    let vtor = uc.get_data().nvic.vtor();
-    let vector = read_vector(uc, vtor + 4 * e).ok_or(())?;
     let new_xpsr = (xpsr & 0xF800_0000) | (1 << 24) | e;
     write_xpsr(uc, new_xpsr);
     set(uc, RegisterARM::PC, vector | 1);
@@ -1083,48 +1090,104 @@ fn in_run(uc: &mut Unicorn<'_, Soc>, resume: u32, asleep: bool, m: Masks) -> InR
     InRun::Goes
 }
 
-/// The `wfi` instructions of the code sectors' image (`code`, from `FLASH_BASE`): each
-/// one's address and length. By their bytes (`wfi` and `wfi.w`): a match that is data or
-/// the second halfword of a 32-bit instruction never starts an instruction, and its hook
-/// never fires. Not one that may be inside an IT block (an IT instruction among the four
-/// halfwords before it): unicorn treats an IT block as one instruction and would run the
-/// `wfi` after the hook whatever the hook wrote; such a `wfi` stops the engine as before.
-fn wfi_sites(code: &[u8]) -> Vec<(u32, u32)> {
-    let hw = |i: usize| {
-        code.get(2 * i..2 * i + 2)
-            .map(|b| u16::from_le_bytes([b[0], b[1]]))
+/// Halfwords an IT block can hold after its IT instruction: four instructions of two.
+const IT_REACH: usize = 8;
+
+/// The length of a `wfi` (`wfi`, 2; `wfi.w`, 4) that starts at halfword `i` of the code
+/// (`hw`: halfword `n`, if any), by its bytes: a match that is data or the second
+/// halfword of a 32-bit instruction never starts an instruction, and its hook never
+/// fires. `None` also where the `wfi` may be inside an IT block (an IT instruction
+/// before it whose block reaches it: four instructions of up to two halfwords each):
+/// unicorn treats an IT block as one instruction and would run the `wfi` after the hook
+/// whatever the hook wrote; such a `wfi` stops the engine as before.
+fn wfi_at(hw: impl Fn(usize) -> Option<u16>, i: usize) -> Option<u32> {
+    let len = match (hw(i)?, hw(i + 1)) {
+        (WFI, _) => 2,
+        (0xF3AF, Some(0x8003)) => 4,
+        _ => return None,
     };
-    let after_it = |i: usize| {
-        (1..=4).any(|k| {
-            i.checked_sub(k)
-                .and_then(hw)
-                .is_some_and(|h| h & 0xFF00 == 0xBF00 && h & 0xF != 0)
+    // IT: 0xBFxy with a mask `y` other than 0; its block holds 4 - (trailing zeros of
+    // `y`) instructions, so the last one starts at most 2 × that - 1 halfwords after it.
+    let in_it = (1..=IT_REACH).any(|k| {
+        i.checked_sub(k).and_then(&hw).is_some_and(|h| {
+            let mask = h & 0xF;
+            h & 0xFF00 == 0xBF00 && mask != 0 && k < 2 * (4 - mask.trailing_zeros() as usize)
         })
-    };
-    let mut sites = Vec::new();
-    for i in 0..code.len() / 2 {
-        let len = match (hw(i), hw(i + 1)) {
-            (Some(WFI), _) => 2,
-            (Some(0xF3AF), Some(0x8003)) => 4,
-            _ => continue,
-        };
-        if !after_it(i) {
-            sites.push((FLASH_BASE + 2 * i as u32, len));
-        }
-    }
-    sites
+    });
+    (!in_it).then_some(len)
 }
 
 /// A `wfi` about to run (its block has been charged, the instruction with it): sleep,
 /// wake and take what wakes the core here ([`in_run`]). If the run loop must decide, the
 /// `wfi` runs and the engine stops after it, as it did, unless an exception was entered
-/// first (the engine then stops at its vector).
-fn on_wfi(uc: &mut Unicorn<'_, Soc>, pc: u32, len: u32) {
+/// first (the engine then stops at its vector). `site`: its index in
+/// `Soc::wfi_hooked`; nothing where that says the hook may not sleep (code programmed
+/// there since it was placed, by an update or the bootloader, or a debugging hook that
+/// watches it: `Board::at_pc`'s instant is before the instruction, not after a sleep).
+fn on_wfi(uc: &mut Unicorn<'_, Soc>, site: usize) {
+    let Some(&(pc, Some(len))) = uc.get_data().wfi_hooked.get(site) else {
+        return;
+    };
     let m = masks(uc);
     if let InRun::Stop { entered: true } = in_run(uc, pc + len, true, m) {
         uc.get_data_mut().stop = true;
         let _ = uc.emu_stop();
     }
+}
+
+/// A hook (`on_wfi`) at each `wfi` the code sectors' bytes `from..to` (offsets) hold now
+/// ([`wfi_at`]) that has none yet, and the hooks of the `wfi`s that bytes there may
+/// have made or unmade set again: the image's at power-on; after new code is programmed
+/// (an update), those of the new code (`Soc::wfi_unscanned`, from the run loop).
+fn hook_wfi_sites(
+    uc: &mut Unicorn<'_, Soc>,
+    from: usize,
+    to: usize,
+) -> Result<(), unicorn_engine::uc_error> {
+    // From the halfword before `from` (a `wfi.w` whose second halfword is new) to the
+    // last a new IT reaches; with the halfwords before, for the IT they may be in.
+    let first = (from & !1).saturating_sub(2);
+    let end = (to + 2 * IT_REACH).min(CODE_LEN as usize);
+    let start = first.saturating_sub(2 * IT_REACH);
+    let mut code = vec![0u8; end.saturating_sub(start) + 2];
+    let n = code.len().min(CODE_LEN as usize - start);
+    let read = match uc.get_data().code_mem.as_ref() {
+        Some(c) => c.read(start, &mut code[..n]),
+        None => false,
+    };
+    if !read {
+        return Ok(());
+    }
+    code.truncate(n);
+    let hw = |i: usize| {
+        code.get(2 * i..2 * i + 2)
+            .map(|b| u16::from_le_bytes([b[0], b[1]]))
+    };
+    for i in (first - start) / 2..(end - start).div_ceil(2) {
+        let addr = FLASH_BASE + (start + 2 * i) as u32;
+        let watched = uc.get_data().loops.watched_pcs.contains(&addr);
+        let len = wfi_at(hw, i).filter(|_| !watched);
+        let s = uc.get_data_mut();
+        if let Some(site) = s.wfi_hooked.iter_mut().find(|(a, _)| *a == addr) {
+            site.1 = len;
+            continue;
+        }
+        if len.is_none() {
+            continue;
+        }
+        let site = s.wfi_hooked.len();
+        s.wfi_hooked.push((addr, len));
+        uc.add_code_hook(
+            u64::from(addr),
+            u64::from(addr),
+            move |uc: &mut Unicorn<'_, Soc>, _: u64, _: u32| {
+                on_wfi(uc, site);
+            },
+        )?;
+        // A block translated before the hook would not call it.
+        uc.ctl_remove_cache(u64::from(addr), u64::from(addr) + 4)?;
+    }
+    Ok(())
 }
 
 /// Exception `e` entered now, from exception `from_exc` (0: thread mode) at `from_pc`
@@ -1656,6 +1719,10 @@ impl Board {
     fn run_until_inner(&mut self, until_ps: u64) -> Result<(), Halt> {
         loop {
             settle_mask_site(&mut self.uc);
+            if let Some((from, to)) = self.uc.get_data_mut().wfi_unscanned.take() {
+                hook_wfi_sites(&mut self.uc, from as usize, to as usize)
+                    .map_err(|x| Halt::Engine(format!("unicorn wfi hook: {x:?}")))?;
+            }
             let done = self.uc.get_data_mut().process();
             if let Some(d) = done {
                 apply_done(&mut self.uc, d);
@@ -1730,8 +1797,10 @@ impl Board {
                 s.stop = false;
             }
             let pc = reg(&self.uc, RegisterARM::PC);
-            self.uc.get_data_mut().runs += 1;
-            self.uc.get_data_mut().loops.restart();
+            let s = self.uc.get_data_mut();
+            s.runs += 1;
+            s.engine_starts += 1;
+            s.loops.restart();
             let r = self.uc.emu_start((pc | 1) as u64, 0, 0, 0);
             // A run translates at least its first block (a fetch, a fill): none counted,
             // and the linker took unicorn's fill instead of the board's (src/tlb.rs).
@@ -1886,7 +1955,16 @@ impl Board {
     /// taken before the next instruction runs, as on the part at that instant. For
     /// placing an event at a sub-step instant (`tests/between_steps.rs`: an E-STOP edge
     /// between the control step's gate check and its step rate).
+    /// A polling loop that holds `addr` is never skipped, and a `wfi` there runs as the
+    /// instruction it is, after `f` (not slept through inside the run: `on_wfi`).
     pub fn at_pc(&mut self, addr: u32, mut f: impl FnMut(&mut Soc) -> bool + 'static) {
+        let s = self.soc_mut();
+        s.loops.watched_pcs.push(addr & !1);
+        for (site, live) in &mut s.wfi_hooked {
+            if *site == addr & !1 {
+                *live = None;
+            }
+        }
         let _ = self
             .uc
             .add_code_hook(addr as u64, addr as u64, move |uc, _, _| {
@@ -2062,6 +2140,18 @@ mod tests {
         assert_eq!(scan_insns(&thumb(&[0xf000, 0xb662])), (1, false));
     }
 
+    /// The `wfi` instructions of the code sectors' image (`code`, from `FLASH_BASE`): each
+    /// one's address and length ([`wfi_at`]).
+    fn wfi_sites(code: &[u8]) -> Vec<(u32, u32)> {
+        let hw = |i: usize| {
+            code.get(2 * i..2 * i + 2)
+                .map(|b| u16::from_le_bytes([b[0], b[1]]))
+        };
+        (0..code.len() / 2)
+            .filter_map(|i| wfi_at(hw, i).map(|len| (FLASH_BASE + 2 * i as u32, len)))
+            .collect()
+    }
+
     #[test]
     fn wfi_sites_are_found_by_their_bytes_and_not_after_an_it() {
         // nop; wfi; nop; wfi.w; it eq; wfi (conditional: unicorn runs an IT block whole);
@@ -2078,5 +2168,18 @@ mod tests {
                 (FLASH_BASE + 22, 2)
             ]
         );
+    }
+
+    #[test]
+    fn a_wfi_seven_halfwords_into_an_it_block_of_four_is_not_a_site() {
+        // itttt eq; ldr.w r1, [r0] three times; wfi: the block's fourth instruction,
+        // seven halfwords after the IT.
+        let in_block = thumb(&[
+            0xbf01, 0xf8d0, 0x1000, 0xf8d0, 0x1000, 0xf8d0, 0x1000, 0xbf30,
+        ]);
+        assert_eq!(wfi_sites(&in_block), vec![]);
+        // it eq; nop; wfi: the block holds the nop only, and the wfi is a site.
+        let after_block = thumb(&[0xbf08, 0xbf00, 0xbf30]);
+        assert_eq!(wfi_sites(&after_block), vec![(FLASH_BASE + 4, 2)]);
     }
 }

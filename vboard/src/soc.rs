@@ -284,6 +284,13 @@ pub struct Soc {
     /// Interrupts are taken, and the core sleeps, inside the engine's run
     /// (`BoardConfig::in_run`).
     pub in_run: bool,
+    /// The `wfi`s with an `in_run` hook (`hook_wfi_sites`), in the order hooked: the
+    /// address, and the `wfi`'s length while the hook may sleep there (`None`: the code
+    /// there has changed since, or a debugging hook watches it: `on_wfi` does nothing).
+    pub wfi_hooked: Vec<(u32, Option<u32>)>,
+    /// Code-sector bytes programmed or erased since the run loop last looked for new
+    /// `wfi`s there: offsets `from..to`.
+    pub wfi_unscanned: Option<(u32, u32)>,
     /// An interrupt is pending but masked: re-check at every block.
     pub irq_waiting: bool,
     /// The block hook found the pending interrupt still not to be taken, at this
@@ -310,6 +317,8 @@ pub struct Soc {
     pub engine_error: Option<String>,
     /// Engine runs (between two stops), for the figures.
     pub runs: u64,
+    /// Engine starts (`emu_start`; `runs` counts the runs `in_run` continues too).
+    pub engine_starts: u64,
     /// Instructions executed in each exception (0: thread mode), and its entries: the
     /// per-task cost of the firmware.
     pub exc_insns: Vec<u64>,
@@ -463,6 +472,8 @@ impl Soc {
             reset_due: None,
             code_restore: Vec::new(),
             code_mem: None,
+            wfi_hooked: Vec::new(),
+            wfi_unscanned: None,
             sram_mem: None,
             code_programs: 0,
             code_erases: 0,
@@ -483,6 +494,7 @@ impl Soc {
             mem_fault: None,
             engine_error: None,
             runs: 0,
+            engine_starts: 0,
             accesses: (0, 0),
             exc_insns: vec![0; crate::periph::nvic::SLOTS as usize],
             meter: None,
