@@ -878,12 +878,9 @@ const FP_REGS: [RegisterARM; 17] = [
 
 /// Exception entry: stack the frame on the current stack and continue at the vector of
 /// `e` in handler mode; `ret` is the return address. `Err` when the frame cannot be
-/// stacked (the stack points outside RAM).
+/// stacked (the stack points outside RAM): nothing has changed. A vector that cannot
+/// be read is a HardFault on the frame stacked, or a lockup ([`vector_of`]).
 fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
-    // The vector first: an entry that fails changes nothing, and the run loop that
-    // meets it after `in_run` finds the core as `in_run` did.
-    let vtor = uc.get_data().nvic.vtor();
-    let vector = read_vector(uc, vtor + 4 * e).ok_or(())?;
     uc.get_data_mut().masks_settled = None;
     use RegisterARM as R;
     // SP is the stack the frame goes on: the process stack in thread mode with
@@ -965,6 +962,11 @@ fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
     } else {
         crate::regs::write(uc, [(R::MSP, frame), (R::LR, exc_return)]);
     }
+    // The vector, after the stacking (the core fetches it while it stacks).
+    let Some((e, vector)) = vector_of(uc, e, ret) else {
+        lock_up(uc);
+        return Ok(());
+    };
     let new_xpsr = (xpsr & 0xF800_0000) | (1 << 24) | e;
     write_xpsr(uc, new_xpsr);
     set(uc, RegisterARM::PC, vector | 1);
@@ -978,6 +980,45 @@ fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
     }
     note_entry(s, e, from_exc, Some(ret));
     Ok(())
+}
+
+/// The vector of exception `e`, entered at `pc` (for the fault's record), and the
+/// exception taken: `e`, or HardFault when `e`'s vector cannot be read (a vector table
+/// read error: HFSR.VECTTBL, taken on the frame already stacked, as the ARMv7-M
+/// exception entry does). `None`: HardFault's vector cannot be read either, or the
+/// error happened where HardFault cannot preempt (entering HardFault, or from it): the
+/// core locks up.
+fn vector_of(uc: &mut Unicorn<'_, Soc>, e: u32, pc: u32) -> Option<(u32, u32)> {
+    let vtor = uc.get_data().nvic.vtor();
+    if let Some(v) = read_vector(uc, vtor + 4 * e) {
+        return Some((e, v));
+    }
+    let m = masks(uc);
+    let t_ps = uc.get_data().now();
+    let s = uc.get_data_mut();
+    let exec = s.nvic.execution_priority(m, false);
+    s.core_faults.push(CoreFault {
+        t_ps,
+        what: format!(
+            "vector table read error (HFSR.VECTTBL): exception {e}'s vector at {:#010x}",
+            vtor.wrapping_add(4 * e)
+        ),
+        pc,
+        function: None,
+    });
+    s.nvic.vector_table_error();
+    if e == exc::HARD_FAULT || exec <= -1 {
+        return None;
+    }
+    read_vector(uc, vtor + 4 * exc::HARD_FAULT).map(|v| (exc::HARD_FAULT, v))
+}
+
+/// The core locks up (a fault it cannot take): it runs nothing until a reset.
+fn lock_up(uc: &mut Unicorn<'_, Soc>) {
+    let s = uc.get_data_mut();
+    s.locked_up = true;
+    s.stop = true;
+    let _ = uc.emu_stop();
 }
 
 /// Write xPSR (exception number and mode with it) and rebuild the engine's cached mode
@@ -1090,7 +1131,9 @@ fn in_run(uc: &mut Unicorn<'_, Soc>, resume: u32, asleep: bool, m: Masks) -> InR
     InRun::Goes
 }
 
-/// Halfwords an IT block can hold after its IT instruction: four instructions of two.
+/// Halfwords looked at before a `wfi` for an IT it may be in: the last instruction of a
+/// block of four 32-bit ones starts seven halfwords after its IT (the eighth is a
+/// margin; [`wfi_at`] checks each IT's own reach).
 const IT_REACH: usize = 8;
 
 /// The length of a `wfi` (`wfi`, 2; `wfi.w`, 4) that starts at halfword `i` of the code
@@ -1124,14 +1167,27 @@ fn wfi_at(hw: impl Fn(usize) -> Option<u16>, i: usize) -> Option<u32> {
 /// `Soc::wfi_hooked`; nothing where that says the hook may not sleep (code programmed
 /// there since it was placed, by an update or the bootloader, or a debugging hook that
 /// watches it: `Board::at_pc`'s instant is before the instruction, not after a sleep).
-fn on_wfi(uc: &mut Unicorn<'_, Soc>, site: usize) {
-    let Some(&(pc, Some(len))) = uc.get_data().wfi_hooked.get(site) else {
+fn on_wfi(uc: &mut Unicorn<'_, Soc>, site: usize, pc: u32) {
+    let (at, len) = uc
+        .get_data()
+        .wfi_hooked
+        .get(site)
+        .copied()
+        .unwrap_or((0, None));
+    let Some(len) = len.filter(|_| at == pc) else {
+        // The instruction there runs; a `wfi` that ends the run is known as one without
+        // its bytes (which may have changed since the block was translated).
+        uc.get_data_mut().wfi_ran_at = Some(pc);
         return;
     };
     let m = masks(uc);
-    if let InRun::Stop { entered: true } = in_run(uc, pc + len, true, m) {
-        uc.get_data_mut().stop = true;
-        let _ = uc.emu_stop();
+    match in_run(uc, pc + len, true, m) {
+        InRun::Goes => {}
+        InRun::Stop { entered: true } => {
+            uc.get_data_mut().stop = true;
+            let _ = uc.emu_stop();
+        }
+        InRun::Stop { entered: false } => uc.get_data_mut().wfi_ran_at = Some(pc),
     }
 }
 
@@ -1181,7 +1237,7 @@ fn hook_wfi_sites(
             u64::from(addr),
             u64::from(addr),
             move |uc: &mut Unicorn<'_, Soc>, _: u64, _: u32| {
-                on_wfi(uc, site);
+                on_wfi(uc, site, addr);
             },
         )?;
         // A block translated before the hook would not call it.
@@ -1236,29 +1292,30 @@ fn exception_return(uc: &mut Unicorn<'_, Soc>) {
     };
     if let Some(n) = tail {
         // Tail-chain: the frame stays; the next handler returns through it.
-        let vtor = uc.get_data().nvic.vtor();
-        if let Some(vector) = read_vector(uc, vtor + 4 * n) {
-            let new_xpsr = (xpsr & 0xF800_0000) | (1 << 24) | n;
-            crate::regs::write(
-                uc,
-                [
-                    (R::XPSR, new_xpsr),
-                    (R::LR, exc_return),
-                    (R::APSR_NZCV, new_xpsr & 0xF000_0000),
-                ],
-            );
-            set(uc, RegisterARM::PC, vector | 1);
-            let s = uc.get_data_mut();
-            s.note_pends();
-            s.nvic.activate(n);
-            s.exceptions += 1;
-            s.current_exc = n as usize;
-            if let Some(c) = s.exc_entries.get_mut(n as usize) {
-                *c += 1;
-            }
-            note_entry(s, n, ipsr as usize, None);
+        let Some((n, vector)) = vector_of(uc, n, exc_return) else {
+            lock_up(uc);
             return;
+        };
+        let new_xpsr = (xpsr & 0xF800_0000) | (1 << 24) | n;
+        crate::regs::write(
+            uc,
+            [
+                (R::XPSR, new_xpsr),
+                (R::LR, exc_return),
+                (R::APSR_NZCV, new_xpsr & 0xF000_0000),
+            ],
+        );
+        set(uc, RegisterARM::PC, vector | 1);
+        let s = uc.get_data_mut();
+        s.note_pends();
+        s.nvic.activate(n);
+        s.exceptions += 1;
+        s.current_exc = n as usize;
+        if let Some(c) = s.exc_entries.get_mut(n as usize) {
+            *c += 1;
         }
+        note_entry(s, n, ipsr as usize, None);
+        return;
     }
     let to_thread = exc_return & 8 != 0;
     let use_psp = to_thread && exc_return & 4 != 0;
@@ -1529,17 +1586,8 @@ fn fault(uc: &mut Unicorn<'_, Soc>, kind: u32, cfsr: u32, pc: u32, what: &str) {
         target == exc::HARD_FAULT && kind != exc::HARD_FAULT,
         None,
     );
-    if target == exc::HARD_FAULT && exec <= -1 {
-        s.locked_up = true;
-        s.stop = true;
-        let _ = uc.emu_stop();
-        return;
-    }
-    if enter(uc, target, pc).is_err() {
-        let s = uc.get_data_mut();
-        s.locked_up = true;
-        s.stop = true;
-        let _ = uc.emu_stop();
+    if (target == exc::HARD_FAULT && exec <= -1) || enter(uc, target, pc).is_err() {
+        lock_up(uc);
     }
 }
 
@@ -1720,6 +1768,8 @@ impl Board {
         loop {
             settle_mask_site(&mut self.uc);
             if let Some((from, to)) = self.uc.get_data_mut().wfi_unscanned.take() {
+                // The code array as programmed, not a store the engine left in it raw.
+                restore_code(&mut self.uc);
                 hook_wfi_sites(&mut self.uc, from as usize, to as usize)
                     .map_err(|x| Halt::Engine(format!("unicorn wfi hook: {x:?}")))?;
             }
@@ -1800,6 +1850,7 @@ impl Board {
             let s = self.uc.get_data_mut();
             s.runs += 1;
             s.engine_starts += 1;
+            s.wfi_ran_at = None;
             s.loops.restart();
             let r = self.uc.emu_start((pc | 1) as u64, 0, 0, 0);
             // A run translates at least its first block (a fetch, a fill): none counted,
@@ -1836,8 +1887,11 @@ impl Board {
                     // The engine ends a run by itself only at `wfi`.
                     let pc = reg(&self.uc, RegisterARM::PC);
                     let mut hw = [0u8; 2];
-                    let is_wfi = self.uc.mem_read((pc - 2) as u64, &mut hw).is_ok()
-                        && u16::from_le_bytes(hw) == WFI;
+                    let ran_at = self.uc.get_data().wfi_ran_at;
+                    let hooked = ran_at == Some(pc - 2) || ran_at == Some(pc - 4);
+                    let is_wfi = hooked
+                        || self.uc.mem_read((pc - 2) as u64, &mut hw).is_ok()
+                            && u16::from_le_bytes(hw) == WFI;
                     let is_wfi_w = read_u32(&self.uc, pc - 4) == Some(0x8003_F3AF);
                     if is_wfi || is_wfi_w {
                         self.sleeping = true;
@@ -1935,12 +1989,29 @@ impl Board {
         }
     }
 
+    /// A debugging hook goes on the instruction at `addr` (`watch_pc`, `at_pc`): a
+    /// polling loop that holds it is never skipped, a `wfi` there is not slept through
+    /// inside the run (`on_wfi`), and the blocks translated without a call to the hook
+    /// are dropped (unicorn places a code hook's calls when it translates), so that it
+    /// sees every execution from now on, whenever it is placed.
+    fn watch_addr(&mut self, addr: u32) {
+        let a = addr & !1;
+        let s = self.soc_mut();
+        s.loops.watched_pcs.push(a);
+        for (site, live) in &mut s.wfi_hooked {
+            if *site == a {
+                *live = None;
+            }
+        }
+        let _ = self.uc.ctl_remove_cache(u64::from(a), u64::from(a) + 2);
+    }
+
     /// Count the executions of the instruction at `addr` (a debugging aid: a code hook on
-    /// that one instruction).
+    /// that one instruction; [`Board::watch_addr`]).
     pub fn watch_pc(&mut self, addr: u32) -> std::rc::Rc<std::cell::Cell<u64>> {
         let hits = std::rc::Rc::new(std::cell::Cell::new(0u64));
         let h = hits.clone();
-        self.soc_mut().loops.watched_pcs.push(addr & !1);
+        self.watch_addr(addr);
         let _ = self
             .uc
             .add_code_hook(addr as u64, addr as u64, move |_, _, _| {
@@ -1955,16 +2026,9 @@ impl Board {
     /// taken before the next instruction runs, as on the part at that instant. For
     /// placing an event at a sub-step instant (`tests/between_steps.rs`: an E-STOP edge
     /// between the control step's gate check and its step rate).
-    /// A polling loop that holds `addr` is never skipped, and a `wfi` there runs as the
-    /// instruction it is, after `f` (not slept through inside the run: `on_wfi`).
+    /// [`Board::watch_addr`]: a `wfi` there runs as the instruction it is, after `f`.
     pub fn at_pc(&mut self, addr: u32, mut f: impl FnMut(&mut Soc) -> bool + 'static) {
-        let s = self.soc_mut();
-        s.loops.watched_pcs.push(addr & !1);
-        for (site, live) in &mut s.wfi_hooked {
-            if *site == addr & !1 {
-                *live = None;
-            }
-        }
+        self.watch_addr(addr);
         let _ = self
             .uc
             .add_code_hook(addr as u64, addr as u64, move |uc, _, _| {

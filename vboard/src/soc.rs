@@ -291,6 +291,9 @@ pub struct Soc {
     /// Code-sector bytes programmed or erased since the run loop last looked for new
     /// `wfi`s there: offsets `from..to`.
     pub wfi_unscanned: Option<(u32, u32)>,
+    /// A hooked `wfi` was let run (`on_wfi`): its address. The engine that ends its run
+    /// by itself right after it stopped at that `wfi`, whatever its bytes are now.
+    pub wfi_ran_at: Option<u32>,
     /// An interrupt is pending but masked: re-check at every block.
     pub irq_waiting: bool,
     /// The block hook found the pending interrupt still not to be taken, at this
@@ -474,6 +477,7 @@ impl Soc {
             code_mem: None,
             wfi_hooked: Vec::new(),
             wfi_unscanned: None,
+            wfi_ran_at: None,
             sram_mem: None,
             code_programs: 0,
             code_erases: 0,

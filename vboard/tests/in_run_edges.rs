@@ -1,9 +1,10 @@
 //! Taking interrupts and sleeping inside the engine's run (`BoardConfig::in_run`) at the
 //! edges no scene of the suite reaches (tests/skip.rs compares the scenes): code
-//! programmed over a `wfi` the board has hooked, an exception entry that fails inside
-//! the run, a debugging hook on a `wfi`, and a `wfi` that an update brings. Each runs a
-//! small image of its own through the real bootloader, with `in_run` off and on, and
-//! the two must agree.
+//! programmed over a `wfi` the board has hooked (by the bootloader's swap, by the image
+//! itself), a `wfi` an update brings, an exception entry whose vector cannot be read,
+//! and the debugging hooks (`Board::at_pc`, `Board::watch_pc`) on a `wfi`, placed
+//! before the first run or after it. Each runs a small image of its own through the
+//! real bootloader, with `in_run` off and on, and the two must agree.
 
 use hil_sim::flash::{SharedFlash, SimFlash};
 use hil_sim::rig::{Machine, RigOptions};
@@ -189,7 +190,7 @@ fn vector_table_unmapped() -> Vec<u8> {
 }
 
 #[test]
-fn an_entry_that_fails_inside_the_run_stacks_no_frame_of_its_own() {
+fn an_unreadable_vector_stacks_one_frame_and_locks_up_inside_the_run_too() {
     let run = |in_run| {
         let mut b = board(&vector_table_unmapped(), None, in_run);
         b.run_until(b.now() + 2_000 * MS).expect("run");
@@ -199,10 +200,44 @@ fn an_entry_that_fails_inside_the_run_stacks_no_frame_of_its_own() {
             .iter()
             .map(|f| format!("{} at {:#010x}", f.what, f.pc))
             .collect();
-        (b.trace_digest(), faults, b.pc(), stack)
+        (b.trace_digest(), faults, b.soc().locked_up, stack)
     };
     let off = run(false);
-    assert!(!off.1.is_empty(), "the failed entry is a fault");
+    // As the ARMv7-M entry: PendSV's frame stacked (its return address, after the
+    // `cpsie`, at the frame's sixth word), its vector unreadable (HFSR.VECTTBL), and so
+    // HardFault's from the same table: a lockup, with one frame on the stack.
+    assert_eq!(
+        off.3[32 - 2],
+        Some(ACTIVE + 0x52),
+        "PendSV's frame: {:x?}",
+        off.3
+    );
+    assert_eq!(off.1.len(), 1, "{:?}", off.1);
+    assert!(off.1[0].contains("HFSR.VECTTBL") && off.1[0].contains("exception 14"));
+    assert!(off.2, "locked up");
+    assert_eq!(run(true), off);
+}
+
+#[test]
+fn a_debugging_hook_placed_after_the_first_run_sees_every_execution() {
+    let run = |in_run| {
+        let mut b = board(&ticks_and_wfi(), None, in_run);
+        b.run_until(b.now() + 10 * MS).expect("run");
+        let hits = b.watch_pc(TICKS_WFI + 2);
+        let seen = std::rc::Rc::new(std::cell::Cell::new(0u64));
+        let s = seen.clone();
+        b.at_pc(TICKS_WFI, move |_| {
+            s.set(s.get() + 1);
+            false
+        });
+        b.run_until(b.now() + 50 * MS).expect("run");
+        (hits.get(), seen.get(), b.trace_digest())
+    };
+    let off = run(false);
+    assert!(
+        off.0 > 0 && off.0 == off.1,
+        "the wfi and the branch after it: {off:?}"
+    );
     assert_eq!(run(true), off);
 }
 
@@ -260,4 +295,65 @@ fn a_wfi_an_update_brings_is_hooked_and_changes_nothing() {
         off.2
     );
     assert_eq!(on.3, off.3);
+}
+
+/// Interrupts masked, PendSV pending, the flash unlocked, `adds r1, #16` (0x3110: bits
+/// of 0xBF30 only) programmed over the `wfi` at 0x5E, the flash's BSY polled until the
+/// program ends; then the code at 0x5E runs and r1 + 1 goes to MARK: 17 where the
+/// programmed addition ran.
+fn programs_a_wfi_then_runs_it() -> Vec<u8> {
+    let code = [
+        0xB672, // 40 cpsid i
+        0x480F, // 42 ldr r0, [pc, #60]: ICSR
+        0x490F, // 44 ldr r1, [pc, #60]: PENDSVSET
+        0x6001, // 46 str r1, [r0]
+        0x480F, // 48 ldr r0, [pc, #60]: FLASH_KEYR
+        0x4910, // 4A ldr r1, [pc, #64]: key 1
+        0x6001, // 4C str r1, [r0]
+        0x4910, // 4E ldr r1, [pc, #64]: key 2
+        0x6001, // 50 str r1, [r0]
+        0x4910, // 52 ldr r1, [pc, #64]: PG, 16-bit
+        0x60C1, // 54 str r1, [r0, #12]: FLASH_CR
+        0x4A10, // 56 ldr r2, [pc, #64]: the wfi's address
+        0x4B10, // 58 ldr r3, [pc, #64]: 0x3110
+        0xE003, // 5A b 0x64 (the program, then the poll)
+        0xBF00, // 5C
+        0xBF30, // 5E wfi, then adds r1, #16
+        0x3101, // 60 adds r1, #1
+        0xE009, // 62 b 0x78 (the store)
+        0x8013, // 64 strh r3, [r2]
+        0x2100, // 66 movs r1, #0
+        0x6883, // 68 ldr r3, [r0, #8]: FLASH_SR
+        0x03DB, // 6A lsls r3, r3, #15: BSY (bit 16) to the sign
+        0xD4FC, // 6C bmi 0x68
+        0xE7F6, // 6E b 0x5E
+        0xBF00, 0xBF00, 0xBF00, 0xBF00, // 70..76
+        0x4809, // 78 ldr r0, [pc, #36]: MARK
+        0x6001, // 7A str r1, [r0]
+        0xE7FE, // 7C b .
+        0xBF00, // 7E
+    ];
+    let literals = [
+        0xE000_ED04,
+        1 << 28,
+        0x4002_3C04,
+        0x4567_0123,
+        0xCDEF_89AB,
+        0x101,
+        ACTIVE + 0x5E,
+        0x3110,
+        MARK,
+    ];
+    image(head(None), &code, &literals, 0xE)
+}
+
+#[test]
+fn a_wfi_programmed_over_runs_the_new_code_there() {
+    let run = |in_run| {
+        let mut b = board(&programs_a_wfi_then_runs_it(), None, in_run);
+        run_to(&mut b, ACTIVE + 0x7C..ACTIVE + 0x7E, 3_000)
+    };
+    let off = run(false);
+    assert_eq!(off.0, Some(17), "the addition programmed over the wfi ran");
+    assert_eq!(run(true), off);
 }

@@ -414,6 +414,11 @@ impl Nvic {
         }
     }
 
+    /// A vector table read error on an exception entry: HFSR.VECTTBL.
+    pub fn vector_table_error(&mut self) {
+        self.hfsr |= 1 << 1;
+    }
+
     /// The exception a fault of kind `e` (MemManage, BusFault, UsageFault) is taken as:
     /// itself if enabled and of higher priority than `exec`, else HardFault.
     pub fn fault_target(&self, e: u32, exec: i16) -> u32 {
