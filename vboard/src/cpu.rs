@@ -1007,7 +1007,7 @@ fn vector_of(uc: &mut Unicorn<'_, Soc>, e: u32, pc: u32) -> Option<(u32, u32)> {
         function: None,
     });
     s.nvic.vector_table_error();
-    if e == exc::HARD_FAULT || exec <= -1 {
+    if e == exc::HARD_FAULT || e == exc::NMI || exec <= -1 {
         return None;
     }
     read_vector(uc, vtor + 4 * exc::HARD_FAULT).map(|v| (exc::HARD_FAULT, v))
@@ -1105,6 +1105,11 @@ fn in_run(uc: &mut Unicorn<'_, Soc>, resume: u32, asleep: bool, m: Masks) -> InR
         };
         if enter(uc, e, ret).is_err() {
             return InRun::Stop { entered };
+        }
+        if uc.get_data().locked_up && !entered {
+            // A lockup at the entry (`vector_of`) leaves the PC where the run loop's
+            // entry would: after the `wfi`, not at it.
+            set(uc, RegisterARM::PC, resume | 1);
         }
         entered = true;
         new_instant = false;
@@ -1888,11 +1893,15 @@ impl Board {
                     let pc = reg(&self.uc, RegisterARM::PC);
                     let mut hw = [0u8; 2];
                     let ran_at = self.uc.get_data().wfi_ran_at;
-                    let hooked = ran_at == Some(pc - 2) || ran_at == Some(pc - 4);
+                    let hooked =
+                        ran_at == Some(pc.wrapping_sub(2)) || ran_at == Some(pc.wrapping_sub(4));
                     let is_wfi = hooked
-                        || self.uc.mem_read((pc - 2) as u64, &mut hw).is_ok()
+                        || self
+                            .uc
+                            .mem_read(u64::from(pc.wrapping_sub(2)), &mut hw)
+                            .is_ok()
                             && u16::from_le_bytes(hw) == WFI;
-                    let is_wfi_w = read_u32(&self.uc, pc - 4) == Some(0x8003_F3AF);
+                    let is_wfi_w = read_u32(&self.uc, pc.wrapping_sub(4)) == Some(0x8003_F3AF);
                     if is_wfi || is_wfi_w {
                         self.sleeping = true;
                     } else {
@@ -1994,7 +2003,9 @@ impl Board {
     /// inside the run (`on_wfi`), and the blocks translated without a call to the hook
     /// are dropped (unicorn places a code hook's calls when it translates), so that it
     /// sees every execution from now on, whenever it is placed.
-    fn watch_addr(&mut self, addr: u32) {
+    /// The instruction's address (`addr` without the Thumb bit: a hook at an odd
+    /// address never fires) is returned.
+    fn watch_addr(&mut self, addr: u32) -> u32 {
         let a = addr & !1;
         let s = self.soc_mut();
         s.loops.watched_pcs.push(a);
@@ -2004,6 +2015,7 @@ impl Board {
             }
         }
         let _ = self.uc.ctl_remove_cache(u64::from(a), u64::from(a) + 2);
+        a
     }
 
     /// Count the executions of the instruction at `addr` (a debugging aid: a code hook on
@@ -2011,12 +2023,10 @@ impl Board {
     pub fn watch_pc(&mut self, addr: u32) -> std::rc::Rc<std::cell::Cell<u64>> {
         let hits = std::rc::Rc::new(std::cell::Cell::new(0u64));
         let h = hits.clone();
-        self.watch_addr(addr);
-        let _ = self
-            .uc
-            .add_code_hook(addr as u64, addr as u64, move |_, _, _| {
-                h.set(h.get() + 1);
-            });
+        let a = u64::from(self.watch_addr(addr));
+        let _ = self.uc.add_code_hook(a, a, move |_, _, _| {
+            h.set(h.get() + 1);
+        });
         hits
     }
 
@@ -2028,20 +2038,18 @@ impl Board {
     /// between the control step's gate check and its step rate).
     /// [`Board::watch_addr`]: a `wfi` there runs as the instruction it is, after `f`.
     pub fn at_pc(&mut self, addr: u32, mut f: impl FnMut(&mut Soc) -> bool + 'static) {
-        self.watch_addr(addr);
-        let _ = self
-            .uc
-            .add_code_hook(addr as u64, addr as u64, move |uc, _, _| {
-                let s = uc.get_data_mut();
-                if f(s) {
-                    // The engine stops before this instruction (a masking site after it
-                    // in the block does not run: `settle_mask_site`), or, inside an IT
-                    // block, where unicorn defers a hook's stop, at the next block.
-                    s.stop = true;
-                    s.irq_waiting = true;
-                    let _ = uc.emu_stop();
-                }
-            });
+        let a = u64::from(self.watch_addr(addr));
+        let _ = self.uc.add_code_hook(a, a, move |uc, _, _| {
+            let s = uc.get_data_mut();
+            if f(s) {
+                // The engine stops before this instruction (a masking site after it
+                // in the block does not run: `settle_mask_site`), or, inside an IT
+                // block, where unicorn defers a hook's stop, at the next block.
+                s.stop = true;
+                s.irq_waiting = true;
+                let _ = uc.emu_stop();
+            }
+        });
     }
 
     /// An imprecise bus error now (a write buffered to a peripheral that errs, a glitch

@@ -357,3 +357,96 @@ fn a_wfi_programmed_over_runs_the_new_code_there() {
     assert_eq!(off.0, Some(17), "the addition programmed over the wfi ran");
     assert_eq!(run(true), off);
 }
+
+/// `ticks_and_wfi` with VTOR at unmapped memory (0x3000_0000, not ACTIVE): the first
+/// SysTick wakes the `wfi`, and its entry locks up.
+fn ticks_and_wfi_vtor_unmapped() -> Vec<u8> {
+    let mut v = ticks_and_wfi();
+    // The literal stored to VTOR: the fourth, from 0x60.
+    v[0x6C..0x70].copy_from_slice(&0x3000_0000u32.to_le_bytes());
+    v
+}
+
+#[test]
+fn a_lockup_at_the_entry_from_a_wfi_leaves_the_pc_after_it_inside_the_run_too() {
+    let run = |in_run| {
+        let mut b = board(&ticks_and_wfi_vtor_unmapped(), None, in_run);
+        b.run_until(b.now() + 50 * MS).expect("run");
+        (
+            b.pc(),
+            b.soc().locked_up,
+            b.faults().len(),
+            b.trace_digest(),
+        )
+    };
+    let off = run(false);
+    assert_eq!(
+        (off.0, off.1),
+        (TICKS_WFI + 2, true),
+        "locked up after the wfi"
+    );
+    assert_eq!(run(true), off);
+}
+
+/// VTOR at 0x1000_FF80 (the last 128 bytes of CCM): HardFault's vector (written there)
+/// readable, IRQ16's (exception 32, at 0x1001_0000) past the CCM; IRQ16 enabled and
+/// pended. HardFault's handler (0x58) spins.
+fn vecttbl_hardfault_taken() -> Vec<u8> {
+    let code = [
+        0x4806, // 40 ldr r0, [pc, #24]: HardFault's vector in the new table
+        0x4907, // 42 ldr r1, [pc, #28]: the handler
+        0x6001, // 44 str r1, [r0]
+        0x4807, // 46 ldr r0, [pc, #28]: VTOR
+        0x4907, // 48 ldr r1, [pc, #28]: the table
+        0x6001, // 4A str r1, [r0]
+        0x4807, // 4C ldr r0, [pc, #28]: NVIC_ISER0
+        0x4908, // 4E ldr r1, [pc, #32]: IRQ16
+        0x6001, // 50 str r1, [r0]
+        0x4808, // 52 ldr r0, [pc, #32]: NVIC_ISPR0
+        0x6001, // 54 str r1, [r0]
+        0xE7FE, // 56 b .
+        0xE7FE, // 58 HardFault: b .
+        0xBF00, // 5A
+    ];
+    let literals = [
+        0x1000_FF8C,
+        ACTIVE + 0x58 + 1,
+        0xE000_ED08,
+        0x1000_FF80,
+        0xE000_E100,
+        1 << 16,
+        0xE000_E200,
+    ];
+    image(head(None), &code, &literals, 0x1F)
+}
+
+#[test]
+fn an_unreadable_vector_with_a_readable_hardfault_vector_takes_hardfault_and_leaves_it_pending() {
+    let run = |in_run| {
+        let mut b = board(&vecttbl_hardfault_taken(), None, in_run);
+        b.run_until(b.now() + 5 * MS).expect("run");
+        let (hfsr, ispr0) = (b.peek(0xE000_ED2C), b.peek(0xE000_E200));
+        let active = b.soc().nvic.active_stack().to_vec();
+        (b.pc(), hfsr, ispr0, active, b.trace_digest())
+    };
+    let off = run(false);
+    assert_eq!(off.0, ACTIVE + 0x58, "in HardFault's handler");
+    assert_eq!(off.1, Some(2), "HFSR.VECTTBL");
+    assert_eq!(off.2, Some(1 << 16), "IRQ16 still pending");
+    assert_eq!(off.3, vec![3], "HardFault active");
+    assert_eq!(run(true), off);
+}
+
+#[test]
+fn a_debugging_hook_at_an_odd_address_counts_the_instruction_there() {
+    let run = |in_run| {
+        let mut b = board(&ticks_and_wfi(), None, in_run);
+        let odd = b.watch_pc(TICKS_WFI + 2 + 1);
+        let even = b.watch_pc(TICKS_WFI + 2);
+        b.run_until(b.now() + 20 * MS).expect("run");
+        (odd.get(), even.get())
+    };
+    let off = run(false);
+    assert!(off.0 > 0 && off.0 == off.1, "{off:?}");
+    assert_eq!(run(true), off);
+}
