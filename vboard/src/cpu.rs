@@ -969,6 +969,14 @@ fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
     };
     let new_xpsr = (xpsr & 0xF800_0000) | (1 << 24) | e;
     write_xpsr(uc, new_xpsr);
+    taken(uc, e, vector, from_exc, Some(ret));
+    Ok(())
+}
+
+/// Exception `e` taken at `vector` (xPSR and LR written), from exception `from_exc` at
+/// `from_pc` (`None`: tail-chained): the PC, the NVIC's active state and the counts.
+#[inline]
+fn taken(uc: &mut Unicorn<'_, Soc>, e: u32, vector: u32, from_exc: usize, from_pc: Option<u32>) {
     set(uc, RegisterARM::PC, vector | 1);
     let s = uc.get_data_mut();
     s.note_pends();
@@ -978,8 +986,7 @@ fn enter(uc: &mut Unicorn<'_, Soc>, e: u32, ret: u32) -> Result<(), ()> {
     if let Some(c) = s.exc_entries.get_mut(e as usize) {
         *c += 1;
     }
-    note_entry(s, e, from_exc, Some(ret));
-    Ok(())
+    note_entry(s, e, from_exc, from_pc);
 }
 
 /// The vector of exception `e`, entered at `pc` (for the fault's record), and the
@@ -1310,16 +1317,7 @@ fn exception_return(uc: &mut Unicorn<'_, Soc>) {
                 (R::APSR_NZCV, new_xpsr & 0xF000_0000),
             ],
         );
-        set(uc, RegisterARM::PC, vector | 1);
-        let s = uc.get_data_mut();
-        s.note_pends();
-        s.nvic.activate(n);
-        s.exceptions += 1;
-        s.current_exc = n as usize;
-        if let Some(c) = s.exc_entries.get_mut(n as usize) {
-            *c += 1;
-        }
-        note_entry(s, n, ipsr as usize, None);
+        taken(uc, n, vector, ipsr as usize, None);
         return;
     }
     let to_thread = exc_return & 8 != 0;
